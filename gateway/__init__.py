@@ -1,0 +1,1 @@
+"""Device gateway for motion-sensing rigs: zenoh ingest, attitude fusion, alarms, reel control, dashboard."""

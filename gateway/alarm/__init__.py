@@ -1,0 +1,1 @@
+"""alarm layer of the gateway."""
