@@ -1,0 +1,731 @@
+"""THE wire protocol: pydantic models, key expressions, encodings, `decode()` and `SequenceTracker`.
+
+Devices import this module as well as the gateway; `docs/protocol.md` documents it for non-Python devices.
+
+Error tree: `DecodeError(reason, detail)` is the only exception `decode()` raises; `reason` is one of
+`REASONS` (a small fixed set, used as counter labels on `gw/diag/ingest`).
+
+Key layout (`{kind}` in `rod`, `hook`, `ball`; `{device_id}` matches `DEVICE_ID_PATTERN`):
+
+    rig/{rod|hook}/{id}/imu        ImuPacket         device -> gateway
+    rig/ball/{id}/env              EnvPacket         device -> gateway
+    rig/rod/{id}/reel              ReelStatus        device -> gateway
+    rig/rod/{id}/truth             RodTruth          simulator -> tests/benches (ground truth)
+    rig/hook/{id}/truth            HookTruth         simulator -> tests/benches
+    rig/ball/{id}/truth            BallTruth         simulator -> tests/benches
+    rig/{kind}/{id}                liveliness token of a device
+    rig/rod/{id}/reel/cmd          ReelCommand       gateway/app -> device (CongestionControl.BLOCK)
+    rig/ball/{id}/cmd              BallCommand       gateway/app -> device (CongestionControl.BLOCK)
+    gw/{rod|hook}/{id}/attitude    Attitude          gateway -> apps
+    gw/hook/{id}/swing             Swing             gateway -> apps
+    gw/{kind}/{id}/alarm           AlarmEvent        gateway -> apps (BLOCK)
+    gw/spots                       SpotRanking       gateway -> apps
+    gw/diag/ingest                 IngestStats       gateway -> apps
+    gw/diag/rejected               RejectedPacket    gateway -> apps
+    gw/config/{kind}/{id}          DeviceConfig      gateway queryable
+    gw/alive                       liveliness token of the gateway
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Annotated, Any, Final, Literal, TypeAlias
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic_core import PydanticCustomError
+
+PROTOCOL_VERSION: Final = 1
+MAX_PAYLOAD_BYTES: Final = 512 * 1024
+MAX_SAMPLES: Final = 1000
+UINT32: Final = 2**32
+DEVICE_ID_PATTERN: Final = r"^[A-Za-z0-9_-]{1,64}$"
+_DEVICE_ID_RE = re.compile(DEVICE_ID_PATTERN)
+
+GYR_LIMIT_RAD_S: Final = 50.0
+ACC_LIMIT_M_S2: Final = 400.0
+MAG_LIMIT_UT: Final = 5000.0
+RATE_MIN_HZ: Final = 1.0
+RATE_MAX_HZ: Final = 2000.0
+
+DeviceKind: TypeAlias = Literal["rod", "hook", "ball"]
+ImuKind: TypeAlias = Literal["rod", "hook"]
+KINDS: Final[tuple[str, ...]] = ("rod", "hook", "ball")
+IMU_KINDS: Final[tuple[str, ...]] = ("rod", "hook")
+
+ENCODING_IMU: Final = "application/json;schema=rig.imu.v1"
+ENCODING_ENV: Final = "application/json;schema=rig.env.v1"
+ENCODING_REEL: Final = "application/json;schema=rig.reel.v1"
+ENCODING_TRUTH: Final = "application/json;schema=rig.truth.v1"
+ENCODING_REEL_CMD: Final = "application/json;schema=rig.reel_cmd.v1"
+ENCODING_BALL_CMD: Final = "application/json;schema=rig.ball_cmd.v1"
+ENCODING_GW: Final = "application/json;schema=rig.gw.v1"
+
+Reason: TypeAlias = Literal[
+    "too_large", "unknown_key", "bad_json", "version", "schema", "non_finite", "out_of_range", "key_mismatch"
+]
+REASONS: Final[tuple[str, ...]] = (
+    "too_large", "unknown_key", "bad_json", "version", "schema", "non_finite", "out_of_range", "key_mismatch"
+)
+
+
+class DecodeError(Exception):
+    """A packet the gateway must count and drop; `reason` is one of `REASONS`, `detail` is for humans."""
+
+    def __init__(self, reason: Reason, detail: str = "") -> None:
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason: Reason = reason
+        self.detail = detail
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Key expressions
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _check_id(device_id: str) -> str:
+    if not _DEVICE_ID_RE.match(device_id):
+        raise ValueError(f"device id {device_id!r} does not match {DEVICE_ID_PATTERN}")
+    return device_id
+
+
+def imu_key(kind: str, device_id: str) -> str:
+    """`rig/{kind}/{device_id}/imu` (kind rod or hook)."""
+    return f"rig/{kind}/{_check_id(device_id)}/imu"
+
+
+def env_key(device_id: str) -> str:
+    """`rig/ball/{device_id}/env`."""
+    return f"rig/ball/{_check_id(device_id)}/env"
+
+
+def reel_key(device_id: str) -> str:
+    """`rig/rod/{device_id}/reel`: reel status."""
+    return f"rig/rod/{_check_id(device_id)}/reel"
+
+
+def truth_key(kind: str, device_id: str) -> str:
+    """`rig/{kind}/{device_id}/truth`: simulator ground truth."""
+    return f"rig/{kind}/{_check_id(device_id)}/truth"
+
+
+def device_token_key(kind: str, device_id: str) -> str:
+    """`rig/{kind}/{device_id}`: the device's liveliness token."""
+    return f"rig/{kind}/{_check_id(device_id)}"
+
+
+def reel_cmd_key(device_id: str) -> str:
+    """`rig/rod/{device_id}/reel/cmd`: ReelCommand to a rod."""
+    return f"rig/rod/{_check_id(device_id)}/reel/cmd"
+
+
+def ball_cmd_key(device_id: str) -> str:
+    """`rig/ball/{device_id}/cmd`: BallCommand to an environment ball."""
+    return f"rig/ball/{_check_id(device_id)}/cmd"
+
+
+def attitude_key(kind: str, device_id: str) -> str:
+    """`gw/{kind}/{device_id}/attitude`."""
+    return f"gw/{kind}/{_check_id(device_id)}/attitude"
+
+
+def swing_key(device_id: str) -> str:
+    """`gw/hook/{device_id}/swing`."""
+    return f"gw/hook/{_check_id(device_id)}/swing"
+
+
+def alarm_key(kind: str, device_id: str) -> str:
+    """`gw/{kind}/{device_id}/alarm`."""
+    return f"gw/{kind}/{_check_id(device_id)}/alarm"
+
+
+def config_key(kind: str, device_id: str) -> str:
+    """`gw/config/{kind}/{device_id}`: queryable with the device's current thresholds."""
+    return f"gw/config/{kind}/{_check_id(device_id)}"
+
+
+SPOTS_KEY: Final = "gw/spots"
+DIAG_INGEST_KEY: Final = "gw/diag/ingest"
+DIAG_REJECTED_KEY: Final = "gw/diag/rejected"
+GW_ALIVE_KEY: Final = "gw/alive"
+
+# Selectors (key expressions with wildcards) for subscribers.
+SEL_IMU: Final = "rig/*/*/imu"
+SEL_ENV: Final = "rig/ball/*/env"
+SEL_REEL: Final = "rig/rod/*/reel"
+SEL_TRUTH: Final = "rig/*/*/truth"
+SEL_DEVICE_DATA: Final[tuple[str, ...]] = (SEL_IMU, SEL_ENV, SEL_REEL)
+SEL_DEVICE_TOKENS: Final = "rig/*/*"
+SEL_REEL_CMD: Final = "rig/rod/*/reel/cmd"
+SEL_BALL_CMD: Final = "rig/ball/*/cmd"
+SEL_GW_CONFIG: Final = "gw/config/**"
+
+
+@dataclass(frozen=True, slots=True)
+class ParsedKey:
+    """A device key split into its parts; `topic` is the suffix (`imu`, `env`, `reel`, `truth`, `reel/cmd`, `cmd`)."""
+
+    kind: str
+    device_id: str
+    topic: str
+
+
+_TOPICS: Final[dict[str, tuple[str, ...]]] = {
+    "imu": ("rod", "hook"),
+    "env": ("ball",),
+    "reel": ("rod",),
+    "truth": ("rod", "hook", "ball"),
+    "reel/cmd": ("rod",),
+    "cmd": ("ball",),
+}
+
+
+def parse_key(key: str) -> ParsedKey:
+    """Split a device key `rig/{kind}/{id}/{topic}`; raises DecodeError('unknown_key') for anything else."""
+    parts = key.split("/")
+    if len(parts) < 4 or parts[0] != "rig":
+        raise DecodeError("unknown_key", key[:200])
+    kind, device_id, topic = parts[1], parts[2], "/".join(parts[3:])
+    kinds = _TOPICS.get(topic)
+    if kinds is None or kind not in kinds or not _DEVICE_ID_RE.match(device_id):
+        raise DecodeError("unknown_key", key[:200])
+    return ParsedKey(kind, device_id, topic)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Field types (constraints run in pydantic-core, so validation stays fast)
+# ---------------------------------------------------------------------------------------------------------------
+
+_Gyr = Annotated[float, Field(ge=-GYR_LIMIT_RAD_S, le=GYR_LIMIT_RAD_S, allow_inf_nan=False)]
+_Acc = Annotated[float, Field(ge=-ACC_LIMIT_M_S2, le=ACC_LIMIT_M_S2, allow_inf_nan=False)]
+_Mag = Annotated[float, Field(ge=-MAG_LIMIT_UT, le=MAG_LIMIT_UT, allow_inf_nan=False)]
+_Unit = Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)]
+_Angle = Annotated[float, Field(ge=-2 * math.pi, le=2 * math.pi, allow_inf_nan=False)]
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+NonNeg = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Uint32 = Annotated[int, Field(ge=0, lt=UINT32)]
+TimeUs = Annotated[int, Field(ge=0, lt=2**63)]
+DeviceId = Annotated[str, Field(pattern=DEVICE_ID_PATTERN)]
+Name = Annotated[str, Field(min_length=1, max_length=64)]
+Vec3Gyr = tuple[_Gyr, _Gyr, _Gyr]
+Vec3Acc = tuple[_Acc, _Acc, _Acc]
+Vec3Mag = tuple[_Mag, _Mag, _Mag]
+QuatWxyz = tuple[_Unit, _Unit, _Unit, _Unit]
+RateHz = Annotated[float, Field(ge=RATE_MIN_HZ, le=RATE_MAX_HZ, allow_inf_nan=False)]
+TempC = Annotated[float, Field(ge=-60.0, le=150.0, allow_inf_nan=False)]
+BatteryV = Annotated[float, Field(ge=0.0, le=60.0, allow_inf_nan=False)]
+RssiDbm = Annotated[float, Field(ge=-150.0, le=0.0, allow_inf_nan=False)]
+Version = Literal[1]
+
+
+def _samples(max_len: int = MAX_SAMPLES) -> Any:
+    return Field(min_length=1, max_length=max_len)
+
+
+class WireModel(BaseModel):
+    """Base of every wire model: strict types, unknown fields rejected, immutable."""
+
+    model_config = ConfigDict(strict=True, frozen=True, extra="forbid")
+
+    def to_json(self) -> bytes:
+        """Compact JSON bytes, optional fields left out when None."""
+        return self.model_dump_json(exclude_none=True).encode()
+
+
+def _check_lengths(n: int, **arrays: list[Any] | None) -> None:
+    for name, arr in arrays.items():
+        if arr is not None and len(arr) != n:
+            raise PydanticCustomError("length_mismatch", f"{name} has {len(arr)} samples, expected {n}")
+
+
+def _check_unit_quats(quats: list[tuple[float, float, float, float]]) -> None:
+    for i, q in enumerate(quats):
+        norm2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]
+        if abs(norm2 - 1.0) > 1e-3:
+            raise PydanticCustomError("out_of_range", f"quaternion {i} has norm {math.sqrt(norm2):.4f}, expected 1")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Device -> gateway
+# ---------------------------------------------------------------------------------------------------------------
+
+
+class ImuPacket(WireModel):
+    """A batch of n IMU samples at `rate_hz`; sample i was taken at `t0_us + i * 1e6 / rate_hz` (device clock)."""
+
+    v: Version
+    device_id: DeviceId
+    kind: ImuKind
+    boot_id: Uint32
+    seq: Uint32
+    t0_us: TimeUs
+    rate_hz: RateHz
+    gyr_rad_s: list[Vec3Gyr] = _samples()
+    acc_m_s2: list[Vec3Acc] = _samples()
+    mag_uT: list[Vec3Mag] | None = Field(default=None, min_length=1, max_length=MAX_SAMPLES)
+    temp_c: TempC | None = None
+    battery_v: BatteryV | None = None
+    rssi_dbm: RssiDbm | None = None
+    wall_t0_us: TimeUs | None = None
+
+    @model_validator(mode="after")
+    def _equal_lengths(self) -> ImuPacket:
+        _check_lengths(len(self.gyr_rad_s), acc_m_s2=self.acc_m_s2, mag_uT=self.mag_uT)
+        return self
+
+    @property
+    def n(self) -> int:
+        """Samples in the packet."""
+        return len(self.gyr_rad_s)
+
+
+class ProfilePoint(WireModel):
+    """One level of a water-column profile measured while the ball's probe sank."""
+
+    depth_m: NonNeg
+    water_temp_c: TempC
+    oxygen_mg_l: Annotated[float, Field(ge=0.0, le=30.0, allow_inf_nan=False)]
+
+
+class EnvPacket(WireModel):
+    """Environment-ball reading (about 1 Hz). Air values at the surface, water values at the probe depth."""
+
+    v: Version
+    device_id: DeviceId
+    kind: Literal["ball"] = "ball"
+    boot_id: Uint32
+    seq: Uint32
+    t_us: TimeUs
+    wall_t_us: TimeUs | None = None
+    spot: Name
+    air_temp_c: TempC
+    humidity_pct: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)]
+    light_lux: Annotated[float, Field(ge=0.0, le=200_000.0, allow_inf_nan=False)]
+    water_temp_c: TempC
+    oxygen_mg_l: Annotated[float, Field(ge=0.0, le=30.0, allow_inf_nan=False)]
+    probe_depth_m: Annotated[float, Field(ge=0.0, le=1000.0, allow_inf_nan=False)]
+    bottom_depth_m: Annotated[float, Field(ge=0.0, le=1000.0, allow_inf_nan=False)] | None = None
+    profile: list[ProfilePoint] | None = Field(default=None, min_length=1, max_length=200)
+    battery_v: BatteryV | None = None
+    rssi_dbm: RssiDbm | None = None
+
+
+ReelAction: TypeAlias = Literal["in", "out", "stop", "speed"]
+MotorState: TypeAlias = Literal["stopped", "reeling_in", "paying_out", "fault"]
+
+
+class ReelStatus(WireModel):
+    """Reel state (10 Hz on the simulator). `line_in_speed_m_s` > 0 while line comes in, < 0 while it goes out."""
+
+    v: Version
+    device_id: DeviceId
+    kind: Literal["rod"] = "rod"
+    boot_id: Uint32
+    seq: Uint32
+    t_us: TimeUs
+    wall_t_us: TimeUs | None = None
+    line_out_m: Annotated[float, Field(ge=0.0, le=10_000.0, allow_inf_nan=False)]
+    line_in_speed_m_s: Annotated[float, Field(ge=-100.0, le=100.0, allow_inf_nan=False)]
+    motor: MotorState
+    mode: ReelAction
+    cmd_speed_m_s: Annotated[float, Field(ge=-100.0, le=100.0, allow_inf_nan=False)]
+    drag_n: NonNeg
+    tension_n: NonNeg | None = None
+    last_cmd_id: Uint32 | None = None
+
+
+TruthPhase: TypeAlias = Literal["start", "end", "instant"]
+
+
+class TruthEvent(WireModel):
+    """A labelled event in device time, e.g. `bite` start/end, `line_break` instant."""
+
+    label: Name
+    phase: TruthPhase
+    t_us: TimeUs
+    value: Finite | None = None
+
+
+class _TruthBase(WireModel):
+    """Fields shared by every truth packet; `seq`, `t0_us`, `rate_hz` equal those of the matching data packet."""
+
+    v: Version
+    device_id: DeviceId
+    boot_id: Uint32
+    seq: Uint32
+    t0_us: TimeUs
+    rate_hz: RateHz
+    wall_t0_us: TimeUs | None = None
+    events: list[TruthEvent] = Field(default_factory=list, max_length=100)
+
+
+FishState: TypeAlias = Literal["none", "nibbling", "hooked", "fighting", "tired", "landed", "escaped"]
+
+
+class RodTruth(_TruthBase):
+    """Rod ground truth: true tip attitude per IMU sample, line tension per sample, fish state."""
+
+    kind: Literal["rod"] = "rod"
+    quat_wxyz: list[QuatWxyz] = _samples()
+    tension_n: list[NonNeg] = _samples()
+    breaking_strength_n: NonNeg
+    line_out_m: NonNeg
+    fish_state: FishState
+    fish_mass_kg: NonNeg | None = None
+    fish_stamina: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] | None = None
+    rest_pitch_rad: _Angle
+
+    @model_validator(mode="after")
+    def _check(self) -> RodTruth:
+        _check_lengths(len(self.quat_wxyz), tension_n=self.tension_n)
+        _check_unit_quats(self.quat_wxyz)
+        return self
+
+
+class HookTruth(_TruthBase):
+    """Hook ground truth per IMU sample: attitude, swing angle Θ, swing direction Φ (ENU bearing), torsion φ."""
+
+    kind: Literal["hook"] = "hook"
+    quat_wxyz: list[QuatWxyz] = _samples()
+    swing_angle_rad: list[_Angle] = _samples()
+    swing_direction_rad: list[_Angle] = _samples()
+    torsion_rad: list[_Angle] = _samples()
+    rope_length_m: NonNeg | None = None
+    load_kg: NonNeg | None = None
+
+    @model_validator(mode="after")
+    def _check(self) -> HookTruth:
+        n = len(self.quat_wxyz)
+        _check_lengths(
+            n, swing_angle_rad=self.swing_angle_rad, swing_direction_rad=self.swing_direction_rad,
+            torsion_rad=self.torsion_rad,
+        )
+        _check_unit_quats(self.quat_wxyz)
+        return self
+
+
+class BallTruth(WireModel):
+    """Environment-ball ground truth: noise-free values matching EnvPacket `seq`."""
+
+    v: Version
+    device_id: DeviceId
+    kind: Literal["ball"] = "ball"
+    boot_id: Uint32
+    seq: Uint32
+    t_us: TimeUs
+    wall_t_us: TimeUs | None = None
+    spot: Name
+    air_temp_c: TempC
+    water_temp_c: TempC
+    oxygen_mg_l: NonNeg
+    light_lux: NonNeg
+    humidity_pct: NonNeg
+    sim_hour_of_day: Annotated[float, Field(ge=0.0, lt=24.0, allow_inf_nan=False)]
+    events: list[TruthEvent] = Field(default_factory=list, max_length=100)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Commands (gateway/app -> device); publish with CongestionControl.BLOCK
+# ---------------------------------------------------------------------------------------------------------------
+
+
+class ReelCommand(WireModel):
+    """Drive the reel. `in`/`out`: |speed_m_s| (0 or absent = the reel's default speed); `stop`: hold (drag still
+    slips); `speed`: signed line-in speed, > 0 reels in, < 0 pays out. `drag_n` optionally sets the drag."""
+
+    v: Version
+    cmd_id: Uint32
+    action: ReelAction
+    speed_m_s: Annotated[float, Field(ge=-100.0, le=100.0, allow_inf_nan=False)] | None = None
+    drag_n: NonNeg | None = None
+    sent_wall_us: TimeUs
+    sender: Name | None = None
+
+
+class BallCommand(WireModel):
+    """Re-throw the ball: to `spot` by name, or to another spot chosen by the ball when `spot` is None."""
+
+    v: Version
+    cmd_id: Uint32
+    action: Literal["rethrow"]
+    spot: Name | None = None
+    sent_wall_us: TimeUs
+    sender: Name | None = None
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Gateway outputs
+# ---------------------------------------------------------------------------------------------------------------
+
+
+class Attitude(WireModel):
+    """Fused attitude at the last sample of packet `seq` (device time `t_us`)."""
+
+    v: Version = 1
+    device_id: DeviceId
+    kind: ImuKind
+    seq: Uint32
+    t_us: TimeUs
+    wall_t_us: TimeUs | None = None
+    quat_wxyz: QuatWxyz
+    roll_rad: _Angle
+    pitch_rad: _Angle
+    yaw_rad: _Angle
+    yaw_unwrapped_rad: Finite
+    filter: Name | None = None
+
+
+class Swing(WireModel):
+    """Hook swing from the fused attitude (paper 001 eq. 4-7): angle Θ, direction Φ (ENU bearing), torsion φ."""
+
+    v: Version = 1
+    device_id: DeviceId
+    seq: Uint32
+    t_us: TimeUs
+    wall_t_us: TimeUs | None = None
+    swing_angle_rad: _Angle
+    swing_direction_rad: _Angle
+    torsion_rad: Finite
+
+
+AlarmState: TypeAlias = Literal["raised", "cleared"]
+Severity: TypeAlias = Literal["info", "warning", "critical"]
+
+
+class AlarmEvent(WireModel):
+    """An alarm raised or cleared. `source_wall_us` is the device wall clock of the triggering sample (latency)."""
+
+    v: Version = 1
+    alarm_id: Uint32
+    device_id: DeviceId
+    kind: DeviceKind
+    alarm: Name
+    state: AlarmState
+    severity: Severity
+    t_us: TimeUs
+    wall_t_us: TimeUs
+    source_wall_us: TimeUs | None = None
+    value: Finite | None = None
+    threshold: Finite | None = None
+    message: Annotated[str, Field(max_length=500)] = ""
+
+
+class SpotScore(WireModel):
+    """Suitability of one spot (0 = bad, 1 = ideal) from the latest environment readings there."""
+
+    spot: Name
+    rank: Annotated[int, Field(ge=1)]
+    score: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
+    device_id: DeviceId | None = None
+    last_seen_wall_us: TimeUs | None = None
+    reasons: list[Annotated[str, Field(max_length=200)]] = Field(default_factory=list, max_length=20)
+
+
+class SpotRanking(WireModel):
+    """Spots best first."""
+
+    v: Version = 1
+    wall_t_us: TimeUs
+    spots: list[SpotScore] = Field(max_length=1000)
+
+
+class DeviceIngestCounters(WireModel):
+    """Per-device counters since the gateway started (see SequenceTracker for the classification)."""
+
+    device_id: DeviceId
+    kind: DeviceKind
+    ok: Annotated[int, Field(ge=0)] = 0
+    lost: Annotated[int, Field(ge=0)] = 0
+    duplicates: Annotated[int, Field(ge=0)] = 0
+    reordered: Annotated[int, Field(ge=0)] = 0
+    reboots: Annotated[int, Field(ge=0)] = 0
+    rejected: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
+
+
+class IngestStats(WireModel):
+    """Ingest counters: `rejected` totals by reason (including packets whose device is unknown), per device."""
+
+    v: Version = 1
+    wall_t_us: TimeUs
+    received: Annotated[int, Field(ge=0)]
+    queue_drops: Annotated[int, Field(ge=0)] = 0
+    rejected: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
+    devices: list[DeviceIngestCounters] = Field(default_factory=list)
+
+
+class RejectedPacket(WireModel):
+    """One rejected packet: where it came from and why (`reason` in REASONS)."""
+
+    v: Version = 1
+    wall_t_us: TimeUs
+    key: Annotated[str, Field(max_length=300)]
+    reason: Reason
+    detail: Annotated[str, Field(max_length=500)] = ""
+    size_bytes: Annotated[int, Field(ge=0)]
+
+
+class DeviceConfig(WireModel):
+    """Reply of the `gw/config/{kind}/{id}` queryable: current thresholds, names carry units (`bite_pitch_rad`)."""
+
+    v: Version = 1
+    device_id: DeviceId
+    kind: DeviceKind
+    thresholds: dict[Name, Finite]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# decode
+# ---------------------------------------------------------------------------------------------------------------
+
+Packet: TypeAlias = ImuPacket | EnvPacket | ReelStatus | RodTruth | HookTruth | BallTruth | ReelCommand | BallCommand
+
+_MODELS: Final[dict[tuple[str, str], type[WireModel]]] = {
+    ("rod", "imu"): ImuPacket,
+    ("hook", "imu"): ImuPacket,
+    ("ball", "env"): EnvPacket,
+    ("rod", "reel"): ReelStatus,
+    ("rod", "truth"): RodTruth,
+    ("hook", "truth"): HookTruth,
+    ("ball", "truth"): BallTruth,
+    ("rod", "reel/cmd"): ReelCommand,
+    ("ball", "cmd"): BallCommand,
+}
+
+ENCODINGS: Final[dict[type[WireModel], str]] = {
+    ImuPacket: ENCODING_IMU,
+    EnvPacket: ENCODING_ENV,
+    ReelStatus: ENCODING_REEL,
+    RodTruth: ENCODING_TRUTH,
+    HookTruth: ENCODING_TRUTH,
+    BallTruth: ENCODING_TRUTH,
+    ReelCommand: ENCODING_REEL_CMD,
+    BallCommand: ENCODING_BALL_CMD,
+}
+
+_RANGE_TYPES: Final = frozenset({"greater_than", "greater_than_equal", "less_than", "less_than_equal", "out_of_range"})
+
+
+def _reason_from(exc: ValidationError) -> DecodeError:
+    """Map pydantic errors to one reason, by priority: bad_json > version > non_finite > out_of_range > schema."""
+    errors = exc.errors(include_url=False, include_context=False, include_input=False)
+    types = {e["type"] for e in errors}
+    first = errors[0]
+    detail = f"{'.'.join(str(p) for p in first['loc'])}: {first['msg']}"[:300]
+    if "json_invalid" in types or "json_type" in types:
+        return DecodeError("bad_json", detail)
+    for e in errors:
+        if e["loc"][:1] == ("v",) and e["type"] != "missing":
+            return DecodeError("version", f"v: {e['msg']}"[:300])
+    if "finite_number" in types:
+        return DecodeError("non_finite", detail)
+    for e in errors:
+        if e["type"] in _RANGE_TYPES:
+            return DecodeError("out_of_range", f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}"[:300])
+    return DecodeError("schema", detail)
+
+
+def decode(key: str, payload: bytes | bytearray | memoryview) -> Packet:
+    """Validate one sample received on `key`; returns the model or raises DecodeError (never anything else).
+
+    Checks, in order: size (`too_large`), key (`unknown_key`), JSON + schema + ranges (one parse), then that the
+    key's kind and device id equal the payload's (`key_mismatch`).
+    """
+    try:
+        if len(payload) > MAX_PAYLOAD_BYTES:
+            raise DecodeError("too_large", f"{len(payload)} bytes > {MAX_PAYLOAD_BYTES}")
+        parsed = parse_key(key)
+        model = _MODELS[(parsed.kind, parsed.topic)]
+        try:
+            packet = model.model_validate_json(payload if isinstance(payload, bytes | bytearray) else bytes(payload))
+        except ValidationError as exc:
+            raise _reason_from(exc) from exc
+        device_id = getattr(packet, "device_id", None)
+        if device_id is not None and device_id != parsed.device_id:
+            raise DecodeError("key_mismatch", f"payload device_id {device_id!r} on key {key!r}")
+        kind = getattr(packet, "kind", None)
+        if kind is not None and kind != parsed.kind:
+            raise DecodeError("key_mismatch", f"payload kind {kind!r} on key {key!r}")
+        return packet  # type: ignore[return-value]
+    except DecodeError:
+        raise
+    except Exception as exc:  # a bug or an exotic input must still count as a rejected packet, never crash ingest
+        raise DecodeError("schema", f"{type(exc).__name__}: {exc}"[:300]) from exc
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Sequence tracking
+# ---------------------------------------------------------------------------------------------------------------
+
+SeqStatus: TypeAlias = Literal["first", "ok", "lost", "duplicate", "reordered", "reboot"]
+
+
+@dataclass(frozen=True, slots=True)
+class SeqResult:
+    """Classification of one arriving packet; `lost` = packets newly found missing before this one (status lost)."""
+
+    status: SeqStatus
+    lost: int = 0
+
+    @property
+    def accept(self) -> bool:
+        """True when the packet carries new data (everything except a duplicate)."""
+        return self.status != "duplicate"
+
+
+@dataclass
+class SequenceTracker:
+    """Classifies each packet's (boot_id, seq) of ONE device stream: ok, lost(n), duplicate, reordered, reboot.
+
+    Arithmetic is modulo 2**32 so the wrap 0xFFFFFFFF -> 0 is ordinary. A seq ahead of the newest by d
+    (0 < d < 2**31) is new; d - 1 packets were lost. A seq behind the newest within `window` is `reordered`
+    if unseen (one previously lost packet arrived late: the counters subtract it from `lost`), else `duplicate`;
+    further behind is counted as duplicate (too old to tell). A new boot_id restarts the stream (`reboot`).
+    Counters accumulate in `ok`, `lost`, `duplicates`, `reordered`, `reboots`.
+    """
+
+    window: int = 1024
+    boot_id: int | None = None
+    newest: int = 0
+    _seen: set[int] = field(default_factory=set)
+    ok: int = 0
+    lost: int = 0
+    duplicates: int = 0
+    reordered: int = 0
+    reboots: int = 0
+
+    def update(self, boot_id: int, seq: int) -> SeqResult:
+        """Classify one packet and update the counters."""
+        if self.boot_id is None or boot_id != self.boot_id:
+            status: SeqStatus = "first" if self.boot_id is None else "reboot"
+            if status == "reboot":
+                self.reboots += 1
+            self.boot_id, self.newest, self._seen = boot_id, seq, {seq}
+            self.ok += 1
+            return SeqResult(status)
+        ahead = (seq - self.newest) % UINT32
+        if ahead == 0:
+            self.duplicates += 1
+            return SeqResult("duplicate")
+        if ahead < UINT32 // 2:
+            self.newest = seq
+            self._remember(seq)
+            self.ok += 1
+            if ahead > 1:
+                self.lost += ahead - 1
+                return SeqResult("lost", ahead - 1)
+            return SeqResult("ok")
+        behind = (self.newest - seq) % UINT32
+        if behind < self.window and seq not in self._seen:
+            self._remember(seq)
+            self.reordered += 1
+            self.lost = max(0, self.lost - 1)
+            self.ok += 1
+            return SeqResult("reordered")
+        self.duplicates += 1
+        return SeqResult("duplicate")
+
+    def _remember(self, seq: int) -> None:
+        self._seen.add(seq)
+        if len(self._seen) > 2 * self.window:
+            self._seen = {s for s in self._seen if (self.newest - s) % UINT32 < self.window}
