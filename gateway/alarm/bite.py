@@ -1,0 +1,278 @@
+"""Bite and drop-back detection from rod-tip pitch (seed 000 §3.3 and §4.2), one block of samples at a time.
+
+A bite pulls the tip down: pitch falls by >= theta1 below its rest value (the paper: 10 deg, adjustable).
+A drop-back (fish swims towards the angler) slackens the line: the tip springs up above rest.
+Roll and yaw never alarm (seed 000 Table 2): pitch = elevation of the rod axis, which neither changes.
+
+Per block, all work is vectorised with numpy; Python does O(1) work plus one loop turn per latch change.
+
+- Rest baseline: an exponential average (time constant `baseline_tau_s`) of block-mean pitch, updated only
+  while both latches are armed and every sample of the block lies inside the re-arm band. Vibration (wind,
+  waves) averages out; a holder drifting at r deg/s lags by only r * tau, far below theta1 for slow drifts.
+- Bite: deviation <= -theta1 held for `confirm_s` (the sensitivity step), or sooner by the acceleration cue:
+  deviation <= -cue_fraction * theta1 while the 30 ms mean of the tip's upward acceleration <= -cue_acc.
+  For any oscillation about rest, displacement and acceleration are in anti-phase (a = -w^2 x), so a tip
+  that is below rest is accelerating *upwards*: zero-mean vibration cannot satisfy the cue; a bite's onset can.
+- Drop-back: deviation >= drop_back held for `confirm_s`.
+- Hysteresis: each latch fires once, then re-arms only after the deviation has stayed inside the re-arm band
+  (REARM_FRACTION of its threshold) for `rearm_quiet_s`. Detection time = time of the triggering sample.
+- If the rod settles at a new rest (e.g. re-cast) while disarmed, the baseline is re-taken after
+  REBASELINE_FACTOR * rearm_quiet_s of steady pitch, so the detector does not stay disarmed forever.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gateway.config import SENSITIVITY_STEPS, RodThresholds
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+REARM_FRACTION = 0.7  # re-arm band: |deviation| below this share of the trigger threshold
+ACC_WINDOW = 3  # samples averaged for the acceleration cue (30 ms at 100 Hz)
+REBASELINE_FACTOR = 6.0  # steady this many quiet times while disarmed -> new rest baseline
+STEADY_FRACTION = 0.3  # "steady": block mean within this share of theta1 of the candidate rest
+_EPS_S = 1e-9
+
+EventKind = Literal["bite", "bite_rearmed", "drop_back", "drop_back_rearmed"]
+
+
+@dataclass(frozen=True, slots=True)
+class BiteParams:
+    """Thresholds in radians and seconds, derived once from `RodThresholds`."""
+
+    bite_rad: float
+    confirm_s: float
+    cue_rad: float  # inf = cue off
+    cue_acc_m_s2: float
+    drop_back_rad: float
+    rearm_quiet_s: float
+    baseline_tau_s: float
+
+    @classmethod
+    def from_thresholds(cls, th: RodThresholds) -> BiteParams:
+        """Apply the sensitivity step (config.SENSITIVITY_STEPS) to theta1, confirmation and the cue."""
+        _, confirm_s, cue_fraction, cue_acc = SENSITIVITY_STEPS[th.sensitivity]
+        bite_rad = math.radians(th.effective_bite_deg)
+        return cls(
+            bite_rad=bite_rad,
+            confirm_s=confirm_s,
+            cue_rad=cue_fraction * bite_rad if cue_fraction > 0 else math.inf,
+            cue_acc_m_s2=cue_acc,
+            drop_back_rad=math.radians(th.drop_back_rise_deg),
+            rearm_quiet_s=th.rearm_quiet_s,
+            baseline_tau_s=th.baseline_tau_s,
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class RodEvent:
+    """A latch change: the time is that of the sample that caused it."""
+
+    kind: EventKind
+    t_s: float
+    deviation_rad: float
+    threshold_rad: float
+    cue: Literal["pitch", "accel", ""] = ""
+
+
+@dataclass(frozen=True, slots=True)
+class RodBlock:
+    """Result of one block: latch events plus the deviation summary the line guard needs."""
+
+    events: tuple[RodEvent, ...]
+    baseline_rad: float
+    min_deviation_rad: float  # most negative deviation (largest drop) in the block
+    t_min_s: float  # time of that sample
+    last_deviation_rad: float
+
+
+@dataclass(slots=True)
+class BiteState:
+    """Mutable detector state; every `*_s` is a device time."""
+
+    baseline_rad: float = math.nan
+    bite_armed: bool = True
+    drop_armed: bool = True
+    bite_disarmed_at_s: float = -math.inf
+    drop_disarmed_at_s: float = -math.inf
+    bite_run_s: float = math.nan  # start of a beyond-theta1 run still open at the last block's end
+    drop_run_s: float = math.nan
+    near_bite_run_s: float = math.nan  # start of an open in-re-arm-band run
+    near_drop_run_s: float = math.nan
+    last_t_s: float = math.nan
+    acc_tail: FloatArray = field(default_factory=lambda: np.zeros(0))
+    steady_ref_rad: float = math.nan
+    steady_since_s: float = math.nan
+
+
+def run_starts(cond: BoolArray, t_s: FloatArray, carry_s: float) -> FloatArray:
+    """Start time of the run of True containing each sample (nan where False).
+
+    `carry_s` is the start of a run still open at the end of the previous block (nan if none).
+    """
+    n = cond.size
+    last_false = np.maximum.accumulate(np.where(cond, -1, np.arange(n)))
+    starts = t_s[np.minimum(last_false + 1, n - 1)]
+    head = t_s[0] if math.isnan(carry_s) else carry_s
+    return np.where(cond, np.where(last_false < 0, head, starts), np.nan)
+
+
+def held(cond: BoolArray, t_s: FloatArray, carry_s: float, hold_s: float) -> tuple[BoolArray, float]:
+    """Samples where `cond` has held for >= hold_s, and the open run's start to carry to the next block."""
+    starts = run_starts(cond, t_s, carry_s)
+    with np.errstate(invalid="ignore"):
+        ok = t_s - starts >= hold_s - _EPS_S
+    return ok, float(starts[-1])
+
+
+def trailing_mean(x: FloatArray, tail: FloatArray, window: int) -> tuple[FloatArray, FloatArray]:
+    """Mean of each sample and the window-1 before it (continuing across blocks via `tail`); returns new tail."""
+    full = np.concatenate((tail, x))
+    c = np.concatenate(([0.0], np.cumsum(full)))
+    k = np.arange(tail.size + 1, full.size + 1)
+    lo = np.maximum(k - window, 0)
+    return (c[k] - c[lo]) / (k - lo), full[-(window - 1) :] if window > 1 else full[:0]
+
+
+def latch_step(
+    armed: bool,
+    disarmed_at_s: float,
+    trig: BoolArray,
+    near: BoolArray,
+    near_starts: FloatArray,
+    t_s: FloatArray,
+    quiet_s: float,
+) -> tuple[bool, float, list[tuple[bool, int]]]:
+    """Walk one latch through a block: fire on the first `trig` sample while armed; re-arm once `near` has held
+    for `quiet_s` counted from no earlier than the firing. Returns (armed, disarmed_at_s, [(rearmed?, index)])."""
+    out: list[tuple[bool, int]] = []
+    pos, n = 0, t_s.size
+    while pos < n:
+        if armed:
+            hits = np.flatnonzero(trig[pos:])
+            if hits.size == 0:
+                break
+            k = pos + int(hits[0])
+            armed, disarmed_at_s = False, float(t_s[k])
+            out.append((False, k))
+        else:
+            with np.errstate(invalid="ignore"):
+                ok = near[pos:] & (t_s[pos:] - np.maximum(near_starts[pos:], disarmed_at_s) >= quiet_s - _EPS_S)
+            hits = np.flatnonzero(ok)
+            if hits.size == 0:
+                break
+            k = pos + int(hits[0])
+            armed = True
+            out.append((True, k))
+        pos = k + 1
+    return armed, disarmed_at_s, out
+
+
+class BiteDetector:
+    """Per-rod bite / drop-back detector; feed consecutive blocks in time order."""
+
+    def __init__(self, thresholds: RodThresholds | None = None) -> None:
+        self.params = BiteParams.from_thresholds(thresholds or RodThresholds())
+        self.state = BiteState()
+
+    def set_thresholds(self, thresholds: RodThresholds) -> None:
+        """Change thresholds live; the baseline and latches are kept."""
+        self.params = BiteParams.from_thresholds(thresholds)
+
+    def rebaseline(self, pitch_rad: float) -> None:
+        """Take `pitch_rad` as the new rest (e.g. the angler re-set the rod) and re-arm both latches."""
+        self.state = BiteState(baseline_rad=pitch_rad)
+
+    def update(
+        self,
+        t_s: FloatArray,
+        pitch_rad: FloatArray,
+        roll_rad: FloatArray | None = None,
+        yaw_rad: FloatArray | None = None,
+        acc_up_m_s2: FloatArray | None = None,
+    ) -> RodBlock:
+        """Process one block, shapes (n,): device times, fused pitch (tip up > 0), and optionally the tip's
+        earth-frame vertical acceleration with gravity removed (m/s^2, up > 0) for the cue.
+
+        Roll and yaw are accepted so callers pass the whole attitude, and deliberately unused: rotating the rod
+        about its own axis or turning it in the holder is not a bite (seed 000 Table 2).
+        """
+        del roll_rad, yaw_rad
+        p, s = self.params, self.state
+        n = t_s.size
+        if n == 0:
+            return RodBlock((), s.baseline_rad, 0.0, math.nan, 0.0)
+        if math.isnan(s.baseline_rad):
+            s.baseline_rad = float(np.median(pitch_rad))
+        dev = pitch_rad - s.baseline_rad
+        i_min = int(np.argmin(dev))
+        lo, hi = float(dev[i_min]), float(dev.max())
+
+        below = dev <= -p.bite_rad
+        bite_ok, s.bite_run_s = held(below, t_s, s.bite_run_s, p.confirm_s)
+        cue = np.zeros(n, dtype=bool)
+        if acc_up_m_s2 is not None:
+            acc_mean, s.acc_tail = trailing_mean(acc_up_m_s2, s.acc_tail, ACC_WINDOW)
+            if lo <= -p.cue_rad:
+                cue = (dev <= -p.cue_rad) & (acc_mean <= -p.cue_acc_m_s2)
+        above = dev >= p.drop_back_rad
+        drop_ok, s.drop_run_s = held(above, t_s, s.drop_run_s, p.confirm_s)
+
+        near_bite = dev > -REARM_FRACTION * p.bite_rad
+        near_drop = dev < REARM_FRACTION * p.drop_back_rad
+        nb_starts = run_starts(near_bite, t_s, s.near_bite_run_s)
+        nd_starts = run_starts(near_drop, t_s, s.near_drop_run_s)
+        s.near_bite_run_s, s.near_drop_run_s = float(nb_starts[-1]), float(nd_starts[-1])
+
+        events: list[RodEvent] = []
+        bite_trig = bite_ok | cue
+        s.bite_armed, s.bite_disarmed_at_s, changes = latch_step(
+            s.bite_armed, s.bite_disarmed_at_s, bite_trig, near_bite, nb_starts, t_s, p.rearm_quiet_s
+        )
+        for rearmed, k in changes:
+            if rearmed:
+                events.append(RodEvent("bite_rearmed", float(t_s[k]), float(dev[k]), -p.bite_rad))
+            else:
+                if bite_ok[k]:
+                    events.append(RodEvent("bite", float(t_s[k]), float(dev[k]), -p.bite_rad, "pitch"))
+                else:
+                    events.append(RodEvent("bite", float(t_s[k]), float(dev[k]), -p.cue_rad, "accel"))
+        s.drop_armed, s.drop_disarmed_at_s, changes = latch_step(
+            s.drop_armed, s.drop_disarmed_at_s, drop_ok, near_drop, nd_starts, t_s, p.rearm_quiet_s
+        )
+        for rearmed, k in changes:
+            if rearmed:
+                events.append(RodEvent("drop_back_rearmed", float(t_s[k]), float(dev[k]), p.drop_back_rad))
+            else:
+                events.append(RodEvent("drop_back", float(t_s[k]), float(dev[k]), p.drop_back_rad, "pitch"))
+        if len(events) > 1:
+            events.sort(key=lambda e: e.t_s)
+
+        self._track_baseline(t_s, pitch_rad, lo, hi)
+        return RodBlock(tuple(events), s.baseline_rad, lo, float(t_s[i_min]), float(dev[-1]))
+
+    def _track_baseline(self, t_s: FloatArray, pitch_rad: FloatArray, lo: float, hi: float) -> None:
+        """Follow the rest pitch while quiet and armed; re-take it after a long steady spell while disarmed."""
+        p, s = self.params, self.state
+        t_end = float(t_s[-1])
+        dt_s = t_end - s.last_t_s if not math.isnan(s.last_t_s) else t_end - float(t_s[0])
+        s.last_t_s = t_end
+        mean = float(pitch_rad.mean())
+        if s.bite_armed and s.drop_armed:
+            s.steady_since_s = math.nan
+            if lo > -REARM_FRACTION * p.bite_rad and hi < REARM_FRACTION * p.drop_back_rad:
+                s.baseline_rad += (1.0 - math.exp(-max(dt_s, 0.0) / p.baseline_tau_s)) * (mean - s.baseline_rad)
+            return
+        if math.isnan(s.steady_since_s) or abs(mean - s.steady_ref_rad) > STEADY_FRACTION * p.bite_rad:
+            s.steady_ref_rad, s.steady_since_s = mean, float(t_s[0])
+            return
+        s.steady_ref_rad += 0.1 * (mean - s.steady_ref_rad)
+        if t_end - s.steady_since_s >= REBASELINE_FACTOR * max(p.rearm_quiet_s, 1.0):
+            s.baseline_rad, s.steady_since_s = s.steady_ref_rad, math.nan

@@ -1,0 +1,194 @@
+"""THE gateway configuration: process `Settings` (env `RIG_*`) and the per-kind threshold models.
+
+`Settings` is built once (in `__main__` or a test fixture) and passed down; nothing here reads the
+environment at import. The threshold models are pydantic v2 so a bad REST body becomes a 422 with the
+validator's message; they are frozen so the alarm layer can hold them as plain values.
+
+Per-device configuration = the kind's defaults (stored in the DB, else the model defaults) with a
+partial override dict merged on top and validated again: see `merge_thresholds`.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal, Self, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+ZenohMode = Literal["peer", "client", "router"]
+DeviceKind = Literal["rod", "hook", "env"]
+
+
+class Settings(BaseSettings):
+    """Process-wide settings; every field can be set as `RIG_<FIELD>` (lists as JSON, e.g. `'["tcp/..."]'`)."""
+
+    model_config = SettingsConfigDict(env_prefix="RIG_", extra="ignore")
+
+    data_dir: Path = Field(default_factory=lambda: Path.cwd() / "var", description="Database, token file, logs.")
+    zenoh_mode: ZenohMode = "peer"
+    zenoh_listen: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    zenoh_connect: list[str] = Field(default_factory=list)
+    zenoh_multicast_scouting: bool = False
+    http_host: str = "127.0.0.1"
+    http_port: int = Field(default=8000, ge=0, le=65535)
+    viser_host: str = "127.0.0.1"
+    viser_port: int = Field(default=8080, ge=0, le=65535)
+    default_filter: str = "default"
+    ingest_queue_size: int = Field(default=10_000, ge=1, description="Packets buffered between zenoh and the pipeline.")
+    ws_queue_size: int = Field(default=256, ge=1, description="Messages buffered per websocket client before dropping.")
+
+    @property
+    def db_path(self) -> Path:
+        """SQLite file inside `data_dir`."""
+        return self.data_dir / "gateway.sqlite3"
+
+    def zenoh_config(self) -> dict[str, str]:
+        """Key -> json5 text, for `conf.insert_json5(key, value)` on a fresh `zenoh.Config()`."""
+        return {
+            "mode": json.dumps(self.zenoh_mode),
+            "listen/endpoints": json.dumps(self.zenoh_listen),
+            "connect/endpoints": json.dumps(self.zenoh_connect),
+            "scouting/multicast/enabled": json.dumps(self.zenoh_multicast_scouting),
+        }
+
+
+class _Thresholds(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+# Bite-alarm sensitivity steps, 1 (least sensitive) .. 5 (most), like the dial on commercial bite alarms.
+# Each step changes three things together (see docs/alarms.md):
+#   theta1_scale   effective bite deviation = bite_deviation_deg * scale
+#   confirm_s      the pitch must stay beyond the threshold this long (rejects single-sample spikes)
+#   cue_fraction   the acceleration cue alarms early once pitch has dropped by this fraction of theta1 ...
+#   cue_acc_m_s2   ... while the tip accelerates downwards by at least this much (0 fraction = cue off)
+SENSITIVITY_STEPS: dict[int, tuple[float, float, float, float]] = {
+    # step: (theta1_scale, confirm_s, cue_fraction, cue_acc_m_s2)
+    1: (1.5, 0.05, 0.0, 0.0),
+    2: (1.25, 0.04, 0.6, 4.0),
+    3: (1.0, 0.03, 0.5, 3.0),
+    4: (0.8, 0.02, 0.45, 2.5),
+    5: (0.6, 0.0, 0.4, 2.0),
+}
+
+
+class RodThresholds(_Thresholds):
+    """Smart-rod alarm thresholds (seed 000 §3.3: theta1 bite, theta2 reel switch, theta3 line limit)."""
+
+    bite_deviation_deg: float = Field(default=10.0, gt=0.0, le=45.0, description="theta1: pitch drop = bite.")
+    sensitivity: int = Field(default=3, ge=1, le=5, description="1 least .. 5 most sensitive; scales theta1, see docs.")
+    line_switch_deg: float = Field(default=20.0, gt=0.0, le=80.0, description="theta2: pay out line above this drop.")
+    line_limit_deg: float = Field(default=35.0, gt=0.0, le=85.0, description="theta3: drop at breaking load.")
+    line_critical_fraction: float = Field(default=0.9, gt=0.5, le=1.0, description="Critical at this share of theta3.")
+    drop_back_rise_deg: float = Field(default=5.0, gt=0.0, le=45.0, description="Pitch rise above rest = slack line.")
+    line_breaking_n: float = Field(default=100.0, gt=0.0, description="Breaking load of the line in newtons.")
+    tension_warn_fraction: float = Field(default=0.8, gt=0.0, le=1.0, description="Critical at this share of breaking.")
+    rearm_quiet_s: float = Field(default=5.0, ge=0.0, le=600.0, description="Pitch near rest this long re-arms.")
+    baseline_tau_s: float = Field(default=5.0, gt=0.0, le=600.0, description="Rest-pitch tracking time constant.")
+
+    @property
+    def effective_bite_deg(self) -> float:
+        """theta1 after the sensitivity scale."""
+        return self.bite_deviation_deg * SENSITIVITY_STEPS[self.sensitivity][0]
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Self:
+        if not self.effective_bite_deg < self.line_switch_deg < self.line_limit_deg:
+            raise ValueError(
+                f"need theta1 < theta2 < theta3 (theta1 after sensitivity {self.sensitivity}: "
+                f"{self.effective_bite_deg:g} deg, theta2 {self.line_switch_deg:g}, theta3 {self.line_limit_deg:g})"
+            )
+        return self
+
+
+class HookThresholds(_Thresholds):
+    """Crane-hook swing angle (Theta, seed 001 eq. 6) and torsion (phi) limits, with clearing hysteresis."""
+
+    swing_warn_deg: float = Field(default=5.0, gt=0.0, le=90.0)
+    swing_critical_deg: float = Field(default=10.0, gt=0.0, le=90.0)
+    torsion_warn_deg: float = Field(default=30.0, gt=0.0, le=180.0)
+    torsion_critical_deg: float = Field(default=60.0, gt=0.0, le=180.0)
+    hysteresis_deg: float = Field(default=1.0, ge=0.0, le=30.0, description="An alarm clears below threshold - this.")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Self:
+        for name, warn, crit in (
+            ("swing", self.swing_warn_deg, self.swing_critical_deg),
+            ("torsion", self.torsion_warn_deg, self.torsion_critical_deg),
+        ):
+            if not warn < crit:
+                raise ValueError(f"{name}: warn ({warn:g} deg) must be below critical ({crit:g} deg)")
+            if self.hysteresis_deg >= warn:
+                raise ValueError(f"hysteresis ({self.hysteresis_deg:g} deg) must be below {name} warn ({warn:g} deg)")
+        return self
+
+
+# Preferred water temperature (deg C) per species: typical ranges from temperature-preference compilations
+# (Coutant 1977, J. Fish. Res. Board Can. 34:739; Wismer & Christie 1987, GLFC Spec. Pub. 87-3):
+# common carp ~ 18-26, northern pike ~ 10-20 (large pike prefer the cool end), perch ~ 17-24,
+# rainbow/brown trout ~ 10-16, largemouth bass ~ 21-27.
+SPECIES_TEMP_C: dict[str, tuple[float, float]] = {
+    "carp": (18.0, 26.0),
+    "pike": (10.0, 20.0),
+    "perch": (17.0, 24.0),
+    "trout": (10.0, 16.0),
+    "bass": (21.0, 27.0),
+}
+
+
+class SpotPreferences(_Thresholds):
+    """What the angler fishes for; spot scoring uses the species' preferred temperature ranges."""
+
+    species: tuple[str, ...] = Field(default=("carp",), min_length=1)
+
+    @model_validator(mode="after")
+    def _known(self) -> Self:
+        unknown = sorted(set(self.species) - SPECIES_TEMP_C.keys())
+        if unknown:
+            raise ValueError(f"unknown species {unknown}; known: {sorted(SPECIES_TEMP_C)}")
+        return self
+
+    def temp_ranges_c(self) -> dict[str, tuple[float, float]]:
+        """Preferred temperature range (deg C) for each target species."""
+        return {s: SPECIES_TEMP_C[s] for s in self.species}
+
+
+ThresholdModel = RodThresholds | HookThresholds | SpotPreferences
+T = TypeVar("T", bound=BaseModel)
+THRESHOLD_MODELS: dict[str, type[ThresholdModel]] = {
+    "rod": RodThresholds,
+    "hook": HookThresholds,
+    "env": SpotPreferences,
+}
+
+
+class DeviceSettings(BaseModel):
+    """Per-device settings: filter (None = `Settings.default_filter`) and a partial thresholds override."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    filter_name: str | None = None
+    thresholds: dict[str, Any] = Field(default_factory=dict)
+
+
+def merge_thresholds(defaults: T, override: Mapping[str, Any]) -> T:
+    """Defaults with `override` fields replaced, validated again (raises pydantic.ValidationError)."""
+    return type(defaults).model_validate({**defaults.model_dump(), **override})
+
+
+def default_thresholds(kind: str) -> ThresholdModel:
+    """Model defaults for a device kind ("rod", "hook", "env"); KeyError for an unknown kind."""
+    return THRESHOLD_MODELS[kind]()
+
+
+def effective_settings(
+    kind: str, device: DeviceSettings | None, settings: Settings, defaults: ThresholdModel | None = None
+) -> tuple[str, ThresholdModel]:
+    """(filter name, thresholds) for one device: kind defaults <- device override; filter falls back to default."""
+    base = defaults if defaults is not None else default_thresholds(kind)
+    if device is None:
+        return settings.default_filter, base
+    return device.filter_name or settings.default_filter, merge_thresholds(base, device.thresholds)

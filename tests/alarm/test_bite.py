@@ -1,0 +1,240 @@
+"""Bite, drop-back and line-guard behaviour on synthetic rod scenarios with stated expectations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from gateway.alarm.bite import BiteDetector, run_starts, trailing_mean
+from gateway.config import RodThresholds
+from tests.alarm.scenarios import REST_DEG, noisy, pulse, raised_cosine_step, run_rod, times, tip_acc_up
+
+NOISE_DEG = 0.2  # fused-pitch noise, 1 sigma
+ACC_NOISE = 0.3  # m/s^2, 1 sigma
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(7)
+
+
+def test_run_starts_carries_across_blocks():
+    t = np.arange(6) * 0.01
+    cond = np.array([True, True, False, True, True, True])
+    starts = run_starts(cond, t, carry_s=-0.5)
+    np.testing.assert_allclose(starts, [-0.5, -0.5, np.nan, 0.03, 0.03, 0.03])
+
+
+def test_trailing_mean_matches_convolution_across_blocks():
+    x = np.random.default_rng(1).standard_normal(40)
+    ref = np.convolve(np.concatenate(([0.0, 0.0], x)), np.ones(3) / 3, mode="valid")
+    ref[:2] = [x[0], x[:2].mean()]  # shorter windows at the very start
+    tail = np.zeros(0)
+    got = []
+    for i in range(0, 40, 7):
+        m, tail = trailing_mean(x[i : i + 7], tail, 3)
+        got.append(m)
+    np.testing.assert_allclose(np.concatenate(got), ref, atol=1e-12)
+
+
+def test_one_bite_alarms_once_within_confirmation_of_crossing_theta1(rng):
+    t = times(30.0)
+    rel = -pulse(t, 10.0, 0.15, 5.0, 15.0)
+    t_cross = t[np.argmax(rel <= -10.0)]  # noise-free crossing of theta1
+    run = run_rod(t, noisy(t, rel, NOISE_DEG, rng))
+    bites = run.of("bite")
+    assert len(bites) == 1
+    after_cross = bites[0].alarm.started_at - t_cross
+    assert -0.02 <= after_cross <= 0.02 + 0.011, after_cross  # confirmation 20 ms at sensitivity 3, +1 sample
+    assert run.raised_types() == {"bite"}
+    assert len(run.of("bite", "cleared")) == 1  # re-armed after the rod came back and stayed quiet
+
+
+def test_accel_cue_detects_sooner_than_pitch_alone(rng):
+    t = times(20.0)
+    rel = -pulse(t, 10.0, 0.4, 3.0, 15.0)
+    pitch = noisy(t, rel, NOISE_DEG, rng)
+    acc = tip_acc_up(t, rel, ACC_NOISE, rng)
+    plain = run_rod(t, pitch).of("bite")
+    cued = run_rod(t, pitch, acc).of("bite")
+    assert len(plain) == len(cued) == 1
+    assert cued[0].alarm.details["cue"] == "accel"
+    assert plain[0].alarm.started_at - cued[0].alarm.started_at >= 0.03  # the cue fires >= 30 ms earlier
+
+
+def test_fast_bite_with_accel_cue_alarms_within_100ms(rng):
+    t = times(20.0)
+    rel = -pulse(t, 10.0, 0.15, 3.0, 15.0)
+    pitch = noisy(t, rel, NOISE_DEG, rng)
+    acc = tip_acc_up(t, rel, ACC_NOISE, rng)
+    bites = run_rod(t, pitch, acc).of("bite")
+    assert len(bites) == 1
+    assert 0.0 <= bites[0].alarm.started_at - 10.0 <= 0.1
+
+
+@pytest.mark.parametrize("axis", ["roll", "yaw"])
+def test_roll_or_yaw_change_with_pitch_fixed_never_alarms(axis, rng):
+    t = times(20.0)
+    roll = raised_cosine_step(t, 5.0, 0.3, 15.0) if axis == "roll" else np.zeros_like(t)
+    yaw = raised_cosine_step(t, 5.0, 1.0, 90.0) if axis == "yaw" else np.zeros_like(t)
+    # Body x = rod axis; pitch up is a negative rotation about body y in scipy's intrinsic Z-Y-X.
+    rot = Rotation.from_euler("ZYX", np.column_stack([yaw, -np.full_like(t, REST_DEG), roll]), degrees=True)
+    tip_dir = rot.apply([1.0, 0.0, 0.0])
+    pitch = np.degrees(np.arcsin(tip_dir[:, 2])) + NOISE_DEG * rng.standard_normal(t.size)
+    acc = ACC_NOISE * rng.standard_normal(t.size)  # turning about the axis or the holder: the tip height is fixed
+    run = run_rod(t, pitch, acc)
+    assert run.changes == []
+    det = BiteDetector()
+    det.update(t, np.radians(pitch), np.radians(roll), np.radians(yaw), acc)
+    assert det.state.bite_armed and det.state.drop_armed
+
+
+def test_wind_vibration_never_alarms_at_default_sensitivity(rng):
+    t = times(120.0)
+    rel = 3.0 * np.sin(2 * np.pi * 2.0 * t + 0.3)
+    pitch = noisy(t, rel, NOISE_DEG, rng)
+    acc = tip_acc_up(t, rel, ACC_NOISE, rng)
+    run = run_rod(t, pitch, acc)
+    assert run.changes == []
+    assert abs(run.baselines[-1] - REST_DEG) < 0.3
+
+
+def test_zero_mean_oscillation_beyond_cue_level_does_not_fire_cue(rng):
+    # +/-8 deg at 2 Hz crosses the cue level (5 deg) every period, but below rest the tip accelerates upwards.
+    t = times(60.0)
+    gust = np.clip((t - 5.0) / 5.0, 0.0, 1.0)  # at rest for 5 s, then the wind builds up over 5 s
+    rel = 8.0 * gust * np.sin(2 * np.pi * 2.0 * t)
+    pitch = noisy(t, rel, NOISE_DEG, rng)
+    acc = tip_acc_up(t, rel, ACC_NOISE, rng)
+    run = run_rod(t, pitch, acc)
+    assert run.of("bite") == []
+
+
+@pytest.mark.parametrize("sign", [-1.0, 1.0])
+def test_slow_drift_of_holder_does_not_alarm(sign, rng):
+    t = times(240.0)
+    pitch = noisy(t, sign * 5.0 / 60.0 * t, NOISE_DEG, rng)  # 5 deg/min for 4 min = 20 deg
+    run = run_rod(t, pitch)
+    assert run.changes == []
+    assert abs(run.baselines[-1] - pitch[-100:].mean()) < 1.0  # the baseline followed the holder
+
+
+def test_drop_back_is_reported_as_drop_back_not_bite(rng):
+    t = times(20.0)
+    pitch = noisy(t, pulse(t, 8.0, 0.3, 4.0, 8.0), NOISE_DEG, rng)
+    run = run_rod(t, pitch)
+    assert run.raised_types() == {"drop_back"}
+    assert len(run.of("drop_back")) == 1
+    assert 8.0 <= run.of("drop_back")[0].alarm.started_at <= 8.3
+
+
+def test_two_bites_separated_by_quiet_time_give_two_alarms(rng):
+    t = times(40.0)
+    th = RodThresholds()
+    second = 10.0 + 0.2 + 1.0 + 0.2 + th.rearm_quiet_s + 1.0  # back at rest for quiet time + 1 s
+    rel = -pulse(t, 10.0, 0.2, 1.0, 14.0) - pulse(t, second, 0.2, 1.0, 14.0)
+    run = run_rod(t, noisy(t, rel, NOISE_DEG, rng), th=th)
+    starts = [c.alarm.started_at for c in run.of("bite")]
+    assert len(starts) == 2
+    assert starts[0] == pytest.approx(10.1, abs=0.1) and starts[1] == pytest.approx(second + 0.1, abs=0.1)
+    assert run.of("bite")[0].alarm.id != run.of("bite")[1].alarm.id
+
+
+def test_bites_closer_than_quiet_time_give_one_alarm(rng):
+    t = times(30.0)
+    rel = -pulse(t, 10.0, 0.2, 1.0, 14.0) - pulse(t, 13.0, 0.2, 1.0, 14.0)  # 1.6 s at rest in between
+    run = run_rod(t, noisy(t, rel, NOISE_DEG, rng))
+    assert len(run.of("bite")) == 1
+
+
+def test_single_sample_spike_is_rejected_by_confirmation(rng):
+    t = times(10.0)
+    rel = np.zeros_like(t)
+    rel[500] = -14.0
+    assert run_rod(t, noisy(t, rel, NOISE_DEG, rng)).changes == []
+
+
+@pytest.mark.parametrize(("sensitivity", "expect"), [(3, 0), (4, 1), (5, 1)])
+def test_sensitivity_steps_scale_theta1(sensitivity, expect, rng):
+    t = times(20.0)
+    rel = -pulse(t, 10.0, 0.3, 2.0, 9.0)  # 9 deg: below theta1 = 10, above 0.8 * 10 and 0.6 * 10
+    run = run_rod(t, noisy(t, rel, 0.1, rng), th=RodThresholds(sensitivity=sensitivity))
+    assert len(run.of("bite")) == expect
+
+
+def test_detector_rebaselines_after_rod_settles_at_new_rest(rng):
+    t = times(100.0)
+    rel = -raised_cosine_step(t, 5.0, 0.3, 15.0) - pulse(t, 80.0, 0.2, 2.0, 14.0)  # bite, rest lower, bite
+    run = run_rod(t, noisy(t, rel, NOISE_DEG, rng))
+    assert [round(c.alarm.started_at) for c in run.of("bite")] == [5, 80]
+
+
+def test_line_guard_warning_critical_and_clear(rng):
+    t = times(30.0)
+    th = RodThresholds()  # theta2 20, theta3 35 -> critical at 31.5
+    rel = -(raised_cosine_step(t, 5, 0.5, 25.0) + raised_cosine_step(t, 10, 0.5, 8.0)
+            - raised_cosine_step(t, 15, 0.5, 33.0))  # fmt: skip
+    run = run_rod(t, noisy(t, rel, NOISE_DEG, rng), th=th)
+    line = [(c.kind, c.alarm.severity.value) for c in run.changes if c.alarm.type == "line_tension"]
+    # coming back down it passes through the warning band before clearing
+    assert line == [("raised", "warning"), ("updated", "critical"), ("updated", "warning"), ("cleared", "warning")]
+    raised = run.of("line_tension")[0].alarm
+    assert 5.0 < raised.started_at < 5.5
+
+
+def test_line_tension_near_breaking_is_critical(rng):
+    t = times(10.0)
+    tension = np.where((t > 4) & (t < 6), 85.0, 20.0)  # breaking 100 N, warn fraction 0.8
+    run = run_rod(t, noisy(t, np.zeros_like(t), NOISE_DEG, rng), tension_n=tension)
+    line = [(c.kind, c.alarm.severity.value, round(c.alarm.updated_at, 2)) for c in run.changes]
+    assert line == [("raised", "critical", 4.01), ("cleared", "critical", 6.09)]
+
+
+@pytest.mark.parametrize("block", [1, 7, 50])
+def test_block_size_does_not_change_detections(block, rng):
+    t = times(30.0)
+    rel = -pulse(t, 10.0, 0.3, 2.0, 15.0) + pulse(t, 20.0, 0.3, 2.0, 8.0)
+    pitch = noisy(t, rel, NOISE_DEG, rng)
+    acc = tip_acc_up(t, rel, ACC_NOISE, rng)
+    ref = [(c.kind, c.alarm.type, c.alarm.started_at) for c in run_rod(t, pitch, acc, block=10).changes[:3]]
+    got = [(c.kind, c.alarm.type, c.alarm.started_at) for c in run_rod(t, pitch, acc, block=block).changes[:3]]
+    assert got == ref and len(ref) == 3
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    sensitivity=st.integers(1, 5),
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(20, 1500),
+    block=st.integers(1, 64),
+    shape=st.sampled_from(["uniform", "walk", "square"]),
+    with_acc=st.booleans(),
+)
+def test_property_pitch_within_09_theta1_of_baseline_never_bites(sensitivity, seed, n, block, shape, with_acc):
+    """Every sample stays within a band 0.9 * theta1 wide; the baseline is an average of past samples, so it lies
+    in the same band and |pitch - baseline| < 0.9 theta1 always: no bite, whatever the shape, block or cue input.
+    The acceleration (when given) stays under the cue threshold."""
+    th = RodThresholds(sensitivity=sensitivity)
+    band = 0.9 * th.effective_bite_deg
+    rng = np.random.default_rng(seed)
+    t = times(n / 100.0)
+    if shape == "uniform":
+        u = rng.uniform(0.0, 1.0, t.size)
+    elif shape == "walk":
+        w = np.cumsum(rng.standard_normal(t.size))
+        u = (w - w.min()) / max(np.ptp(w), 1e-9)
+    else:
+        u = (np.sin(2 * np.pi * rng.uniform(0.1, 5.0) * t) > 0).astype(float)
+    pitch = REST_DEG + band * (0.999 * u - 0.5)
+    from gateway.config import SENSITIVITY_STEPS
+
+    cue_acc = SENSITIVITY_STEPS[sensitivity][3]
+    acc = rng.uniform(-0.99 * cue_acc, 5.0, t.size) if with_acc else None
+    run = run_rod(t, pitch, acc, th=th, block=block)
+    assert run.of("bite") == []
+    assert math.isfinite(run.baselines[-1])
