@@ -379,3 +379,41 @@ def gyro_step4(q: FloatArray, gyr_rad_s: FloatArray, dt_s: float) -> FloatArray:
     dq[2] = k * wy
     dq[3] = k * wz
     return normalise4(mul4(q, dq))
+
+
+@njit
+def tilt_error4(q: FloatArray, acc_m_s2: FloatArray) -> FloatArray:
+    """Body-frame error `â × v̂` between measured and predicted gravity direction (seed 004; zero if acc is 0).
+
+    v̂ = q* ⊗ [0, 0, 1] ⊗ q is the predicted "up" in the body; rotating about the result brings v̂ onto â.
+    """
+    out = np.zeros(3)
+    n = np.sqrt(acc_m_s2[0] ** 2 + acc_m_s2[1] ** 2 + acc_m_s2[2] ** 2)
+    if n == 0.0:
+        return out
+    ax, ay, az = acc_m_s2[0] / n, acc_m_s2[1] / n, acc_m_s2[2] / n
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    vx = 2.0 * (x * z - w * y)
+    vy = 2.0 * (y * z + w * x)
+    vz = 1.0 - 2.0 * (x * x + y * y)
+    out[0] = ay * vz - az * vy
+    out[1] = az * vx - ax * vz
+    out[2] = ax * vy - ay * vx
+    return out
+
+
+@njit
+def heading_error4(q: FloatArray, mag_uT: FloatArray) -> float:
+    """Yaw error in rad of `q` from the tilt-compensated field (seed 004): the bearing of the field's horizontal
+    part in the estimated earth frame minus North (π/2), wrapped; positive when the estimate is rotated CCW too far.
+    Returns 0 when the field has no usable horizontal part."""
+    m = rotate4(q, mag_uT)
+    h = np.sqrt(m[0] * m[0] + m[1] * m[1])
+    if h < 1e-9:
+        return 0.0
+    e = np.arctan2(m[1], m[0]) - 0.5 * np.pi
+    if e > np.pi:
+        e -= 2.0 * np.pi
+    elif e <= -np.pi:
+        e += 2.0 * np.pi
+    return float(e)

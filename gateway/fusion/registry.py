@@ -8,6 +8,7 @@ from gateway.fusion.base import AttitudeFilter
 
 # name -> "module:ClassName"; the class takes keyword `use_mag`. Imported lazily, so modules stay independent.
 FILTERS: dict[str, str] = {
+    "mahony": "gateway.fusion.mahony:MahonyFilter",
 }
 
 
