@@ -1,0 +1,349 @@
+"""SQLite persistence (stdlib sqlite3, WAL): threshold defaults, per-device settings, alarm history, event log;
+plus the API bearer token file.
+
+One connection shared by all threads, serialised by a lock; every write is one transaction. The schema is
+versioned: `MIGRATIONS[i]` takes version i to i + 1 and runs once, so a new `Store` on an old file upgrades it.
+
+Token: kept in `<data_dir>/api_token`, mode 0600, so the operator can read it to configure clients and a
+restart keeps it. The file (not a hash in the DB) is the secret's only home: the DB can then be copied or
+inspected without leaking it; anyone who can read the file already owns the gateway's account.
+"""
+
+from __future__ import annotations
+
+import hmac
+import json
+import os
+import secrets
+import sqlite3
+import stat
+import threading
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from gateway.alarm.engine import Alarm, AlarmStatus, Severity
+from gateway.alarm.rules import SPECS
+from gateway.config import THRESHOLD_MODELS, DeviceSettings, ThresholdModel
+
+MIGRATIONS: tuple[str, ...] = (
+    """
+    CREATE TABLE defaults (
+        kind TEXT PRIMARY KEY,
+        thresholds TEXT NOT NULL,
+        updated_at REAL NOT NULL
+    );
+    CREATE TABLE device_settings (
+        device_id TEXT PRIMARY KEY,
+        kind TEXT NOT NULL,
+        settings TEXT NOT NULL,
+        updated_at REAL NOT NULL
+    );
+    CREATE TABLE alarms (
+        id TEXT PRIMARY KEY,
+        device_id TEXT NOT NULL,
+        kind TEXT NOT NULL,
+        type TEXT NOT NULL,
+        severity TEXT NOT NULL,
+        status TEXT NOT NULL CHECK (status IN ('active', 'cleared')),
+        acknowledged INTEGER NOT NULL DEFAULT 0,
+        started_at REAL NOT NULL,
+        updated_at REAL NOT NULL,
+        cleared_at REAL,
+        acknowledged_at REAL,
+        acknowledged_by TEXT,
+        value REAL NOT NULL,
+        peak REAL NOT NULL,
+        count INTEGER NOT NULL,
+        threshold REAL NOT NULL,
+        message TEXT NOT NULL,
+        details TEXT NOT NULL DEFAULT '{}'
+    );
+    CREATE UNIQUE INDEX alarms_one_active ON alarms (device_id, type) WHERE status = 'active';
+    CREATE INDEX alarms_started ON alarms (started_at);
+    CREATE INDEX alarms_device ON alarms (device_id, started_at);
+    CREATE TABLE events (
+        id INTEGER PRIMARY KEY AUTOINCREMENT,
+        t REAL NOT NULL,
+        device_id TEXT,
+        kind TEXT NOT NULL,
+        payload TEXT NOT NULL DEFAULT '{}'
+    );
+    CREATE INDEX events_t ON events (t);
+    """,
+)
+
+_ALARM_COLUMNS = (
+    "id", "device_id", "kind", "type", "severity", "status", "acknowledged", "started_at", "updated_at",
+    "cleared_at", "acknowledged_at", "acknowledged_by", "value", "peak", "count", "threshold", "message", "details",
+)  # fmt: skip
+
+
+class StoreError(Exception):
+    """A stored row could not be read back (corrupt JSON, unknown kind)."""
+
+
+def _alarm_row(a: Alarm) -> tuple[Any, ...]:
+    spec = SPECS.get(a.type)
+    return (
+        a.id, a.device_id, spec.kind if spec else "", a.type, a.severity.value, a.status.value, int(a.acknowledged),
+        a.started_at, a.updated_at, a.cleared_at, a.acknowledged_at, a.acknowledged_by, a.value, a.peak, a.count,
+        a.threshold, a.message, json.dumps(dict(a.details)),
+    )  # fmt: skip
+
+
+def _alarm_from(row: sqlite3.Row) -> Alarm:
+    return Alarm(
+        id=row["id"], device_id=row["device_id"], type=row["type"], severity=Severity(row["severity"]),
+        status=AlarmStatus(row["status"]), started_at=row["started_at"], updated_at=row["updated_at"],
+        value=row["value"], threshold=row["threshold"], message=row["message"], peak=row["peak"],
+        count=row["count"], acknowledged=bool(row["acknowledged"]), acknowledged_at=row["acknowledged_at"],
+        acknowledged_by=row["acknowledged_by"], cleared_at=row["cleared_at"], details=json.loads(row["details"]),
+    )  # fmt: skip
+
+
+class Store:
+    """The gateway database. Thread-safe; use as a context manager or call `close()`."""
+
+    def __init__(self, db_path: Path) -> None:
+        db_path.parent.mkdir(parents=True, exist_ok=True)
+        self.path = db_path
+        self._lock = threading.Lock()
+        self._conn = sqlite3.connect(db_path, check_same_thread=False, isolation_level=None, timeout=10.0)
+        self._conn.row_factory = sqlite3.Row
+        self._conn.execute("PRAGMA journal_mode=WAL")
+        self._conn.execute("PRAGMA synchronous=NORMAL")
+        self._migrate()
+
+    def __enter__(self) -> Store:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        with self._lock:
+            self._conn.close()
+
+    @contextmanager
+    def _tx(self) -> Iterator[None]:
+        """Lock, BEGIN IMMEDIATE, then COMMIT (or ROLLBACK on error): each write is one atomic transaction."""
+        with self._lock:
+            self._conn.execute("BEGIN IMMEDIATE")
+            try:
+                yield
+            except BaseException:
+                self._conn.execute("ROLLBACK")
+                raise
+            self._conn.execute("COMMIT")
+
+    def _migrate(self) -> None:
+        with self._lock:
+            self._conn.execute("CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL)")
+            version = self._conn.execute("SELECT COALESCE(MAX(version), 0) FROM schema_version").fetchone()[0]
+            for v, script in enumerate(MIGRATIONS[version:], start=version + 1):
+                # executescript commits first; wrap each step so it is all-or-nothing.
+                self._conn.executescript(f"BEGIN;\n{script}\nINSERT INTO schema_version VALUES ({v});\nCOMMIT;")
+
+    @property
+    def schema_version(self) -> int:
+        with self._lock:
+            return int(self._conn.execute("SELECT MAX(version) FROM schema_version").fetchone()[0])
+
+    # -- thresholds and device settings -------------------------------------------------------------------------
+
+    def save_defaults(self, kind: str, thresholds: ThresholdModel, t: float | None = None) -> None:
+        """Store the default thresholds of a device kind."""
+        with self._tx():
+            self._conn.execute(
+                "INSERT INTO defaults VALUES (?, ?, ?) ON CONFLICT(kind) DO UPDATE SET "
+                "thresholds = excluded.thresholds, updated_at = excluded.updated_at",
+                (kind, thresholds.model_dump_json(), time.time() if t is None else t),
+            )
+
+    def load_defaults(self) -> dict[str, ThresholdModel]:
+        """Stored defaults by kind, validated; kinds never saved are absent (callers fall back to model defaults)."""
+        with self._lock:
+            rows = self._conn.execute("SELECT kind, thresholds FROM defaults").fetchall()
+        out: dict[str, ThresholdModel] = {}
+        for row in rows:
+            model = THRESHOLD_MODELS.get(row["kind"])
+            if model is None:
+                raise StoreError(f"defaults: unknown device kind {row['kind']!r}")
+            out[row["kind"]] = model.model_validate_json(row["thresholds"])
+        return out
+
+    def save_device_settings(self, device_id: str, kind: str, settings: DeviceSettings, t: float | None = None) -> None:
+        """Store (replace) one device's settings."""
+        with self._tx():
+            self._conn.execute(
+                "INSERT INTO device_settings VALUES (?, ?, ?, ?) ON CONFLICT(device_id) DO UPDATE SET "
+                "kind = excluded.kind, settings = excluded.settings, updated_at = excluded.updated_at",
+                (device_id, kind, settings.model_dump_json(), time.time() if t is None else t),
+            )
+
+    def load_device_settings(self) -> dict[str, tuple[str, DeviceSettings]]:
+        """device_id -> (kind, settings) for every configured device."""
+        with self._lock:
+            rows = self._conn.execute("SELECT device_id, kind, settings FROM device_settings").fetchall()
+        return {r["device_id"]: (r["kind"], DeviceSettings.model_validate_json(r["settings"])) for r in rows}
+
+    def delete_device_settings(self, device_id: str) -> bool:
+        """Forget a device's overrides; True if there were any."""
+        with self._tx():
+            cur = self._conn.execute("DELETE FROM device_settings WHERE device_id = ?", (device_id,))
+        return cur.rowcount > 0
+
+    # -- alarms ---------------------------------------------------------------------------------------------------
+
+    def upsert_alarm(self, alarm: Alarm) -> Alarm:
+        """Insert or update by id, keeping ONE active row per (device, type).
+
+        If another active row exists for the same (device, type) under a different id (e.g. an engine that
+        started without resuming), that row is updated in place and keeps its id and start time. Returns the
+        alarm as stored.
+        """
+        with self._tx():
+            if alarm.active:
+                row = self._conn.execute(
+                    "SELECT id, started_at FROM alarms WHERE device_id = ? AND type = ? AND status = 'active'",
+                    (alarm.device_id, alarm.type),
+                ).fetchone()
+                if row is not None and row["id"] != alarm.id:
+                    alarm = replace(alarm, id=row["id"], started_at=min(row["started_at"], alarm.started_at))
+            placeholders = ", ".join("?" * len(_ALARM_COLUMNS))
+            updates = ", ".join(f"{c} = excluded.{c}" for c in _ALARM_COLUMNS[1:])
+            self._conn.execute(
+                f"INSERT INTO alarms ({', '.join(_ALARM_COLUMNS)}) VALUES ({placeholders}) "
+                f"ON CONFLICT(id) DO UPDATE SET {updates}",
+                _alarm_row(alarm),
+            )
+        return alarm
+
+    def get_alarm(self, alarm_id: str) -> Alarm | None:
+        with self._lock:
+            row = self._conn.execute("SELECT * FROM alarms WHERE id = ?", (alarm_id,)).fetchone()
+        return None if row is None else _alarm_from(row)
+
+    def list_alarms(
+        self,
+        device_id: str | None = None,
+        type: str | None = None,
+        status: AlarmStatus | str | None = None,
+        severity: Severity | str | None = None,
+        acknowledged: bool | None = None,
+        since: float | None = None,
+        limit: int = 100,
+        offset: int = 0,
+    ) -> tuple[list[Alarm], int]:
+        """Alarms matching every given filter (since = updated at/after), newest start first; and the total count."""
+        where, args = [], []
+        for col, val in (("device_id", device_id), ("type", type), ("status", status), ("severity", severity)):
+            if val is not None:
+                where.append(f"{col} = ?")
+                args.append(str(val))
+        if acknowledged is not None:
+            where.append("acknowledged = ?")
+            args.append(str(int(acknowledged)))
+        if since is not None:
+            where.append("updated_at >= ?")
+            args.append(str(since))
+        clause = f" WHERE {' AND '.join(where)}" if where else ""
+        with self._lock:
+            total = int(self._conn.execute(f"SELECT COUNT(*) FROM alarms{clause}", args).fetchone()[0])
+            rows = self._conn.execute(
+                f"SELECT * FROM alarms{clause} ORDER BY started_at DESC, id LIMIT ? OFFSET ?",
+                [*args, max(limit, 0), max(offset, 0)],
+            ).fetchall()
+        return [_alarm_from(r) for r in rows], total
+
+    def acknowledge(self, alarm_id: str, by: str, t: float) -> Alarm | None:
+        """Acknowledge (does not clear). None if unknown; an already acknowledged alarm is returned unchanged."""
+        with self._tx():
+            self._conn.execute(
+                "UPDATE alarms SET acknowledged = 1, acknowledged_at = ?, acknowledged_by = ?, updated_at = ? "
+                "WHERE id = ? AND acknowledged = 0",
+                (t, by, t, alarm_id),
+            )
+            row = self._conn.execute("SELECT * FROM alarms WHERE id = ?", (alarm_id,)).fetchone()
+        return None if row is None else _alarm_from(row)
+
+    def counts(self, device_id: str | None = None) -> dict[str, int]:
+        """Active alarm counts: total, unacknowledged, and per severity (keys are Severity values)."""
+        clause, args = ("AND device_id = ?", (device_id,)) if device_id is not None else ("", ())
+        with self._lock:
+            rows = self._conn.execute(
+                "SELECT severity, COUNT(*) AS n, SUM(acknowledged = 0) AS unack FROM alarms "
+                f"WHERE status = 'active' {clause} GROUP BY severity",
+                args,
+            ).fetchall()
+        out = {"active": 0, "unacknowledged": 0} | {s.value: 0 for s in Severity}
+        for r in rows:
+            out[r["severity"]] = r["n"]
+            out["active"] += r["n"]
+            out["unacknowledged"] += r["unack"]
+        return out
+
+    # -- event log ------------------------------------------------------------------------------------------------
+
+    def log_event(
+        self, t: float, kind: str, device_id: str | None = None, payload: Mapping[str, Any] | None = None
+    ) -> None:
+        """Append to the event log (device online/offline, threshold changes, ...)."""
+        with self._tx():
+            self._conn.execute(
+                "INSERT INTO events (t, device_id, kind, payload) VALUES (?, ?, ?, ?)",
+                (t, device_id, kind, json.dumps(dict(payload or {}))),
+            )
+
+    def events(self, since: float | None = None, limit: int = 100) -> list[dict[str, Any]]:
+        """Newest events first."""
+        with self._lock:
+            rows = self._conn.execute(
+                "SELECT * FROM events WHERE t >= ? ORDER BY t DESC, id DESC LIMIT ?",
+                (-1e300 if since is None else since, limit),
+            ).fetchall()
+        return [dict(r) | {"payload": json.loads(r["payload"])} for r in rows]
+
+
+# -- API bearer token ---------------------------------------------------------------------------------------------
+
+TOKEN_FILE = "api_token"
+
+
+def ensure_token(data_dir: Path) -> tuple[str, bool]:
+    """The API token from `<data_dir>/api_token`, creating it (random, 256 bits, mode 0600) on first start.
+
+    Returns (token, created). A file readable by group/others is tightened to 0600.
+    """
+    data_dir.mkdir(parents=True, exist_ok=True)
+    path = data_dir / TOKEN_FILE
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except FileExistsError:
+        if stat.S_IMODE(path.stat().st_mode) & 0o077:
+            path.chmod(0o600)
+        token = path.read_text().strip()
+        if not token:
+            raise StoreError(f"{path} is empty; delete it to make a new token") from None
+        return token, False
+    token = secrets.token_urlsafe(32)
+    with os.fdopen(fd, "w") as f:
+        f.write(token + "\n")
+    return token, True
+
+
+@dataclass(frozen=True)
+class ApiToken:
+    """The gateway's bearer token; `verify_token` compares in constant time."""
+
+    value: str
+
+    def verify_token(self, candidate: str | None) -> bool:
+        return candidate is not None and hmac.compare_digest(candidate.encode(), self.value.encode())
+
+    def __repr__(self) -> str:
+        return "ApiToken(***)"
