@@ -35,6 +35,7 @@ class MahonySettings:
     acc_reject_m_s2: float = 0.0  # skip the accel correction when ||a| - g| exceeds this; 0 disables
     gravity_m_s2: float = quat.GRAVITY_M_S2
     integral_limit_rad_s: float = 0.1  # clamp of each integral component (a MEMS bias is below this)
+    integral_error_max: float = 0.2  # anti-windup: integrate only while |â × v̂| (≈ tilt error in rad) is below this
 
 
 @njit
@@ -47,15 +48,19 @@ def mahony_step(
     dt_s: float,
     params: FloatArray,
 ) -> None:
-    """Advance `state` (N_STATE,) by one sample in place; `params` = kp, ki, kp_mag, acc_reject, g, i_limit."""
+    """Advance `state` (N_STATE,) by one sample in place; `params` = kp, ki, kp_mag, acc_reject, g, i_limit,
+    e_max (the settings' fields in order)."""
     kp, ki, kp_mag, acc_reject, g, i_lim = params[0], params[1], params[2], params[3], params[4], params[5]
+    e_max = params[6]
     q = state[:4]
     w = gyr_rad_s.copy()
     a_norm = np.sqrt(acc_m_s2[0] ** 2 + acc_m_s2[1] ** 2 + acc_m_s2[2] ** 2)
     if a_norm > 0.0 and (acc_reject <= 0.0 or abs(a_norm - g) < acc_reject):
         e = quat.tilt_error4(q, acc_m_s2)
+        integrate = e[0] * e[0] + e[1] * e[1] + e[2] * e[2] < e_max * e_max
         for k in range(3):
-            state[4 + k] = min(max(state[4 + k] + ki * e[k] * dt_s, -i_lim), i_lim)
+            if integrate:
+                state[4 + k] = min(max(state[4 + k] + ki * e[k] * dt_s, -i_lim), i_lim)
             w[k] += kp * e[k]
     if use_mag:
         delta = quat.heading_error4(q, mag_uT)
@@ -89,7 +94,8 @@ class MahonyFilter(AttitudeFilter):
         super().__init__(use_mag=use_mag)
         self.settings = settings or MahonySettings()
         s = self.settings
-        self._params = np.array([s.kp, s.ki, s.kp_mag, s.acc_reject_m_s2, s.gravity_m_s2, s.integral_limit_rad_s])
+        self._params = np.array([s.kp, s.ki, s.kp_mag, s.acc_reject_m_s2, s.gravity_m_s2, s.integral_limit_rad_s,
+                                 s.integral_error_max])
         self._state = np.zeros(N_STATE)
         self._state[0] = 1.0
 
