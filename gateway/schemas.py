@@ -28,6 +28,7 @@ Key layout (`{kind}` in `rod`, `hook`, `ball`; `{device_id}` matches `DEVICE_ID_
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from dataclasses import dataclass, field
@@ -729,3 +730,238 @@ class SequenceTracker:
         self._seen.add(seq)
         if len(self._seen) > 2 * self.window:
             self._seen = {s for s in self._seen if (self.newest - s) % UINT32 < self.window}
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Examples (exact payloads for docs/protocol.md and tests)
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def examples() -> dict[str, tuple[str, WireModel]]:
+    """name -> (key, model): one valid, deterministic example of every payload."""
+    wall = 1_767_225_600_000_000  # 2026-01-01T00:00:00Z in unix µs
+    q = (0.9537, -0.0, 0.1624, 0.2532)
+    qn = math.sqrt(sum(c * c for c in q))
+    quat = (round(q[0] / qn, 6), 0.0, round(q[2] / qn, 6), round(q[3] / qn, 6))
+    imu = ImuPacket(
+        v=1, device_id="rod-1", kind="rod", boot_id=2_882_400_001, seq=1042, t0_us=10_420_000, rate_hz=100.0,
+        gyr_rad_s=[(0.0012, -0.0031, 0.0004), (0.0015, -0.0029, 0.0002)],
+        acc_m_s2=[(5.312, 0.021, 8.247), (5.309, 0.018, 8.251)],
+        mag_uT=[(-14.3, 18.1, -39.2), (-14.2, 18.0, -39.3)],
+        temp_c=24.5, battery_v=4.08, rssi_dbm=-61.0, wall_t0_us=wall + 10_420_000,
+    )
+    hook_imu = ImuPacket(
+        v=1, device_id="hook-1", kind="hook", boot_id=99, seq=7, t0_us=70_000, rate_hz=100.0,
+        gyr_rad_s=[(0.0, 0.0, 0.0)], acc_m_s2=[(0.0, 0.0, 9.81)],
+    )
+    env = EnvPacket(
+        v=1, device_id="ball-1", boot_id=5, seq=12, t_us=12_000_000, wall_t_us=wall + 12_000_000, spot="deep_hole",
+        air_temp_c=14.2, humidity_pct=81.5, light_lux=1520.0, water_temp_c=17.8, oxygen_mg_l=7.95,
+        probe_depth_m=6.0, bottom_depth_m=12.0,
+        profile=[ProfilePoint(depth_m=0.0, water_temp_c=19.9, oxygen_mg_l=8.9),
+                 ProfilePoint(depth_m=6.0, water_temp_c=10.1, oxygen_mg_l=1.2)],
+        battery_v=3.9, rssi_dbm=-70.0,
+    )
+    reel = ReelStatus(
+        v=1, device_id="rod-1", boot_id=2_882_400_001, seq=208, t_us=10_420_000, wall_t_us=wall + 10_420_000,
+        line_out_m=27.4, line_in_speed_m_s=0.48, motor="reeling_in", mode="in", cmd_speed_m_s=0.5, drag_n=25.0,
+        tension_n=6.2, last_cmd_id=17,
+    )
+    rod_truth = RodTruth(
+        v=1, device_id="rod-1", boot_id=2_882_400_001, seq=1042, t0_us=10_420_000, rate_hz=100.0,
+        wall_t0_us=wall + 10_420_000,
+        events=[TruthEvent(label="bite", phase="start", t_us=10_415_000, value=0.349066)],
+        quat_wxyz=[quat, quat], tension_n=[1.2, 1.6], breaking_strength_n=40.0, line_out_m=30.0,
+        fish_state="nibbling", rest_pitch_rad=0.541,
+    )
+    hook_truth = HookTruth(
+        v=1, device_id="hook-1", boot_id=99, seq=7, t0_us=70_000, rate_hz=100.0,
+        quat_wxyz=[(1.0, 0.0, 0.0, 0.0)], swing_angle_rad=[0.0], swing_direction_rad=[0.0], torsion_rad=[0.0],
+        rope_length_m=8.0, load_kg=1200.0,
+    )
+    ball_truth = BallTruth(
+        v=1, device_id="ball-1", boot_id=5, seq=12, t_us=12_000_000, wall_t_us=wall + 12_000_000,
+        spot="deep_hole", air_temp_c=14.25, water_temp_c=17.81, oxygen_mg_l=7.91, light_lux=1500.0,
+        humidity_pct=81.0, sim_hour_of_day=6.2,
+        events=[TruthEvent(label="rethrow", phase="instant", t_us=11_000_000)],
+    )
+    reel_cmd = ReelCommand(v=1, cmd_id=17, action="in", speed_m_s=0.5, sent_wall_us=wall + 10_300_000,
+                           sender="gateway")
+    ball_cmd = BallCommand(v=1, cmd_id=3, action="rethrow", spot="inlet", sent_wall_us=wall + 11_900_000)
+    att = Attitude(
+        device_id="rod-1", kind="rod", seq=1042, t_us=10_430_000, wall_t_us=wall + 10_436_000, quat_wxyz=quat,
+        roll_rad=0.0012, pitch_rad=0.3316, yaw_rad=0.5236, yaw_unwrapped_rad=6.8068, filter="complementary",
+    )
+    swing = Swing(device_id="hook-1", seq=7, t_us=80_000, wall_t_us=wall + 86_000, swing_angle_rad=0.087,
+                  swing_direction_rad=1.2, torsion_rad=0.15)
+    alarm = AlarmEvent(
+        alarm_id=58, device_id="rod-1", kind="rod", alarm="bite", state="raised", severity="warning",
+        t_us=10_430_000, wall_t_us=wall + 10_436_000, source_wall_us=wall + 10_430_000, value=0.21,
+        threshold=0.1745, message="pitch dropped 12.0° (threshold 10.0°)",
+    )
+    spots = SpotRanking(wall_t_us=wall + 12_100_000, spots=[
+        SpotScore(spot="inlet", rank=1, score=0.82, device_id="ball-2", last_seen_wall_us=wall + 12_000_000,
+                  reasons=["oxygen 9.1 mg/L", "water 16 °C"]),
+        SpotScore(spot="deep_hole", rank=2, score=0.41, device_id="ball-1", last_seen_wall_us=wall + 12_000_000,
+                  reasons=["low oxygen at probe depth"]),
+    ])
+    ingest = IngestStats(
+        wall_t_us=wall + 12_000_000, received=125_000, queue_drops=0, rejected={"schema": 2, "unknown_key": 1},
+        devices=[DeviceIngestCounters(device_id="rod-1", kind="rod", ok=24_990, lost=8, duplicates=1,
+                                      reordered=2, reboots=0, rejected={"schema": 2})],
+    )
+    rejected = RejectedPacket(wall_t_us=wall + 12_000_000, key="rig/rod/rod-1/imu", reason="schema",
+                              detail="acc_m_s2: acc_m_s2 has 9 samples, expected 10", size_bytes=612)
+    config = DeviceConfig(device_id="rod-1", kind="rod", thresholds={"bite_pitch_rad": 0.1745, "bite_hold_s": 0.1})
+    return {
+        "imu_rod": (imu_key("rod", "rod-1"), imu),
+        "imu_hook_minimal": (imu_key("hook", "hook-1"), hook_imu),
+        "env": (env_key("ball-1"), env),
+        "reel_status": (reel_key("rod-1"), reel),
+        "rod_truth": (truth_key("rod", "rod-1"), rod_truth),
+        "hook_truth": (truth_key("hook", "hook-1"), hook_truth),
+        "ball_truth": (truth_key("ball", "ball-1"), ball_truth),
+        "reel_cmd": (reel_cmd_key("rod-1"), reel_cmd),
+        "ball_cmd": (ball_cmd_key("ball-1"), ball_cmd),
+        "attitude": (attitude_key("rod", "rod-1"), att),
+        "swing": (swing_key("hook-1"), swing),
+        "alarm": (alarm_key("rod", "rod-1"), alarm),
+        "spots": (SPOTS_KEY, spots),
+        "diag_ingest": (DIAG_INGEST_KEY, ingest),
+        "diag_rejected": (DIAG_REJECTED_KEY, rejected),
+        "config": (config_key("rod", "rod-1"), config),
+    }
+
+
+FIELD_NOTES: Final[dict[str, str]] = {
+    "v": "protocol version, always 1 in this version",
+    "device_id": "must equal the `{id}` chunk of the key; " + DEVICE_ID_PATTERN,
+    "kind": "must equal the `{kind}` chunk of the key",
+    "boot_id": "random at each device start; a new value restarts sequence tracking",
+    "seq": "+1 per packet on this key, wraps 4294967295 -> 0",
+    "t0_us": "device monotonic clock (µs) of sample 0; sample i at t0_us + i·1e6/rate_hz",
+    "t_us": "device monotonic clock, µs",
+    "rate_hz": "sample rate of the arrays",
+    "gyr_rad_s": "angular rate, body frame, rad/s: n rows of [x, y, z]",
+    "acc_m_s2": "specific force, body frame, m/s² (reads +9.81 on z when level): n rows of [x, y, z]",
+    "mag_uT": "magnetic field, body frame, µT, n rows; absent = 6-axis IMU",
+    "quat_wxyz": "unit quaternion body -> ENU, scalar first (|q| = 1 ± 1e-3)",
+    "wall_t0_us": "device realtime clock (unix µs) of sample 0, if synchronised",
+    "wall_t_us": "realtime clock, unix µs",
+    "sent_wall_us": "sender's realtime clock when sent, unix µs",
+    "events": "ground-truth labels: {label, phase start|end|instant, t_us (device clock), value?}",
+    "profile": "water column measured while the probe sank (first packet after a throw)",
+    "line_in_speed_m_s": "> 0 line coming in, < 0 going out",
+    "cmd_speed_m_s": "motor line-in speed currently commanded",
+    "speed_m_s": "in/out: magnitude (absent = reel default); speed: signed, > 0 reels in",
+    "last_cmd_id": "cmd_id of the last ReelCommand applied (acknowledgement)",
+    "source_wall_us": "wall clock of the device sample that triggered the alarm (for latency)",
+    "yaw_unwrapped_rad": "yaw without the ±π jumps",
+    "swing_direction_rad": "bearing of the swing plane, counter-clockwise from East",
+}
+
+
+def _type_of(prop: dict[str, Any], defs: dict[str, Any]) -> str:
+    if "$ref" in prop:
+        return str(prop["$ref"]).split("/")[-1]
+    if "anyOf" in prop:
+        return " or ".join(_type_of(p, defs) for p in prop["anyOf"] if p.get("type") != "null")
+    if "const" in prop:
+        return json.dumps(prop["const"])
+    if "enum" in prop:
+        return " \\| ".join(json.dumps(e) for e in prop["enum"])
+    t = str(prop.get("type", "any"))
+    if t == "array":
+        if "prefixItems" in prop:
+            inner = _type_of(prop["prefixItems"][0], defs)
+            return f"[{inner} ×{len(prop['prefixItems'])}]"
+        n = f"{prop.get('minItems', 0)}..{prop.get('maxItems', '∞')}"
+        return f"array({n}) of {_type_of(prop.get('items', {}), defs)}"
+    if t == "object":
+        return f"object of {_type_of(prop.get('additionalProperties', {}), defs)}"
+    rng = []
+    if "minimum" in prop or "exclusiveMinimum" in prop:
+        rng.append(f"≥ {prop['minimum']}" if "minimum" in prop else f"> {prop['exclusiveMinimum']}")
+    if "maximum" in prop or "exclusiveMaximum" in prop:
+        rng.append(f"≤ {prop['maximum']}" if "maximum" in prop else f"< {prop['exclusiveMaximum']}")
+    if "maxLength" in prop:
+        rng.append(f"len {prop.get('minLength', 0)}..{prop['maxLength']}")
+    return t + (f" ({', '.join(rng)})" if rng else "")
+
+
+def fields_markdown(model: type[WireModel]) -> str:
+    """A markdown table of the model's fields: name, JSON type with ranges, required, notes."""
+    schema = model.model_json_schema()
+    defs = schema.get("$defs", {})
+    required = set(schema.get("required", []))
+    rows = ["| field | JSON type (range) | required | notes |", "|---|---|---|---|"]
+    for name, prop in schema["properties"].items():
+        req = "yes" if name in required else f"no (default {json.dumps(prop.get('default'))})"
+        rows.append(f"| `{name}` | {_type_of(prop, defs)} | {req} | {FIELD_NOTES.get(name, '')} |")
+    return "\n".join(rows)
+
+
+_FIELDS_BEGIN = "<!-- fields:begin (generated) -->"
+_FIELDS_END = "<!-- fields:end -->"
+DOC_MODELS: Final[tuple[type[WireModel], ...]] = (
+    ImuPacket, EnvPacket, ProfilePoint, ReelStatus, RodTruth, HookTruth, BallTruth, TruthEvent, ReelCommand,
+    BallCommand, Attitude, Swing, AlarmEvent, SpotRanking, SpotScore, IngestStats, DeviceIngestCounters,
+    RejectedPacket, DeviceConfig,
+)
+
+
+def all_fields_markdown() -> str:
+    """Field tables of every wire model."""
+    return "\n\n".join(f"#### {m.__name__}\n\n{(m.__doc__ or '').strip()}\n\n{fields_markdown(m)}"
+                         for m in DOC_MODELS)
+
+
+_EXAMPLES_BEGIN = "<!-- examples:begin (generated by `python -m gateway.schemas --write-doc docs/protocol.md`) -->"
+_EXAMPLES_END = "<!-- examples:end -->"
+
+
+def example_json(model: WireModel) -> str:
+    """The model's wire JSON laid out one top-level field per line (what docs/protocol.md shows)."""
+    d = json.loads(model.to_json())
+    lines = [f"  {json.dumps(k)}: {json.dumps(v, ensure_ascii=False)}" for k, v in d.items()]
+    return "{\n" + ",\n".join(lines) + "\n}"
+
+
+def examples_markdown() -> str:
+    """Markdown blocks 'Key: `...`' + JSON for every example (keys in model order)."""
+    parts = []
+    for name, (key, model) in examples().items():
+        body = example_json(model)
+        enc = ENCODINGS.get(type(model), ENCODING_GW)
+        parts.append(f"#### {name}\n\nKey: `{key}` — encoding `{enc}`\n\n```json\n{body}\n```\n")
+    return "\n".join(parts)
+
+
+def write_doc(path: str) -> None:
+    """Replace the generated examples section of the protocol document in place."""
+    from pathlib import Path
+
+    p = Path(path)
+    text = p.read_text()
+    for begin, end, body in ((_EXAMPLES_BEGIN, _EXAMPLES_END, examples_markdown()),
+                             (_FIELDS_BEGIN, _FIELDS_END, all_fields_markdown())):
+        i, j = text.index(begin), text.index(end)
+        text = text[: i + len(begin)] + "\n\n" + body + "\n" + text[j:]
+    p.write_text(text)
+
+
+def _main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m gateway.schemas", description="Wire protocol examples.")
+    parser.add_argument("--write-doc", metavar="PATH", help="regenerate the examples section of this markdown file")
+    args = parser.parse_args(argv)
+    if args.write_doc:
+        write_doc(args.write_doc)
+    else:
+        print(examples_markdown())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(_main())
