@@ -12,7 +12,8 @@ Model (all rods of a bank advance together, vectorised with numpy; time is passe
   T_line = k (d - L) + c ḋ when taut, L = line out. m ḋ̇ = F_fish - T_line - c_w ḋ|ḋ|. Stamina drains with effort.
   T above `breaking_strength_n` breaks the line (fish escapes); L below `land_line_m` lands the fish.
 - Reel: motor line-in speed follows the command with first-order lag `motor_tau_s`, limited to
-  ±`max_reel_speed_m_s`; the spool slips (line goes out) at (T - drag) / `slip_damping_n_s_m` when T > drag.
+  ±`max_reel_speed_m_s`; when the locked-spool tension would exceed the drag, the spool slips just enough to
+  hold T at the drag (an ideal drag).
 - The IMU sits at the tip on a lever `tip_lever_m` about the bend point: its specific force includes the tip's
   translational acceleration.
 
@@ -75,7 +76,6 @@ class RodSettings:
     default_reel_speed_m_s: float = 0.6
     motor_tau_s: float = 0.15
     drag_n: float = 25.0
-    slip_damping_n_s_m: float = 20.0
     water_drag_n_s2_m2: float = 8.0
     wind_bend_rad: float = math.radians(1.5)  # rms tip bend at wind strength 1
     max_substep_s: float = 0.005
@@ -434,14 +434,12 @@ class RodBank:
         s, t = self.s, self.t_s + h
         # reel motor with lag
         self.motor += (cmd - self.motor) * min(1.0, h / s.motor_tau_s)
-        # fish
+        # fish and line; the spool pays out at the motor's rate unless the drag slips
         hooked = (self.fish == _HOOKED) | (self.fish == _FIGHTING) | (self.fish == _TIRED)
+        rate = -self.motor
         line_tension = np.zeros(self.n)
         if hooked.any():
-            line_tension = self._fish_step(h, t, hooked)
-        # spool: motor + drag slip; slack line can still be paid out
-        slip = np.maximum(0.0, line_tension - self.drag) / s.slip_damping_n_s_m
-        rate = -self.motor + slip
+            line_tension, rate = self._fish_step(h, t, hooked, rate)
         new_out = np.clip(self.line_out + rate * h, 0.0, s.spool_capacity_m)
         self.line_rate = (new_out - self.line_out) / h
         self.line_out = new_out
@@ -455,7 +453,7 @@ class RodBank:
             up = np.clip((t - self.bite_from) / 0.3, 0.0, 1.0)
             down = np.clip((self.bite_until - t) / 0.3, 0.0, 1.0)
             env = 0.5 - 0.5 * np.cos(np.pi * np.minimum(up, down))
-            flick = 1.0 + self.bite_tremble * np.sin(2 * np.pi * 3.0 * (t - self.bite_from))
+            flick = 1.0 + self.bite_tremble * np.sin(2 * np.pi * 3.0 * np.where(biting, t - self.bite_from, 0.0))
             bite = np.where(biting, self.bite_tension * env * flick, 0.0)
         ended = (~biting) & (self.fish == _NIBBLING) & (t >= self.bite_until)
         self.fish[ended] = _NONE
@@ -488,7 +486,9 @@ class RodBank:
             self.pitch_h, self.pitch_h_v, hand[:, 2], hw, s.hand_damping, 0, h)
         self.t_s = t
 
-    def _fish_step(self, h: float, t: float, hooked: BoolArray) -> FloatArray:
+    def _fish_step(self, h: float, t: float, hooked: BoolArray, motor_rate: FloatArray,
+                   ) -> tuple[FloatArray, FloatArray]:
+        """Advance hooked fish; returns (line tension N, line-out rate m/s) with the drag as a tension cap."""
         s, r = self.s, self.rng
         # bursts: runs of 1-5 s alternate with rests of 1-3 s
         switch = hooked & (t >= self.fish_burst_until)
@@ -502,9 +502,12 @@ class RodBank:
         effort = np.where(self.fish_burst & ~tired, 1.0, 0.15) * np.where(hooked, 1.0, 0.0)
         pull = self.fish_pull * np.maximum(self.fish_stamina, 0.05) * effort
         stretch = self.fish_d - self.line_out
-        taut = stretch > 0
-        line_t = np.where(taut & hooked, np.maximum(0.0, s.line_stiffness_n_m * stretch
-                                                    + s.line_damping_n_s_m * (self.fish_v - self.line_rate)), 0.0)
+        k, c = s.line_stiffness_n_m, s.line_damping_n_s_m
+        locked = np.where(hooked & (stretch > 0), np.maximum(0.0, k * stretch + c * (self.fish_v - motor_rate)), 0.0)
+        # drag: the spool slips just enough to hold the tension at the drag setting
+        slipping = locked > self.drag
+        rate = np.where(slipping, np.maximum(motor_rate, self.fish_v - (self.drag - k * stretch) / c), motor_rate)
+        line_t = np.where(slipping, self.drag, locked)
         m = np.maximum(self.fish_mass, 0.1) * 1.5  # added mass of water
         acc = (pull - line_t - s.water_drag_n_s2_m2 * self.fish_v * np.abs(self.fish_v)) / m
         self.fish_v = np.where(hooked, self.fish_v + acc * h, 0.0)
@@ -527,7 +530,7 @@ class RodBank:
         self.broken |= broke
         self.fish = np.where(broke, _ESCAPED, np.where(landed, _LANDED, self.fish))
         line_t = np.where(broke | landed, 0.0, line_t)
-        return np.asarray(line_t, dtype=np.float64)
+        return np.asarray(line_t, dtype=np.float64), np.asarray(rate, dtype=np.float64)
 
     # ---- kinematics --------------------------------------------------------------------------------------------
 
