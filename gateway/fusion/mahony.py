@@ -115,6 +115,7 @@ class MahonyFilter(AttitudeFilter):
         use_mag = self.use_mag and mag_uT is not None
         gyr = np.ascontiguousarray(gyr_rad_s, dtype=np.float64)
         mag = np.ascontiguousarray(mag_uT, dtype=np.float64) if use_mag else np.zeros_like(gyr)
+        quat.check_samples(gyr, acc_m_s2, mag)
         return mahony_run(self._state, gyr, np.ascontiguousarray(acc_m_s2, dtype=np.float64), mag, use_mag,
                           float(dt_s), self._params)
 

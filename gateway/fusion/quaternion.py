@@ -36,6 +36,13 @@ def _f64(a: ArrayLike) -> FloatArray:
 # ---------------------------------------------------------------------------------------------------------------
 
 
+def check_samples(*arrays: ArrayLike) -> None:
+    """Raise ValueError unless every array has the same shape (N, 3): numba loops do not check bounds."""
+    shapes = {np.shape(a) for a in arrays}
+    if len(shapes) != 1 or len(next(iter(shapes))) != 2 or next(iter(shapes))[1] != 3:
+        raise ValueError(f"expected sample arrays of one shape (N, 3), got shapes {sorted(shapes)}")
+
+
 def identity(shape: tuple[int, ...] = ()) -> FloatArray:
     """Identity quaternion(s) of the given leading shape."""
     q = np.zeros((*shape, 4))

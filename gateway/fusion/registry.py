@@ -9,6 +9,8 @@ from gateway.fusion.base import AttitudeFilter
 # name -> "module:ClassName"; the class takes keyword `use_mag`. Imported lazily, so modules stay independent.
 FILTERS: dict[str, str] = {
     "mahony": "gateway.fusion.mahony:MahonyFilter",
+    "complementary": "gateway.fusion.complementary:ComplementaryFilter",
+    "adaptive": "gateway.fusion.complementary:AdaptiveComplementaryFilter",
 }
 
 

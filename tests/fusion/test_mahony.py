@@ -30,6 +30,11 @@ def test_run_equals_repeated_update():
         np.testing.assert_allclose(a.integral_rad_s, b.integral_rad_s, atol=1e-9)
 
 
+def test_run_rejects_mismatched_lengths():
+    with pytest.raises(ValueError, match="shape"):
+        MahonyFilter().run(np.zeros((10, 3)), np.zeros((10, 3)), np.zeros((9, 3)), 0.01)
+
+
 @given(unit_quats(), vectors(30.0), vectors(50.0), vectors(80.0), st.floats(1e-3, 0.05))
 def test_update_keeps_unit_norm(q0, gyr, acc, mag, dt):
     f = MahonyFilter(MahonySettings(kp=5.0, ki=0.1, kp_mag=2.0))
