@@ -174,7 +174,7 @@ def load_script(text: str | None) -> list[dict[str, Any]]:
     """A script from inline JSON or a JSON file path (a list of event dicts)."""
     if not text:
         return []
-    raw = Path(text).read_text() if not text.lstrip().startswith("[") else text
+    raw = text if text.lstrip()[:1] in ("[", "{") else Path(text).read_text()
     items = json.loads(raw)
     if not isinstance(items, list):
         raise ValueError("script must be a JSON list of events")
