@@ -1,1 +1,11 @@
-"""api layer of the gateway."""
+"""REST API of the gateway: `api_router` collects the routes under /api."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from gateway.api.routes import alarms, config, devices, health, reel, spots
+
+api_router = APIRouter()
+for _r in (health.router, devices.router, config.router, alarms.router, reel.router, spots.router):
+    api_router.include_router(_r)

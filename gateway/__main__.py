@@ -1,0 +1,86 @@
+"""Run the gateway: zenoh ingest, fusion and alarms, zenoh outputs and the REST API (`python -m gateway --help`).
+
+By default the gateway is a zenoh peer that LISTENS on tcp/127.0.0.1:7447 with multicast scouting off, and the
+devices (devices/common.py) connect to it; REST is served on http://127.0.0.1:8000 (docs at /docs).
+Every option can also be set in the environment as RIG_<NAME> (e.g. RIG_HTTP_PORT=8001); options win.
+
+    python -m gateway                      # gateway + REST only
+    python -m gateway --with-devices       # also start the simulated rod, ball and hook (python -m devices)
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from gateway.config import Settings
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m gateway", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    p.add_argument("--data-dir", type=Path, help="database and token file (default: ./var)")
+    p.add_argument("--host", dest="http_host", help="REST bind address (default: 127.0.0.1)")
+    p.add_argument("--port", dest="http_port", type=int, help="REST port (default: 8000)")
+    z = p.add_argument_group("zenoh")
+    z.add_argument("--mode", dest="zenoh_mode", choices=["peer", "client", "router"],
+                   help="session mode (default: peer)")  # fmt: skip
+    z.add_argument("--listen", dest="zenoh_listen", action="append", metavar="ENDPOINT",
+                   help="endpoint to listen on, repeatable (default: tcp/127.0.0.1:7447)")  # fmt: skip
+    z.add_argument("--connect", dest="zenoh_connect", action="append", metavar="ENDPOINT",
+                   help="endpoint to connect to, repeatable (default: none)")  # fmt: skip
+    z.add_argument("--multicast", dest="zenoh_multicast_scouting", action="store_true", default=None,
+                   help="enable multicast scouting (default: off)")  # fmt: skip
+    p.add_argument("--filter", dest="default_filter", help="default attitude filter for rods (default: default)")
+    p.add_argument("--with-devices", action="store_true", help="also start the simulated devices (python -m devices)")
+    p.add_argument("--devices-args", default="", metavar="ARGS", help="extra arguments for python -m devices")
+    p.add_argument("--log-level", default="INFO", help="logging level (default: INFO)")
+    return p
+
+
+def settings_from_args(args: argparse.Namespace) -> Settings:
+    """Settings from the environment (RIG_*) with the given options on top."""
+    names = ("data_dir", "http_host", "http_port", "zenoh_mode", "zenoh_listen", "zenoh_connect",
+             "zenoh_multicast_scouting", "default_filter")  # fmt: skip
+    overrides: dict[str, Any] = {n: getattr(args, n) for n in names if getattr(args, n) is not None}
+    return Settings(**overrides)
+
+
+def device_command(settings: Settings, extra: str) -> list[str]:
+    """`python -m devices` connected to where this gateway listens."""
+    import shlex
+
+    endpoints = [e.replace("0.0.0.0", "127.0.0.1") for e in settings.zenoh_listen] or ["tcp/127.0.0.1:7447"]
+    cmd = [sys.executable, "-m", "devices"]
+    for ep in endpoints:
+        cmd += ["--connect", ep]
+    return cmd + shlex.split(extra)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    settings = settings_from_args(args)
+    import uvicorn
+
+    from gateway.app import create_app
+
+    devices = subprocess.Popen(device_command(settings, args.devices_args)) if args.with_devices else None
+    try:
+        uvicorn.run(create_app(settings), host=settings.http_host, port=settings.http_port, log_level="warning")
+    finally:
+        if devices is not None:
+            devices.terminate()
+            try:
+                devices.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                devices.kill()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

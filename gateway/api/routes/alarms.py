@@ -1,0 +1,52 @@
+"""Alarm history (filtered, paged) and acknowledgement."""
+
+from __future__ import annotations
+
+import time
+from typing import Annotated, Any
+
+from fastapi import APIRouter, HTTPException, Query
+
+from gateway.alarm.engine import Alarm, AlarmStatus, Severity
+from gateway.api.deps import ServiceDep, WriterDep
+from gateway.hub import wire_alarm_id
+
+router = APIRouter(prefix="/alarms", tags=["alarms"])
+
+
+def alarm_json(a: Alarm) -> dict[str, Any]:
+    return {
+        "id": a.id, "wire_id": wire_alarm_id(a.id), "device_id": a.device_id, "type": a.type,
+        "severity": a.severity.value, "status": a.status.value, "acknowledged": a.acknowledged,
+        "started_at": a.started_at, "updated_at": a.updated_at, "cleared_at": a.cleared_at,
+        "acknowledged_at": a.acknowledged_at, "acknowledged_by": a.acknowledged_by, "value": a.value,
+        "peak": a.peak, "threshold": a.threshold, "count": a.count, "message": a.message, "details": dict(a.details),
+    }  # fmt: skip
+
+
+@router.get("")
+def list_alarms(
+    service: ServiceDep,
+    device_id: str | None = None,
+    type: str | None = None,
+    status: AlarmStatus | None = None,
+    severity: Severity | None = None,
+    acknowledged: bool | None = None,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+    offset: Annotated[int, Query(ge=0)] = 0,
+) -> dict[str, Any]:
+    """Alarms newest first; `total` counts every match, `items` is one page."""
+    rows, total = service.store.list_alarms(device_id, type, status, severity, acknowledged, limit=limit, offset=offset)
+    return {"total": total, "limit": limit, "offset": offset, "items": [alarm_json(a) for a in rows],
+            "counts": service.store.counts(device_id)}  # fmt: skip
+
+
+@router.post("/{alarm_id}/ack")
+def ack_alarm(alarm_id: str, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
+    """Acknowledge an alarm (it stays active until its condition clears)."""
+    now = time.time()
+    service.pipeline.engine.acknowledge(alarm_id, who, now)
+    alarm = service.store.acknowledge(alarm_id, who, now)
+    if alarm is None:
+        raise HTTPException(404, f"unknown alarm {alarm_id!r}")
+    return alarm_json(alarm)

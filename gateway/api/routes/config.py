@@ -1,0 +1,101 @@
+"""Thresholds: kind defaults and per-device settings (filter + partial threshold override). Writes need the token.
+
+Every write is validated before anything is stored or applied; a bad value gives 422 with one readable message
+per problem in `detail`.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Body, HTTPException
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from gateway.api.deps import ServiceDep, WriterDep
+from gateway.config import THRESHOLD_MODELS, DeviceSettings
+from gateway.pipeline import config_kind
+
+router = APIRouter(tags=["config"])
+Kind = Literal["rod", "hook", "ball"]
+
+
+def _messages(exc: ValidationError) -> list[str]:
+    return [f"{'.'.join(str(p) for p in e['loc']) or '(thresholds)'}: {e['msg']}" for e in exc.errors()]
+
+
+class DeviceSettingsIn(BaseModel):
+    """Settings of one device; `kind` is required the first time a device is configured before it was seen."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    kind: Kind | None = None
+    filter_name: str | None = None
+    thresholds: dict[str, Any] = Field(default_factory=dict)
+
+
+@router.get("/thresholds/{kind}")
+def get_defaults(kind: Kind, service: ServiceDep) -> dict[str, Any]:
+    """Default thresholds of a device kind."""
+    return service.pipeline.defaults[config_kind(kind)].model_dump()
+
+
+@router.put("/thresholds/{kind}")
+def put_defaults(
+    kind: Kind, body: Annotated[dict[str, Any], Body()], service: ServiceDep, _: WriterDep
+) -> dict[str, Any]:
+    """Replace a kind's defaults (fields left out take the built-in default); applied live and stored."""
+    try:
+        model = THRESHOLD_MODELS[config_kind(kind)].model_validate(body)
+    except ValidationError as exc:
+        raise HTTPException(422, _messages(exc)) from exc
+    service.pipeline.set_defaults(kind, model)  # BadSettings -> 422 (a device override would become invalid)
+    service.store.save_defaults(config_kind(kind), model)
+    service.store.log_event(time.time(), "defaults_changed", None, {"kind": kind})
+    return model.model_dump()
+
+
+def _kind_of(service: ServiceDep, device_id: str, given: str | None) -> str:
+    kind = service.pipeline.kinds.get(device_id) or given
+    if kind is None:
+        raise HTTPException(422, [f"kind: unknown device {device_id!r}, give its kind (rod, hook or ball)"])
+    if given is not None and given != kind:
+        raise HTTPException(422, [f"kind: device {device_id!r} is a {kind}, not a {given}"])
+    return kind
+
+
+@router.get("/devices/{device_id}/settings")
+def get_settings(device_id: str, service: ServiceDep) -> dict[str, Any]:
+    """Stored settings of a device and the thresholds in effect."""
+    kind = service.pipeline.kinds.get(device_id)
+    if kind is None:
+        raise HTTPException(404, f"unknown device {device_id!r}")
+    entry = service.pipeline.device_settings.get(device_id)
+    filter_name, th = service.pipeline.effective(kind, device_id)
+    return {
+        "device_id": device_id, "kind": kind,
+        "settings": (entry[1] if entry else DeviceSettings()).model_dump(),
+        "effective": {"filter_name": filter_name, "thresholds": th.model_dump()},
+    }  # fmt: skip
+
+
+@router.put("/devices/{device_id}/settings")
+def put_settings(device_id: str, body: DeviceSettingsIn, service: ServiceDep, _: WriterDep) -> dict[str, Any]:
+    """Replace a device's settings (validated against its kind's defaults), applied live and stored."""
+    kind = _kind_of(service, device_id, body.kind)
+    ds = DeviceSettings(filter_name=body.filter_name, thresholds=body.thresholds)
+    service.pipeline.set_device_settings(device_id, kind, ds)
+    service.store.save_device_settings(device_id, kind, ds)
+    service.store.log_event(time.time(), "settings_changed", device_id, ds.model_dump())
+    return get_settings(device_id, service)
+
+
+@router.delete("/devices/{device_id}/settings")
+def delete_settings(device_id: str, service: ServiceDep, _: WriterDep) -> dict[str, Any]:
+    """Forget a device's overrides: it follows its kind's defaults again."""
+    kind = _kind_of(service, device_id, None)
+    service.pipeline.set_device_settings(device_id, kind, DeviceSettings())
+    service.pipeline.device_settings.pop(device_id, None)
+    service.store.delete_device_settings(device_id)
+    return get_settings(device_id, service)
+

@@ -1,0 +1,37 @@
+"""Reel control of a rod: manual in/out/stop with a speed, or the automatic fish-walking mode."""
+
+from __future__ import annotations
+
+import time
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, HTTPException
+from pydantic import BaseModel, ConfigDict, Field
+
+from gateway.api.deps import ServiceDep, WriterDep
+
+router = APIRouter(prefix="/rods", tags=["reel"])
+
+
+class ReelRequest(BaseModel):
+    """`in`/`out`/`stop` drive the reel manually (auto off); `auto` hands it to the fish-walking controller."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    action: Literal["in", "out", "stop", "auto"]
+    speed_m_s: Annotated[float, Field(gt=0.0, le=5.0)] | None = None
+    drag_n: Annotated[float, Field(ge=0.0, le=200.0)] | None = None
+
+
+@router.post("/{device_id}/reel")
+def reel(device_id: str, body: ReelRequest, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
+    """Send a ReelCommand to `rig/rod/{id}/reel/cmd` (CongestionControl.BLOCK), or switch auto mode on."""
+    if service.pipeline.kinds.get(device_id) not in (None, "rod"):
+        raise HTTPException(422, [f"device {device_id!r} is not a rod"])
+    if body.action == "auto":
+        available = service.pipeline.set_auto_reel(device_id, True)
+        service.store.log_event(time.time(), "reel_auto", device_id, {"on": True, "by": who})
+        return {"device_id": device_id, "auto": True, "controller_available": available}
+    service.pipeline.set_auto_reel(device_id, False)
+    cmd = service.hub.send_reel(device_id, body.action, body.speed_m_s, body.drag_n, sender=who)
+    return {"device_id": device_id, "auto": False, "command": cmd.model_dump()}

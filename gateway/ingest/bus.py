@@ -1,0 +1,203 @@
+"""The message bus the gateway talks through: a `Bus` protocol, `ZenohBus` (real) and `MemoryBus` (tests).
+
+Callbacks registered with `subscribe` / `watch_liveliness` run on the bus's own threads (zenoh's): they must
+only hand off (see `gateway.ingest.runner.Inbox`), never block, never call back into the bus
+(zenoh-python docs; NOTES-zenoh-viser §1 pitfall 2). `close()` must always run: a zenoh session left open
+with live callback subscribers hangs interpreter exit (zenoh-python #434).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+from collections.abc import Callable
+from typing import Protocol
+
+import zenoh
+
+from gateway.config import Settings
+
+log = logging.getLogger("gateway.bus")
+
+SampleCallback = Callable[[str, bytes], None]
+"""(key, payload) of one sample, called on a bus thread."""
+PresenceCallback = Callable[[str, bool], None]
+"""(token key, alive) for a liveliness token appearing (True) or vanishing (False), called on a bus thread."""
+QueryHandler = Callable[[str], list[tuple[str, bytes]]]
+"""Selector asked for -> replies (key, payload). Runs on a bus thread: must only read, never block."""
+
+
+class Bus(Protocol):
+    """What the gateway needs from a pub/sub transport."""
+
+    def subscribe(self, selector: str, callback: SampleCallback) -> None: ...
+
+    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None: ...
+
+    def watch_liveliness(self, selector: str, callback: PresenceCallback) -> None: ...
+
+    def declare_token(self, key: str) -> None: ...
+
+    def declare_queryable(self, selector: str, handler: QueryHandler, *, encoding: str) -> None: ...
+
+    def close(self) -> None: ...
+
+
+def zenoh_config(settings: Settings) -> zenoh.Config:
+    """zenoh Config from Settings (mode, listen/connect endpoints, multicast scouting)."""
+    conf = zenoh.Config()
+    for key, value in settings.zenoh_config().items():
+        if key.endswith("/endpoints") and value == "[]":
+            continue
+        conf.insert_json5(key, value)
+    if settings.zenoh_connect:
+        # keep retrying a router/peer that is not up yet instead of failing at start-up
+        conf.insert_json5("connect/exit_on_failure", "false")
+        retry = '{"period_init_ms": 250, "period_max_ms": 2000, "period_increase_factor": 2}'
+        conf.insert_json5("connect/retry", retry)
+    return conf
+
+
+def _guarded(name: str, fn: Callable[..., None]) -> Callable[..., None]:
+    """Wrap a callback so an exception is logged (zenoh would only print it) and never escapes."""
+
+    def run(*args: object) -> None:
+        try:
+            fn(*args)
+        except Exception:
+            log.exception("callback %s failed", name)
+
+    return run
+
+
+class ZenohBus:
+    """A zenoh session with publishers cached per key; BLOCK congestion control for commands and alarms."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.session = session
+        self._pubs: dict[tuple[str, bool], zenoh.Publisher] = {}
+        self._handles: list[object] = []
+        self._lock = threading.Lock()
+
+    @classmethod
+    def open(cls, settings: Settings) -> ZenohBus:
+        """Open a session from Settings (the gateway listens on tcp/127.0.0.1:7447 by default)."""
+        return cls(zenoh.open(zenoh_config(settings)))
+
+    def subscribe(self, selector: str, callback: SampleCallback) -> None:
+        def on_sample(sample: zenoh.Sample) -> None:
+            callback(str(sample.key_expr), sample.payload.to_bytes())
+
+        self._handles.append(self.session.declare_subscriber(selector, _guarded(selector, on_sample)))
+
+    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None:
+        with self._lock:
+            pub = self._pubs.get((key, block))
+            if pub is None:
+                pub = self.session.declare_publisher(
+                    key, encoding=zenoh.Encoding(encoding), express=True,
+                    congestion_control=zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP,
+                )  # fmt: skip
+                self._pubs[(key, block)] = pub
+        pub.put(payload)
+
+    def watch_liveliness(self, selector: str, callback: PresenceCallback) -> None:
+        def on_sample(sample: zenoh.Sample) -> None:
+            callback(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+
+        sub = self.session.liveliness().declare_subscriber(selector, _guarded(selector, on_sample), history=True)
+        self._handles.append(sub)
+
+    def declare_token(self, key: str) -> None:
+        self._handles.append(self.session.liveliness().declare_token(key))
+
+    def declare_queryable(self, selector: str, handler: QueryHandler, *, encoding: str) -> None:
+        enc = zenoh.Encoding(encoding)
+
+        def on_query(query: zenoh.Query) -> None:
+            for key, payload in handler(str(query.key_expr)):
+                query.reply(key, payload, encoding=enc)
+
+        self._handles.append(self.session.declare_queryable(selector, _guarded(selector, on_query)))
+
+    def close(self) -> None:
+        """Undeclare everything and close the session (idempotent)."""
+        for h in reversed(self._handles):
+            try:
+                h.undeclare()  # type: ignore[attr-defined]
+            except Exception:  # already closed
+                pass
+        self._handles.clear()
+        for p in self._pubs.values():
+            try:
+                p.undeclare()  # type: ignore[no-untyped-call]
+            except Exception:
+                pass
+        self._pubs.clear()
+        self.session.close()  # type: ignore[no-untyped-call]
+
+
+def key_matches(selector: str, key: str) -> bool:
+    """Key-expression match for `*` (one chunk) and `**` (any number of chunks)."""
+    sel, parts = selector.split("/"), key.split("/")
+
+    def go(i: int, j: int) -> bool:
+        if i == len(sel):
+            return j == len(parts)
+        if sel[i] == "**":
+            return any(go(i + 1, k) for k in range(j, len(parts) + 1))
+        return j < len(parts) and (sel[i] == "*" or sel[i] == parts[j]) and go(i + 1, j + 1)
+
+    return go(0, 0)
+
+
+class MemoryBus:
+    """In-process twin of ZenohBus: puts are delivered synchronously to matching subscribers and recorded."""
+
+    def __init__(self) -> None:
+        self.subs: list[tuple[str, SampleCallback]] = []
+        self.watchers: list[tuple[str, PresenceCallback]] = []
+        self.queryables: list[tuple[str, QueryHandler]] = []
+        self.tokens: set[str] = set()
+        self.sent: list[tuple[str, bytes, bool]] = []
+        self.closed = False
+
+    def subscribe(self, selector: str, callback: SampleCallback) -> None:
+        self.subs.append((selector, callback))
+
+    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None:
+        self.sent.append((key, payload, block))
+        for sel, cb in self.subs:
+            if key_matches(sel, key):
+                cb(key, payload)
+
+    def watch_liveliness(self, selector: str, callback: PresenceCallback) -> None:
+        self.watchers.append((selector, callback))
+        for t in self.tokens:
+            if key_matches(selector, t):
+                callback(t, True)
+
+    def declare_token(self, key: str) -> None:
+        self.set_alive(key, True)
+
+    def set_alive(self, key: str, alive: bool) -> None:
+        """Simulate a device token appearing or vanishing."""
+        (self.tokens.add if alive else self.tokens.discard)(key)
+        for sel, cb in self.watchers:
+            if key_matches(sel, key):
+                cb(key, alive)
+
+    def declare_queryable(self, selector: str, handler: QueryHandler, *, encoding: str) -> None:
+        self.queryables.append((selector, handler))
+
+    def get(self, selector: str) -> list[tuple[str, bytes]]:
+        """Ask every queryable (the MemoryBus twin of `session.get`; handlers filter by the selector)."""
+        return [r for _, h in self.queryables for r in h(selector)]
+
+    def sent_json(self, prefix: str) -> list[dict[str, object]]:
+        """Decoded payloads of everything put on keys starting with `prefix`."""
+        return [json.loads(p) for k, p, _ in self.sent if k.startswith(prefix)]
+
+    def close(self) -> None:
+        self.closed = True

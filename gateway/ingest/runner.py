@@ -1,0 +1,215 @@
+"""The running gateway: bus callbacks -> bounded inbox -> one asyncio task that decodes, sequence-checks, runs the
+pipeline on whole batches and hands results to the hub; plus presence, diagnostics and the config queryable.
+
+Hand-off (the only work done on zenoh's threads): `Inbox.offer` appends `(key, bytes, arrival_s)` to a deque
+and, if no wake-up is pending, schedules one with `loop.call_soon_threadsafe`; a full inbox counts a queue
+drop. One wake-up per burst instead of one per packet keeps the event loop's overhead flat under load.
+The ingest task drains up to `max_batch` packets at a time, so fusion steps all devices with pending samples
+together. A packet that fails to decode is counted by reason, logged (rate-limited) and published on
+`gw/diag/rejected` (at most `REJECTED_PER_S` a second); nothing stops the loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import logging
+import time
+from typing import Any
+
+from gateway import schemas
+from gateway.config import Settings
+from gateway.hub import Hub
+from gateway.ingest.bus import Bus, key_matches
+from gateway.ingest.presence import Presence
+from gateway.ingest.stats import IngestCounters
+from gateway.pipeline import Pipeline, PipelineSettings
+from gateway.store import Store
+
+log = logging.getLogger("gateway.ingest")
+
+REJECTED_PER_S = 20
+Received = tuple[str, bytes, float]
+
+
+class Inbox:
+    """Bounded, thread-safe hand-off from bus threads to the event loop."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, maxsize: int) -> None:
+        self.loop = loop
+        self.maxsize = maxsize
+        self.drops = 0
+        self._items: collections.deque[Received] = collections.deque()
+        self._ready = asyncio.Event()
+        self._wake_pending = False
+
+    def offer(self, key: str, payload: bytes) -> None:
+        """Called on a bus thread: enqueue or count a drop; never blocks."""
+        if len(self._items) >= self.maxsize:
+            self.drops += 1
+            return
+        self._items.append((key, payload, time.monotonic()))
+        if not self._wake_pending:
+            self._wake_pending = True
+            self.loop.call_soon_threadsafe(self._wake)
+
+    def _wake(self) -> None:
+        self._wake_pending = False
+        self._ready.set()
+
+    async def drain(self, max_n: int) -> list[Received]:
+        """Wait for packets, then take up to `max_n` of them (oldest first)."""
+        await self._ready.wait()
+        self._ready.clear()
+        items = self._items
+        out = [items.popleft() for _ in range(min(max_n, len(items)))]
+        if items:
+            self._ready.set()
+        return out
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+
+class GatewayService:
+    """Owns bus subscriptions, the pipeline, the hub, presence and counters. `start()` on the event loop,
+    `stop()` before closing the bus."""
+
+    def __init__(
+        self, settings: Settings, bus: Bus, store: Store, pipeline_settings: PipelineSettings | None = None,
+        max_batch: int = 2000, diag_period_s: float = 1.0,
+    ) -> None:  # fmt: skip
+        self.settings = settings
+        self.bus = bus
+        self.store = store
+        self.max_batch = max_batch
+        self.diag_period_s = diag_period_s
+        active, _ = store.list_alarms(status="active", limit=1_000_000)
+        self.pipeline = Pipeline(
+            pipeline_settings or PipelineSettings(default_filter=settings.default_filter),
+            store.load_defaults(), store.load_device_settings(), active,
+        )  # fmt: skip
+        self.hub = Hub(bus, store)
+        self.counters = IngestCounters()
+        self.presence = Presence()
+        self.started_s = time.time()
+        self.batches = 0
+        self.inbox: Inbox | None = None
+        self._tasks: list[asyncio.Task[Any]] = []
+        self._rejected_window = (0, 0)  # (second, published in it)
+
+    async def start(self) -> None:
+        loop = asyncio.get_running_loop()
+        self.inbox = Inbox(loop, self.settings.ingest_queue_size)
+        for sel in schemas.SEL_DEVICE_DATA:
+            self.bus.subscribe(sel, self.inbox.offer)
+
+        def on_token(key: str, alive: bool) -> None:  # bus thread: hand off only
+            loop.call_soon_threadsafe(self._on_presence, key, alive)
+
+        self.bus.watch_liveliness(schemas.SEL_DEVICE_TOKENS, on_token)
+        self.bus.declare_queryable(schemas.SEL_GW_CONFIG, self.config_replies, encoding=schemas.ENCODING_GW)
+        self.bus.declare_token(schemas.GW_ALIVE_KEY)
+        self._tasks = [asyncio.create_task(self._ingest_loop()), asyncio.create_task(self._diag_loop())]
+
+    async def stop(self) -> None:
+        for t in self._tasks:
+            t.cancel()
+        for t in self._tasks:
+            try:
+                await t
+            except (asyncio.CancelledError, Exception):
+                pass
+        self._tasks = []
+
+    # -- ingest ---------------------------------------------------------------------------------------------
+
+    async def _ingest_loop(self) -> None:
+        assert self.inbox is not None
+        while True:
+            items = await self.inbox.drain(self.max_batch)
+            try:
+                self.handle(items)
+            except Exception:  # a pipeline bug must not stop ingest
+                log.exception("batch of %d packets failed", len(items))
+            await asyncio.sleep(0)  # let REST handlers in between batches
+
+    def handle(self, items: list[Received], now_wall_s: float | None = None) -> None:
+        """Decode, sequence-check and process one batch; publish what it produced."""
+        now = time.time() if now_wall_s is None else now_wall_s
+        c = self.counters
+        c.received += len(items)
+        if self.inbox is not None:
+            c.queue_drops = self.inbox.drops
+        packets: list[schemas.Packet] = []
+        for key, payload, arrival in items:
+            try:
+                p = schemas.decode(key, payload)
+            except schemas.DecodeError as err:
+                c.reject(key, err, arrival)
+                self._publish_rejected(key, err, len(payload), now)
+                continue
+            topic = key.rsplit("/", 1)[-1]
+            if c.accept(p.kind, p.device_id, topic, p.boot_id, p.seq, arrival):  # type: ignore[union-attr]
+                packets.append(p)
+        if packets:
+            self.batches += 1
+            self.hub.emit(self.pipeline.process(packets, now))
+
+    def _publish_rejected(self, key: str, err: schemas.DecodeError, size: int, now: float) -> None:
+        second, n = self._rejected_window
+        if int(now) != second:
+            second, n = int(now), 0
+        if n < REJECTED_PER_S:
+            msg = schemas.RejectedPacket(wall_t_us=int(now * 1e6), key=key[:300], reason=err.reason,
+                                         detail=err.detail[:500], size_bytes=size)  # fmt: skip
+            self.bus.put(schemas.DIAG_REJECTED_KEY, msg.to_json(), encoding=schemas.ENCODING_GW)
+        self._rejected_window = (second, n + 1)
+
+    async def _diag_loop(self) -> None:
+        while True:
+            await asyncio.sleep(self.diag_period_s)
+            try:
+                if self.inbox is not None:
+                    self.counters.queue_drops = self.inbox.drops
+                stats = self.counters.snapshot(int(time.time() * 1e6))
+                self.bus.put(schemas.DIAG_INGEST_KEY, stats.to_json(), encoding=schemas.ENCODING_GW)
+            except Exception:
+                log.exception("diagnostics publish failed")
+
+    # -- presence and config --------------------------------------------------------------------------------
+
+    def _on_presence(self, key: str, alive: bool) -> None:
+        change = self.presence.update(key, alive, time.time())
+        if change is None:
+            return
+        self.pipeline.kinds.setdefault(change.device_id, change.kind)
+        log.info("device %s %s", change.device_id, "online" if alive else "offline")
+        try:
+            self.store.log_event(change.since_s, "online" if alive else "offline", change.device_id,
+                                 {"kind": change.kind})  # fmt: skip
+        except Exception:
+            log.exception("event log write failed")
+
+    def device_config(self, kind: str, device_id: str) -> schemas.DeviceConfig:
+        """Current thresholds of a device (the kind defaults when it has no override)."""
+        _, th = self.pipeline.effective(kind, device_id)
+        values = {k: float(v) for k, v in th.model_dump().items() if isinstance(v, int | float)}
+        return schemas.DeviceConfig(device_id=device_id, kind=kind, thresholds=values)  # type: ignore[arg-type]
+
+    def config_replies(self, selector: str) -> list[tuple[str, bytes]]:
+        """Replies of the `gw/config/{kind}/{id}` queryable: one per known device matching the selector;
+        an unknown concrete device gets its kind's defaults."""
+
+        parts = selector.split("/")
+        out = []
+        for device_id, kind in list(self.pipeline.kinds.items()):
+            key = schemas.config_key(kind, device_id)
+            if key_matches(selector, key):
+                out.append((key, self.device_config(kind, device_id).to_json()))
+        if not out and len(parts) == 4 and parts[2] in schemas.KINDS and "*" not in selector:
+            try:
+                out.append((selector, self.device_config(parts[2], parts[3]).to_json()))
+            except ValueError:
+                pass
+        return out

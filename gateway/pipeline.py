@@ -1,0 +1,523 @@
+"""Per-device processing, pure (no I/O, no clock reads): decoded packets in, results out; the hub fans them out.
+
+One `Pipeline.process(packets, now_wall_s)` call takes a whole drained batch:
+
+1. IMU packets are grouped per device (several packets of a device are concatenated in order).
+2. Fusion: every device on the default filter is stepped together by `DefaultFilterBatch` (one numba call per
+   distinct block length); other filters (the hook EKF, or any registered name chosen per device) run their own
+   `update_block`/`run`. Euler angles come from one vectorised `to_euler` per group.
+3. Device logic on the fused block: rod -> bite / drop-back / line-guard rules (`gateway.alarm.rules`) and, when
+   auto reel is on, the fish-walking controller; hook -> swing angle Θ, displacement bearing, torsion φ
+   (`gateway.fusion.hook`) and the hook rules; ball -> latest readings per spot and the spot ranking.
+4. Rule conditions go through one `AlarmEngine` (lifecycle: raised / updated / cleared), with times converted
+   from device time to wall time using the packet's `wall_t0_us` (else the arrival time).
+
+Outputs are decimated: attitude at most every `attitude_interval_s` per device (the last sample of a packet),
+swing once per packet, spot ranking at most every `spots_interval_s`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from pydantic import ValidationError
+
+from gateway import schemas
+from gateway.alarm.engine import Alarm, AlarmChange, AlarmEngine, Condition
+from gateway.alarm.hook import HookAlarms
+from gateway.alarm.rules import RodAlarms
+from gateway.config import (
+    DeviceSettings,
+    HookThresholds,
+    RodThresholds,
+    SpotPreferences,
+    ThresholdModel,
+    default_thresholds,
+    merge_thresholds,
+)
+from gateway.errors import BadSettings
+from gateway.fusion import hook as hook_geo
+from gateway.fusion.base import AttitudeFilter, FloatArray
+from gateway.fusion.quaternion import rotate, to_euler
+from gateway.spots import SpotReading, rank_spots
+
+log = logging.getLogger("gateway.pipeline")
+
+G_M_S2 = 9.80665
+DEFAULT_FILTER = "default"
+HOOK_FILTER = "hook"
+
+
+def config_kind(kind: str) -> str:
+    """Device kind on the wire (`rod`, `hook`, `ball`) -> threshold-model kind in `gateway.config` (`ball` -> `env`)."""
+    return "env" if kind == "ball" else kind
+
+
+@dataclass(frozen=True)
+class PipelineSettings:
+    """Output rates and fallbacks; times in seconds."""
+
+    default_filter: str = DEFAULT_FILTER
+    hook_filter: str = HOOK_FILTER  # hooks not configured otherwise use the rope-aware EKF
+    attitude_interval_s: float = 0.02  # at most 50 Hz of attitude per device
+    spots_interval_s: float = 1.0
+    reel_max_age_s: float = 1.0  # reel tension older than this is not fed to the line guard
+    warmup_s: float = 0.5  # samples averaged before a filter starts (design.md: initial rest window)
+    rest_gyr_std_rad_s: float = 0.01  # warm-up counts as rest below this gyro std (then its mean seeds the bias)
+    rest_acc_tol_m_s2: float = 0.5  # ... and with |acc| within this of g
+
+
+@dataclass
+class ImuDevice:
+    """State of one rod or hook."""
+
+    kind: str
+    device_id: str
+    filter_name: str
+    dt_s: float
+    use_mag: bool
+    filt: AttitudeFilter | None  # None: a row of the default-filter batch
+    rod: RodAlarms | None = None
+    hook: HookAlarms | None = None
+    rest_heading_rad: float | None = None
+    yaw_last: float = math.nan
+    yaw_turns: int = 0
+    quat: FloatArray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0, 0.0]))
+    euler: FloatArray = field(default_factory=lambda: np.zeros(3))
+    yaw_unwrapped: float = 0.0
+    t_us: int = 0
+    seq: int = 0
+    wall_offset_us: int = 0  # wall clock minus device clock
+    last_attitude_t_s: float = -math.inf
+    swing: schemas.Swing | None = None
+    baseline_rad: float = math.nan
+    auto_reel: Any = None  # FishWalkingController when auto mode is on
+    last_reel: dict[str, Any] | None = None  # last auto command sent
+
+
+@dataclass
+class Output:
+    """What one batch produced; the hub publishes and persists it."""
+
+    attitudes: list[schemas.Attitude] = field(default_factory=list)
+    swings: list[schemas.Swing] = field(default_factory=list)
+    alarms: list[tuple[str, AlarmChange, int | None]] = field(default_factory=list)  # (device kind, change, src us)
+    spots: schemas.SpotRanking | None = None
+    reel_commands: list[tuple[str, dict[str, Any]]] = field(default_factory=list)  # (device id, ReelCommand fields)
+
+
+def _thermocline_m(profile: list[schemas.ProfilePoint] | None) -> float | None:
+    """Depth of the steepest temperature drop in a profile (None without at least 3 levels)."""
+    if not profile or len(profile) < 3:
+        return None
+    pts = sorted(profile, key=lambda p: p.depth_m)
+    grads = [
+        (a.water_temp_c - b.water_temp_c) / max(b.depth_m - a.depth_m, 1e-6) for a, b in zip(pts, pts[1:], strict=False)
+    ]
+    i = int(np.argmax(grads))
+    return 0.5 * (pts[i].depth_m + pts[i + 1].depth_m)
+
+
+def _unwrap(prev_wrapped: float, turns: int, yaw: FloatArray) -> tuple[FloatArray, int]:
+    """Continuous yaw for a block, continuing from the previous wrapped sample and turn count."""
+    if math.isnan(prev_wrapped):
+        prev_wrapped = float(yaw[0])
+    u = np.unwrap(np.concatenate(([prev_wrapped], yaw)))[1:] + 2.0 * math.pi * turns
+    new_turns = int(round((float(u[-1]) - float(yaw[-1])) / (2.0 * math.pi)))
+    return u, new_turns
+
+
+class Pipeline:
+    """All per-device state of the gateway. Not thread-safe: call from the ingest task only (REST calls that
+    change settings are made on the same event loop)."""
+
+    def __init__(
+        self,
+        settings: PipelineSettings | None = None,
+        defaults: Mapping[str, ThresholdModel] | None = None,
+        device_settings: Mapping[str, tuple[str, DeviceSettings]] | None = None,
+        active_alarms: Iterable[Alarm] = (),
+    ) -> None:
+        self.settings = settings or PipelineSettings()
+        self.defaults: dict[str, ThresholdModel] = {k: default_thresholds(k) for k in ("rod", "hook", "env")}
+        self.defaults.update(defaults or {})
+        self.device_settings: dict[str, tuple[str, DeviceSettings]] = dict(device_settings or {})
+        self.engine = AlarmEngine(active_alarms)
+        self.devices: dict[str, ImuDevice] = {}
+        self.kinds: dict[str, str] = {}  # every device ever seen or configured -> wire kind
+        self.kinds.update({d: k for d, (k, _) in self.device_settings.items()})
+        self.env: dict[str, schemas.EnvPacket] = {}  # device id -> latest reading
+        self.reel: dict[str, tuple[schemas.ReelStatus, float]] = {}  # rod id -> (latest status, arrival wall s)
+        self.auto_reel: dict[str, bool] = {}
+        self._batch: Any = None
+        self._warmup: dict[str, list[schemas.ImuPacket]] = {}
+        self._last_spots_s = -math.inf
+        self._spots_dirty = False
+
+    # -- configuration --------------------------------------------------------------------------------------
+
+    def effective(self, kind: str, device_id: str | None = None) -> tuple[str, ThresholdModel]:
+        """(filter name, thresholds) of a device: kind defaults with its override merged on top."""
+        ck = config_kind(kind)
+        base = self.defaults[ck]
+        default_filter = self.settings.hook_filter if kind == "hook" else self.settings.default_filter
+        entry = self.device_settings.get(device_id) if device_id is not None else None
+        if entry is None:
+            return default_filter, base
+        return entry[1].filter_name or default_filter, merge_thresholds(base, entry[1].thresholds)
+
+    def set_defaults(self, kind: str, thresholds: ThresholdModel) -> None:
+        """New kind defaults; applied to every live device of the kind (re-merged with its override)."""
+        ck = config_kind(kind)
+        for dev, k in self.kinds.items():  # validate every device's merge first: all or nothing
+            if config_kind(k) == ck and dev in self.device_settings:
+                try:
+                    merge_thresholds(thresholds, self.device_settings[dev][1].thresholds)
+                except ValidationError as exc:
+                    raise BadSettings([f"device {dev}: {e['msg']}" for e in exc.errors()]) from exc
+        self.defaults[ck] = thresholds
+        for live in list(self.devices.values()):
+            if config_kind(live.kind) == ck:
+                self._apply(live)
+
+    def validate_device_settings(self, kind: str, ds: DeviceSettings) -> ThresholdModel:
+        """The thresholds `ds` would give; raises BadSettings with readable messages."""
+        from gateway.fusion.registry import FILTERS
+
+        errors = []
+        known = {DEFAULT_FILTER, HOOK_FILTER, *FILTERS}
+        if ds.filter_name is not None and ds.filter_name not in known:
+            errors.append(f"filter_name: unknown filter {ds.filter_name!r}; known: {', '.join(sorted(known))}")
+        try:
+            th = merge_thresholds(self.defaults[config_kind(kind)], ds.thresholds)
+        except ValidationError as exc:
+            errors += [f"thresholds.{'.'.join(str(p) for p in e['loc']) or '(model)'}: {e['msg']}"
+                       for e in exc.errors()]  # fmt: skip
+        if errors:
+            raise BadSettings(errors)
+        return th
+
+    def set_device_settings(self, device_id: str, kind: str, ds: DeviceSettings) -> None:
+        """Validate and apply one device's settings; a changed filter restarts its fusion on the next packet."""
+        self.validate_device_settings(kind, ds)
+        self.device_settings[device_id] = (kind, ds)
+        self.kinds[device_id] = kind
+        dev = self.devices.get(device_id)
+        if dev is not None:
+            if self.effective(kind, device_id)[0] != dev.filter_name:
+                self._drop(device_id)
+            else:
+                self._apply(dev)
+
+    def set_auto_reel(self, device_id: str, on: bool) -> bool:
+        """Turn auto reel (fish walking) on or off for a rod; False when the controller is not available."""
+        self.auto_reel[device_id] = on
+        dev = self.devices.get(device_id)
+        if dev is not None:
+            dev.auto_reel = self._make_controller(dev) if on else None
+        return not on or _controller_class() is not None
+
+    def _apply(self, dev: ImuDevice) -> None:
+        _, th = self.effective(dev.kind, dev.device_id)
+        if dev.rod is not None and isinstance(th, RodThresholds):
+            dev.rod.set_thresholds(th)
+        if dev.hook is not None and isinstance(th, HookThresholds):
+            dev.hook.set_thresholds(th)
+
+    def _drop(self, device_id: str) -> None:
+        dev = self.devices.pop(device_id)
+        if dev.filt is None and self._batch is not None:
+            self._batch.remove(device_id)
+
+    # -- processing -----------------------------------------------------------------------------------------
+
+    def process(self, packets: Iterable[schemas.Packet], now_wall_s: float | None = None) -> Output:
+        """Run one drained batch of decoded, sequence-checked packets (in arrival order)."""
+        now = time.time() if now_wall_s is None else now_wall_s
+        out = Output()
+        imu: dict[str, list[schemas.ImuPacket]] = {}
+        for p in packets:
+            if isinstance(p, schemas.ImuPacket):
+                imu.setdefault(p.device_id, []).append(p)
+            elif isinstance(p, schemas.EnvPacket):
+                self.kinds[p.device_id] = "ball"
+                self.env[p.device_id] = p
+                self._spots_dirty = True
+            elif isinstance(p, schemas.ReelStatus):
+                self.kinds.setdefault(p.device_id, "rod")
+                self.reel[p.device_id] = (p, now)
+        conditions: list[tuple[str, Condition]] = []
+        if imu:
+            self._fuse(imu, now, out, conditions)
+        for kind, c in conditions:
+            for change in self.engine.evaluate([c]):
+                out.alarms.append((kind, change, int(round(c.t_s * 1e6))))
+        if self._spots_dirty and now - self._last_spots_s >= self.settings.spots_interval_s:
+            out.spots = self.rank_spots(now)
+            self._last_spots_s, self._spots_dirty = now, False
+        return out
+
+    def _device(self, p: schemas.ImuPacket, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None) -> ImuDevice:
+        """Create a device after its warm-up window: the filter starts from the window's mean acc (+ mag), and
+        when the window was at rest its mean gyro seeds the filter's bias estimate."""
+        self.kinds[p.device_id] = p.kind
+        name, th = self.effective(p.kind, p.device_id)
+        use_mag = mag is not None
+        acc0, mag0 = acc.mean(axis=0), None if mag is None else mag.mean(axis=0)
+        filt: AttitudeFilter | None = None
+        if name != DEFAULT_FILTER:
+            try:
+                filt = _make_filter(name, use_mag)
+            except KeyError:
+                log.warning("device %s: filter %r not available, using %r", p.device_id, name, DEFAULT_FILTER)
+                name = DEFAULT_FILTER
+        if filt is not None:
+            filt.initialise(acc0, mag0)
+        else:
+            if self._batch is None:
+                from gateway.fusion.batch import DefaultFilterBatch
+
+                self._batch = DefaultFilterBatch()
+            self._batch.add(p.device_id, dt_s=1.0 / p.rate_hz, use_mag=use_mag, acc_m_s2=acc0, mag_uT=mag0)
+        dev = ImuDevice(p.kind, p.device_id, name, 1.0 / p.rate_hz, use_mag, filt)
+        g_std = float(gyr.std(axis=0).max()) if gyr.shape[0] > 1 else math.inf
+        if g_std < self.settings.rest_gyr_std_rad_s and abs(float(np.linalg.norm(acc0)) - G_M_S2) < (
+                self.settings.rest_acc_tol_m_s2):  # fmt: skip
+            self._seed_bias(dev, gyr.mean(axis=0))
+        if p.kind == "rod":
+            dev.rod = RodAlarms(p.device_id, th if isinstance(th, RodThresholds) else None)
+            if self.auto_reel.get(p.device_id):
+                dev.auto_reel = self._make_controller(dev)
+        else:
+            dev.hook = HookAlarms(p.device_id, th if isinstance(th, HookThresholds) else None)
+        self.devices[p.device_id] = dev
+        return dev
+
+    def _seed_bias(self, dev: ImuDevice, bias_rad_s: FloatArray) -> None:
+        """Start the filter's gyro-bias estimate at `bias_rad_s` (filters without a bias state are left alone)."""
+        if dev.filt is None:
+            from gateway.fusion import _default_kernels as K
+
+            clip = math.radians(self._batch.settings.bias_clip_deg_s)
+            row = self._batch.row(dev.device_id)
+            self._batch.states[row, K.S_BIAS : K.S_BIAS + 3] = np.clip(bias_rad_s, -clip, clip)
+            return
+        ekf = getattr(dev.filt, "ekf", None)
+        if ekf is not None and getattr(ekf, "x", None) is not None and ekf.x.shape[0] >= 9:
+            ekf.x[6:9] = bias_rad_s  # HookFilter: bias is state 6..8
+
+    def _gather(
+        self, dev_id: str, pkts: list[schemas.ImuPacket]
+    ) -> tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]:
+        gyr = np.array([s for p in pkts for s in p.gyr_rad_s], dtype=np.float64)
+        acc = np.array([s for p in pkts for s in p.acc_m_s2], dtype=np.float64)
+        has_mag = all(p.mag_uT is not None for p in pkts)
+        mag = np.array([s for p in pkts for s in p.mag_uT or ()], dtype=np.float64) if has_mag else None
+        t_s = np.concatenate([p.t0_us * 1e-6 + np.arange(p.n) / p.rate_hz for p in pkts])
+        return gyr, acc, mag, t_s
+
+    def _fuse(
+        self, imu: dict[str, list[schemas.ImuPacket]], now: float, out: Output, conds: list[tuple[str, Condition]]
+    ) -> None:
+        blocks: dict[str, tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]] = {}
+        for dev_id, pkts in imu.items():
+            dev = self.devices.get(dev_id)
+            if dev is None:  # warm-up: collect, start the filter once the window is full
+                warm = self._warmup.setdefault(dev_id, [])
+                warm.extend(pkts)
+                self.kinds[dev_id] = pkts[0].kind
+                if sum(p.n / p.rate_hz for p in warm) < self.settings.warmup_s:
+                    continue
+                pkts = self._warmup.pop(dev_id)
+                gyr, acc, mag, t_s = self._gather(dev_id, pkts)
+                dev = self._device(pkts[0], gyr, acc, mag)
+            else:
+                gyr, acc, mag, t_s = self._gather(dev_id, pkts)
+            if abs(1.0 / pkts[-1].rate_hz - dev.dt_s) > 1e-12:
+                dev.dt_s = 1.0 / pkts[-1].rate_hz
+                if dev.filt is None:
+                    self._batch.set_dt(dev_id, dev.dt_s)
+            last = pkts[-1]
+            dev.t_us, dev.seq = last.t0_us + int(round((last.n - 1) * 1e6 / last.rate_hz)), last.seq
+            dev.wall_offset_us = (last.wall_t0_us - last.t0_us) if last.wall_t0_us is not None else (
+                int(now * 1e6) - dev.t_us)  # fmt: skip
+            blocks[dev_id] = (gyr, acc, mag if dev.use_mag else None, t_s)
+        quats = self._step_filters(blocks)
+        for dev_id, q in quats.items():
+            self._post(self.devices[dev_id], q, blocks[dev_id], now, out, conds)
+
+    def _step_filters(
+        self, blocks: dict[str, tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]]
+    ) -> dict[str, FloatArray]:
+        quats: dict[str, FloatArray] = {}
+        by_len: dict[int, list[str]] = {}
+        for dev_id, (gyr, acc, mag, _) in blocks.items():
+            dev = self.devices[dev_id]
+            if dev.filt is None:
+                by_len.setdefault(gyr.shape[0], []).append(dev_id)
+                continue
+            step = getattr(dev.filt, "update_block", None) or dev.filt.run
+            quats[dev_id] = step(gyr, acc, mag, dev.dt_s)
+        batch = self._batch
+        for n, ids in by_len.items():
+            n_dev = len(batch)
+            gyr_a, acc_a, mag_a = np.zeros((n_dev, n, 3)), np.zeros((n_dev, n, 3)), np.zeros((n_dev, n, 3))
+            active = np.zeros(n_dev, dtype=np.bool_)
+            rows = [batch.row(d) for d in ids]
+            for d, r in zip(ids, rows, strict=True):
+                gyr, acc, mag, _ = blocks[d]
+                gyr_a[r], acc_a[r] = gyr, acc
+                if mag is not None:
+                    mag_a[r] = mag
+                active[r] = True
+            q_all = batch.step(gyr_a, acc_a, mag_a, active)
+            for d, r in zip(ids, rows, strict=True):
+                quats[d] = q_all[r]
+        return quats
+
+    def _post(
+        self,
+        dev: ImuDevice,
+        q: FloatArray,
+        block: tuple[FloatArray, FloatArray, FloatArray | None, FloatArray],
+        now: float,
+        out: Output,
+        conds: list[tuple[str, Condition]],
+    ) -> None:
+        _, acc, _, t_s = block
+        eul = to_euler(q)
+        yaw_u, dev.yaw_turns = _unwrap(dev.yaw_last, dev.yaw_turns, eul[:, 2])
+        dev.yaw_last = float(eul[-1, 2])
+        dev.quat, dev.euler, dev.yaw_unwrapped = q[-1].copy(), eul[-1].copy(), float(yaw_u[-1])
+        offset_s = dev.wall_offset_us * 1e-6
+        wall_last_us = dev.t_us + dev.wall_offset_us
+        if t_s[-1] - dev.last_attitude_t_s >= self.settings.attitude_interval_s - 1e-9:
+            dev.last_attitude_t_s = float(t_s[-1])
+            out.attitudes.append(schemas.Attitude(
+                device_id=dev.device_id, kind=dev.kind, seq=dev.seq, t_us=dev.t_us,  # type: ignore[arg-type]
+                wall_t_us=wall_last_us, quat_wxyz=tuple(float(x) for x in dev.quat),  # type: ignore[arg-type]
+                roll_rad=float(eul[-1, 0]), pitch_rad=float(eul[-1, 1]), yaw_rad=float(eul[-1, 2]),
+                yaw_unwrapped_rad=dev.yaw_unwrapped, filter=dev.filter_name,
+            ))  # fmt: skip
+        new: list[Condition] = []
+        if dev.rod is not None:
+            acc_up = rotate(q, acc)[:, 2] - G_M_S2
+            tension = None
+            reel = self.reel.get(dev.device_id)
+            if reel is not None and reel[0].tension_n is not None and now - reel[1] <= self.settings.reel_max_age_s:
+                tension = np.full(t_s.shape, reel[0].tension_n)
+            rod_block, new = dev.rod.update(t_s, eul[:, 1], eul[:, 0], eul[:, 2], acc_up, tension)
+            dev.baseline_rad = rod_block.baseline_rad
+            if dev.auto_reel is not None:
+                self._auto_reel(dev, float(t_s[-1]), float(eul[-1, 1]), reel[0] if reel else None, out)
+        elif dev.hook is not None:
+            if dev.rest_heading_rad is None:
+                dev.rest_heading_rad = float(hook_geo.twist_heading(q[0]))
+            swing = hook_geo.swing_angle(q)
+            tors = hook_geo.torsion(q, dev.rest_heading_rad)
+            new = dev.hook.update(t_s, swing, tors)
+            dev.swing = schemas.Swing(
+                device_id=dev.device_id, seq=dev.seq, t_us=dev.t_us, wall_t_us=wall_last_us,
+                swing_angle_rad=float(swing[-1]),
+                swing_direction_rad=float(hook_geo.displacement_bearing(q[-1])),
+                torsion_rad=float(tors[-1]),
+            )  # fmt: skip
+            out.swings.append(dev.swing)
+        conds.extend((dev.kind, replace(c, t_s=c.t_s + offset_s)) for c in new)
+
+    # -- auto reel ------------------------------------------------------------------------------------------
+
+    def _make_controller(self, dev: ImuDevice) -> Any:
+        cls = _controller_class()
+        if cls is None:
+            return None
+        from gateway.control.fish_walking import FishWalkingSettings
+
+        _, th = self.effective("rod", dev.device_id)
+        assert isinstance(th, RodThresholds)
+        s = FishWalkingSettings(theta2_rad=math.radians(th.line_switch_deg), theta3_rad=math.radians(th.line_limit_deg),
+                                line_breaking_n=th.line_breaking_n)  # fmt: skip
+        return cls(s)
+
+    def _auto_reel(
+        self, dev: ImuDevice, t_s: float, pitch: float, reel: schemas.ReelStatus | None, out: Output
+    ) -> None:
+        from gateway.control.fish_walking import Observation
+
+        obs = Observation(t_s, pitch - dev.baseline_rad, None, reel.tension_n if reel else None,
+                          reel.line_out_m if reel else None)  # fmt: skip
+        decision = dev.auto_reel.step(t_s, obs)
+        fields = decision.command_fields()
+        if dev.last_reel != fields:
+            dev.last_reel = fields
+            out.reel_commands.append((dev.device_id, fields))
+
+    # -- views ----------------------------------------------------------------------------------------------
+
+    def rank_spots(self, now: float) -> schemas.SpotRanking:
+        """Spots best first, from the latest reading at each spot (the newest ball wins a shared spot)."""
+        latest: dict[str, schemas.EnvPacket] = {}
+        for p in self.env.values():
+            cur = latest.get(p.spot)
+            if cur is None or (p.wall_t_us or 0) >= (cur.wall_t_us or 0):
+                latest[p.spot] = p
+        readings = [
+            SpotReading(spot, p.water_temp_c, p.oxygen_mg_l, p.light_lux, p.probe_depth_m, _thermocline_m(p.profile))
+            for spot, p in latest.items()
+        ]
+        prefs = self.defaults["env"]
+        assert isinstance(prefs, SpotPreferences)
+        lt = time.localtime(now)
+        ranked = rank_spots(readings, prefs, lt.tm_hour + lt.tm_min / 60.0)
+        spots = [
+            schemas.SpotScore(
+                spot=s.spot_id, rank=i + 1, score=min(1.0, max(0.0, s.score / 100.0)),
+                device_id=latest[s.spot_id].device_id, last_seen_wall_us=latest[s.spot_id].wall_t_us,
+                reasons=[r[:200] for r in s.reasons][:20],
+            )
+            for i, s in enumerate(ranked)
+        ]  # fmt: skip
+        return schemas.SpotRanking(wall_t_us=int(now * 1e6), spots=spots)
+
+    def bias_rad_s(self, device_id: str) -> list[float] | None:
+        """The filter's gyro bias estimate, rad/s, when the filter has one."""
+        dev = self.devices.get(device_id)
+        if dev is None:
+            return None
+        if dev.filt is None:
+            from gateway.fusion import _default_kernels as K
+
+            return [float(x) for x in self._batch.states[self._batch.row(device_id), K.S_BIAS : K.S_BIAS + 3]]
+        for attr in ("bias_rad_s", "gyro_bias_rad_s"):
+            b = getattr(dev.filt, attr, None)
+            if b is not None:
+                return [float(x) for x in b]
+        return None
+
+
+def _make_filter(name: str, use_mag: bool) -> AttitudeFilter:
+    """A filter by name: the hook EKF, else the registry (KeyError when unknown)."""
+    from gateway.fusion import registry
+
+    if name in registry.FILTERS:
+        return registry.make_filter(name, use_mag=use_mag)
+    if name == HOOK_FILTER:
+        from gateway.fusion.hook_filter import HookFilter
+
+        return HookFilter(use_mag=use_mag)
+    raise KeyError(name)
+
+
+def _controller_class() -> Any:
+    """The fish-walking controller class, or None when gateway.control.fish_walking is missing."""
+    try:
+        from gateway.control.fish_walking import FishWalkingController
+    except ImportError:
+        return None
+    return FishWalkingController
