@@ -87,7 +87,7 @@ class RodBlock:
     """Result of one block: latch events plus the deviation summary the line guard needs."""
 
     events: tuple[RodEvent, ...]
-    baseline_rad: float
+    baseline_rad: float  # the rest pitch the block's deviations were measured from
     min_deviation_rad: float  # most negative deviation (largest drop) in the block
     t_min_s: float  # time of that sample
     last_deviation_rad: float
@@ -124,6 +124,15 @@ def run_starts(cond: BoolArray, t_s: FloatArray, carry_s: float) -> FloatArray:
     return np.where(cond, np.where(last_false < 0, head, starts), np.nan)
 
 
+def near_runs(near: BoolArray, all_near: bool, t_s: FloatArray, carry_s: float) -> tuple[BoolArray, FloatArray, float]:
+    """(mask, run starts, carry) for the re-arm band; a block entirely inside it needs no run search."""
+    if all_near:
+        start = float(t_s[0]) if math.isnan(carry_s) else carry_s
+        return near, np.full(t_s.size, start), start
+    starts = run_starts(near, t_s, carry_s)
+    return near, starts, float(starts[-1])
+
+
 def held(cond: BoolArray, t_s: FloatArray, carry_s: float, hold_s: float) -> tuple[BoolArray, float]:
     """Samples where `cond` has held for >= hold_s, and the open run's start to carry to the next block."""
     starts = run_starts(cond, t_s, carry_s)
@@ -139,6 +148,17 @@ def trailing_mean(x: FloatArray, tail: FloatArray, window: int) -> tuple[FloatAr
     k = np.arange(tail.size + 1, full.size + 1)
     lo = np.maximum(k - window, 0)
     return (c[k] - c[lo]) / (k - lo), full[-(window - 1) :] if window > 1 else full[:0]
+
+
+def keep_tail(tail: FloatArray, x: FloatArray, k: int) -> FloatArray:
+    """The last k samples of tail + x (k >= 0)."""
+    if k <= 0:
+        return x[:0]
+    return x[-k:] if x.size >= k else np.concatenate((tail, x))[-k:]
+
+
+def _or_none(mask: BoolArray | None, n: int) -> BoolArray:
+    return np.zeros(n, dtype=bool) if mask is None else mask
 
 
 def latch_step(
@@ -212,51 +232,61 @@ class BiteDetector:
         if math.isnan(s.baseline_rad):
             s.baseline_rad = float(np.median(pitch_rad))
         dev = pitch_rad - s.baseline_rad
-        i_min = int(np.argmin(dev))
+        i_min = int(dev.argmin())
         lo, hi = float(dev[i_min]), float(dev.max())
-
-        below = dev <= -p.bite_rad
-        bite_ok, s.bite_run_s = held(below, t_s, s.bite_run_s, p.confirm_s)
-        cue = np.zeros(n, dtype=bool)
+        # Quiet blocks (the common case) skip every mask: only min, max and mean are computed.
+        cue = None
         if acc_up_m_s2 is not None:
-            acc_mean, s.acc_tail = trailing_mean(acc_up_m_s2, s.acc_tail, ACC_WINDOW)
-            if lo <= -p.cue_rad:
+            if lo <= -p.cue_rad and s.bite_armed:
+                acc_mean, s.acc_tail = trailing_mean(acc_up_m_s2, s.acc_tail, ACC_WINDOW)
                 cue = (dev <= -p.cue_rad) & (acc_mean <= -p.cue_acc_m_s2)
-        above = dev >= p.drop_back_rad
-        drop_ok, s.drop_run_s = held(above, t_s, s.drop_run_s, p.confirm_s)
-
-        near_bite = dev > -REARM_FRACTION * p.bite_rad
-        near_drop = dev < REARM_FRACTION * p.drop_back_rad
-        nb_starts = run_starts(near_bite, t_s, s.near_bite_run_s)
-        nd_starts = run_starts(near_drop, t_s, s.near_drop_run_s)
-        s.near_bite_run_s, s.near_drop_run_s = float(nb_starts[-1]), float(nd_starts[-1])
+            else:
+                s.acc_tail = keep_tail(s.acc_tail, acc_up_m_s2, ACC_WINDOW - 1)
+        bite_ok = None
+        if lo <= -p.bite_rad:
+            bite_ok, s.bite_run_s = held(dev <= -p.bite_rad, t_s, s.bite_run_s, p.confirm_s)
+        else:
+            s.bite_run_s = math.nan
+        drop_ok = None
+        if hi >= p.drop_back_rad:
+            drop_ok, s.drop_run_s = held(dev >= p.drop_back_rad, t_s, s.drop_run_s, p.confirm_s)
+        else:
+            s.drop_run_s = math.nan
 
         events: list[RodEvent] = []
-        bite_trig = bite_ok | cue
-        s.bite_armed, s.bite_disarmed_at_s, changes = latch_step(
-            s.bite_armed, s.bite_disarmed_at_s, bite_trig, near_bite, nb_starts, t_s, p.rearm_quiet_s
-        )
-        for rearmed, k in changes:
-            if rearmed:
-                events.append(RodEvent("bite_rearmed", float(t_s[k]), float(dev[k]), -p.bite_rad))
-            else:
-                if bite_ok[k]:
+        bite_trig = bite_ok if cue is None else cue if bite_ok is None else bite_ok | cue
+        near_lo = -REARM_FRACTION * p.bite_rad
+        if not s.bite_armed and hi <= near_lo:
+            s.near_bite_run_s = math.nan  # still pulled down: nothing can re-arm in this block
+        elif not s.bite_armed or (bite_trig is not None and bite_trig.any()):
+            near, starts, s.near_bite_run_s = near_runs(dev > near_lo, lo > near_lo, t_s, s.near_bite_run_s)
+            s.bite_armed, s.bite_disarmed_at_s, changes = latch_step(
+                s.bite_armed, s.bite_disarmed_at_s, _or_none(bite_trig, n), near, starts, t_s, p.rearm_quiet_s
+            )
+            for rearmed, k in changes:
+                if rearmed:
+                    events.append(RodEvent("bite_rearmed", float(t_s[k]), float(dev[k]), -p.bite_rad))
+                elif bite_ok is not None and bite_ok[k]:
                     events.append(RodEvent("bite", float(t_s[k]), float(dev[k]), -p.bite_rad, "pitch"))
                 else:
                     events.append(RodEvent("bite", float(t_s[k]), float(dev[k]), -p.cue_rad, "accel"))
-        s.drop_armed, s.drop_disarmed_at_s, changes = latch_step(
-            s.drop_armed, s.drop_disarmed_at_s, drop_ok, near_drop, nd_starts, t_s, p.rearm_quiet_s
-        )
-        for rearmed, k in changes:
-            if rearmed:
-                events.append(RodEvent("drop_back_rearmed", float(t_s[k]), float(dev[k]), p.drop_back_rad))
-            else:
-                events.append(RodEvent("drop_back", float(t_s[k]), float(dev[k]), p.drop_back_rad, "pitch"))
+        near_hi = REARM_FRACTION * p.drop_back_rad
+        if not s.drop_armed and lo >= near_hi:
+            s.near_drop_run_s = math.nan
+        elif not s.drop_armed or (drop_ok is not None and drop_ok.any()):
+            near, starts, s.near_drop_run_s = near_runs(dev < near_hi, hi < near_hi, t_s, s.near_drop_run_s)
+            s.drop_armed, s.drop_disarmed_at_s, changes = latch_step(
+                s.drop_armed, s.drop_disarmed_at_s, _or_none(drop_ok, n), near, starts, t_s, p.rearm_quiet_s
+            )
+            for rearmed, k in changes:
+                kind: EventKind = "drop_back_rearmed" if rearmed else "drop_back"
+                events.append(RodEvent(kind, float(t_s[k]), float(dev[k]), p.drop_back_rad, "" if rearmed else "pitch"))
         if len(events) > 1:
             events.sort(key=lambda e: e.t_s)
 
+        used = s.baseline_rad
         self._track_baseline(t_s, pitch_rad, lo, hi)
-        return RodBlock(tuple(events), s.baseline_rad, lo, float(t_s[i_min]), float(dev[-1]))
+        return RodBlock(tuple(events), used, lo, float(t_s[i_min]), float(dev[-1]))
 
     def _track_baseline(self, t_s: FloatArray, pitch_rad: FloatArray, lo: float, hi: float) -> None:
         """Follow the rest pitch while quiet and armed; re-take it after a long steady spell while disarmed."""
@@ -264,7 +294,7 @@ class BiteDetector:
         t_end = float(t_s[-1])
         dt_s = t_end - s.last_t_s if not math.isnan(s.last_t_s) else t_end - float(t_s[0])
         s.last_t_s = t_end
-        mean = float(pitch_rad.mean())
+        mean = float(np.add.reduce(pitch_rad)) / pitch_rad.size
         if s.bite_armed and s.drop_armed:
             s.steady_since_s = math.nan
             if lo > -REARM_FRACTION * p.bite_rad and hi < REARM_FRACTION * p.drop_back_rad:

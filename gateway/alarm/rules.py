@@ -5,7 +5,7 @@ line guard). Each rule turns a block of samples into engine `Condition`s; none r
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,17 +64,29 @@ class LevelGuard:
         self.unit = unit
         self.level = 0
 
-    def update(self, device_id: str, t_s: FloatArray, values: FloatArray, label: str) -> Condition | None:
-        """Feed one block of non-negative values; returns a Condition if the level changed, else None."""
-        if values.size == 0:
-            return None
-        i_peak = int(np.argmax(values))
-        peak = float(values[i_peak])
+    def update(
+        self,
+        device_id: str,
+        t_s: FloatArray,
+        values: FloatArray | Callable[[], FloatArray],
+        label: str,
+        peak: float | None = None,
+    ) -> Condition | None:
+        """Feed one block of non-negative values; returns a Condition if the level changed, else None.
+
+        With `peak` given, `values` may be a callable that is only evaluated when the level changes.
+        """
+        if peak is None:
+            values = values() if callable(values) else values
+            if values.size == 0:
+                return None
+            peak = float(values.max())
         new = hysteresis_level(peak, self.level, self.thresholds, self.hysteresis)
         if new == self.level:
             return None
         rising = new > self.level
         self.level = new
+        values = values() if callable(values) else values
         if new == 0:
             return Condition(device_id, self.spec.type, None, float(t_s[-1]), peak, self.thresholds[0],
                              f"{label} back to {peak:.1f} {self.unit}")  # fmt: skip
@@ -129,15 +141,18 @@ class RodAlarms:
         """One block (shapes (n,)) -> detector summary and the conditions for the engine."""
         block = self.detector.update(t_s, pitch_rad, roll_rad, yaw_rad, acc_up_m_s2)
         out = [_event_condition(self.device_id, e) for e in block.events]
-        line = self._line(t_s, pitch_rad - block.baseline_rad, tension_n)
+        line = self._line(t_s, block, lambda: pitch_rad - block.baseline_rad, tension_n)
         if line is not None:
             out.append(line)
         return block, out
 
-    def _line(self, t_s: FloatArray, dev_rad: FloatArray, tension_n: FloatArray | None) -> Condition | None:
+    def _line(
+        self, t_s: FloatArray, block: RodBlock, dev_rad: Callable[[], FloatArray], tension_n: FloatArray | None
+    ) -> Condition | None:
         """Line guard: level = max(angle level, tension level); tension has only the critical level."""
-        drop_deg = np.degrees(-dev_rad)
-        by_angle = self._angle.update(self.device_id, t_s, drop_deg, "rod drop")
+        by_angle = self._angle.update(
+            self.device_id, t_s, lambda: np.degrees(-dev_rad()), "rod drop", math.degrees(-block.min_deviation_rad)
+        )
         by_tension = None
         if tension_n is not None:
             by_tension = self._tension.update(self.device_id, t_s, tension_n, "line tension")
