@@ -546,6 +546,8 @@ def run_main(
     settings = FleetSettings.from_args(args)
     fleet = make_fleet(args, settings)
     with zenoh.open(zenoh_config_from_args(args)) as session:
+        log.info("%s: publishing %d device(s) %s..%s at %g Hz, %d samples/packet", fleet.kind, len(fleet.ids),
+                 fleet.ids[0], fleet.ids[-1], settings.rate_hz, settings.samples_per_packet)
         try:
             stats = run_fleet(session, fleet, settings)
         except KeyboardInterrupt:
