@@ -1,0 +1,75 @@
+"""Fixtures for the gateway service: settings in a temp dir, an app on a MemoryBus, simulated rod packets."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from devices.common import FleetSettings
+from devices.sim_rod import RodFleet
+from gateway.app import create_app
+from gateway.config import Settings
+from gateway.ingest.bus import MemoryBus
+
+
+def rod_messages(seconds: float, script: Sequence[dict[str, Any]] = (), seed: int = 1) -> list[tuple[str, bytes]]:
+    """(key, payload) of a simulated rod's data packets (imu + reel), 5 samples per packet at 100 Hz."""
+    fleet = RodFleet(FleetSettings(count=1, seed=seed, samples_per_packet=5, progress=False, id_prefix="rod"),
+                     script=list(script))
+    out = []
+    for k in range(int(round(seconds / 0.05))):
+        data, _ = fleet.tick(k)
+        out += [(m.key, m.payload) for m in data[0]]
+    return out
+
+
+@pytest.fixture
+def settings(tmp_path: Path) -> Settings:
+    return Settings(data_dir=tmp_path / "data", zenoh_listen=[])
+
+
+class Running:
+    """A running app on a MemoryBus, with its token and a helper to wait for the ingest task."""
+
+    def __init__(self, client: TestClient, bus: MemoryBus, token: str) -> None:
+        self.client, self.bus, self.token = client, bus, token
+
+    @property
+    def auth(self) -> dict[str, str]:
+        return {"Authorization": f"Bearer {self.token}"}
+
+    def feed(self, messages: list[tuple[str, bytes]], timeout_s: float = 30.0) -> None:
+        """Put messages on the bus and wait until the gateway has counted them all."""
+        before = self.client.get("/api/stats").json()["received"]
+        for key, payload in messages:
+            self.bus.put(key, payload, encoding="application/json")
+        deadline = time.monotonic() + timeout_s
+        while self.client.get("/api/stats").json()["received"] < before + len(messages):
+            assert time.monotonic() < deadline, "gateway did not ingest the messages in time"
+            time.sleep(0.05)
+
+
+@pytest.fixture
+def running(settings: Settings) -> Iterator[Callable[[], Running]]:
+    """Factory: start (or restart) the app on the same data dir; each call gives a fresh bus and process state."""
+    clients: list[TestClient] = []
+
+    def start() -> Running:
+        for c in clients:
+            c.__exit__(None, None, None)
+        clients.clear()
+        bus = MemoryBus()
+        client = TestClient(create_app(settings, lambda _: bus))
+        client.__enter__()
+        clients.append(client)
+        token = (settings.data_dir / "api_token").read_text().strip()
+        return Running(client, bus, token)
+
+    yield start
+    for c in clients:
+        c.__exit__(None, None, None)

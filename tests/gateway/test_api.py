@@ -1,0 +1,155 @@
+"""REST API: validation messages (422), token enforcement (401/403), persistence across restart, reel commands,
+alarm listing/ack, device state, and the config queryable."""
+
+from __future__ import annotations
+
+import json
+import stat
+from collections.abc import Callable
+
+import pytest
+
+from gateway import schemas
+from tests.gateway.conftest import Running, rod_messages
+
+BITE = [{"type": "bite", "t_s": 3.0, "depth_deg": 15.0, "duration_s": 1.5}]
+
+WRITES = [
+    ("put", "/api/thresholds/rod", {"bite_deviation_deg": 12.0}),
+    ("put", "/api/devices/rod-1/settings", {"kind": "rod", "thresholds": {"sensitivity": 4}}),
+    ("delete", "/api/devices/rod-1/settings", None),
+    ("post", "/api/alarms/abc/ack", None),
+    ("post", "/api/rods/rod-1/reel", {"action": "in", "speed_m_s": 0.5}),
+]
+
+
+@pytest.mark.parametrize(("method", "path", "body"), WRITES)
+def test_writes_need_the_token(running: Callable[[], Running], method: str, path: str, body: object) -> None:
+    app = running()
+    kw = {} if body is None else {"json": body}
+    r = getattr(app.client, method)(path, **kw)
+    assert r.status_code == 401, r.text
+    assert r.headers["www-authenticate"] == "Bearer"
+    r = getattr(app.client, method)(path, headers={"Authorization": "Bearer wrong"}, **kw)
+    assert r.status_code == 403, r.text
+    assert not [k for k, _, _ in app.bus.sent if k.endswith("/reel/cmd")], "a rejected write must not act"
+
+
+def test_token_file_is_owner_only_and_reads_stay_open(running: Callable[[], Running], settings) -> None:  # type: ignore[no-untyped-def]
+    app = running()
+    mode = stat.S_IMODE((settings.data_dir / "api_token").stat().st_mode)
+    assert mode == 0o600
+    for path in ("/api/health", "/api/devices", "/api/alarms", "/api/spots", "/api/stats", "/api/thresholds/hook"):
+        assert app.client.get(path).status_code == 200, path
+
+
+@pytest.mark.parametrize(
+    ("path", "body", "message"),
+    [
+        ("/api/thresholds/rod", {"bite_deviation_deg": 30.0}, "need theta1 < theta2 < theta3"),
+        ("/api/thresholds/rod", {"sensitivity": 9}, "sensitivity: Input should be less than or equal to 5"),
+        ("/api/thresholds/rod", {"bite_deviaton_deg": 5.0}, "bite_deviaton_deg: Extra inputs are not permitted"),
+        ("/api/thresholds/hook", {"swing_warn_deg": 12.0}, "swing: warn (12 deg) must be below critical (10 deg)"),
+        ("/api/thresholds/ball", {"species": ["shark"]}, "unknown species ['shark']"),
+        ("/api/devices/rod-1/settings", {"kind": "rod", "thresholds": {"line_limit_deg": 15.0}},
+         "need theta1 < theta2 < theta3"),
+        ("/api/devices/rod-1/settings", {"kind": "rod", "filter_name": "nope"}, "unknown filter 'nope'"),
+        ("/api/devices/rod-9/settings", {"thresholds": {}}, "unknown device 'rod-9', give its kind"),
+    ],
+)
+def test_bad_settings_get_422_with_a_clear_message(
+    running: Callable[[], Running], path: str, body: dict[str, object], message: str
+) -> None:
+    app = running()
+    before = app.client.get("/api/thresholds/rod").json()
+    r = app.client.put(path, json=body, headers=app.auth)
+    assert r.status_code == 422, r.text
+    assert any(message in m for m in r.json()["detail"]), r.json()
+    assert app.client.get("/api/thresholds/rod").json() == before, "nothing applied on a 422"
+
+
+def test_defaults_that_would_break_a_device_override_are_refused(running: Callable[[], Running]) -> None:
+    app = running()
+    ok = app.client.put("/api/devices/rod-1/settings", json={"kind": "rod", "thresholds": {"line_switch_deg": 25.0}},
+                        headers=app.auth)  # fmt: skip
+    assert ok.status_code == 200, ok.text
+    r = app.client.put("/api/thresholds/rod", json={"line_limit_deg": 24.0, "line_switch_deg": 22.0}, headers=app.auth)
+    assert r.status_code == 422
+    assert any("device rod-1" in m for m in r.json()["detail"])
+
+
+def test_settings_thresholds_and_alarms_survive_a_restart(running: Callable[[], Running]) -> None:
+    app = running()
+    assert app.client.put("/api/thresholds/hook", json={"swing_warn_deg": 3.0, "swing_critical_deg": 8.0},
+                          headers=app.auth).status_code == 200  # fmt: skip
+    r = app.client.put("/api/devices/rod-1/settings", json={"kind": "rod", "thresholds": {"sensitivity": 2}},
+                       headers=app.auth)  # fmt: skip
+    assert r.status_code == 200, r.text
+    app.feed(rod_messages(6.0, BITE))
+    alarms = app.client.get("/api/alarms", params={"type": "bite"}).json()
+    assert alarms["total"] == 1, alarms
+    alarm_id = alarms["items"][0]["id"]
+    assert app.client.post(f"/api/alarms/{alarm_id}/ack", headers=app.auth).json()["acknowledged"] is True
+
+    app = running()  # restart on the same data dir, with a fresh token read from the file
+    assert app.client.get("/api/thresholds/hook").json()["swing_warn_deg"] == 3.0
+    s = app.client.get("/api/devices/rod-1/settings").json()
+    assert s["settings"]["thresholds"] == {"sensitivity": 2}
+    assert s["effective"]["thresholds"]["sensitivity"] == 2
+    again = app.client.get("/api/alarms", params={"type": "bite", "acknowledged": True}).json()
+    assert [a["id"] for a in again["items"]] == [alarm_id]
+
+
+def test_bite_alarm_is_published_with_block_and_listed(running: Callable[[], Running]) -> None:
+    app = running()
+    messages = rod_messages(6.0, BITE)
+    app.feed(messages)
+    published = [(k, json.loads(p), block) for k, p, block in app.bus.sent if k.endswith("/alarm")]
+    assert [(k, a["alarm"], a["state"]) for k, a, _ in published] == [("gw/rod/rod-1/alarm", "bite", "raised")]
+    assert all(block for _, _, block in published)
+    event = schemas.AlarmEvent.model_validate_json(json.dumps(published[0][1]))
+    start_wall_us = json.loads(messages[0][1])["wall_t0_us"]
+    assert event.source_wall_us is not None
+    assert 3.0 <= (event.source_wall_us - start_wall_us) * 1e-6 <= 3.5, "device wall time of the triggering sample"
+    dev = app.client.get("/api/devices/rod-1").json()
+    assert dev["kind"] == "rod" and dev["active_alarms"] == ["bite"]
+    assert dev["stream"]["ok"] == 120 and dev["stream"]["lost"] == 0
+    assert 0.0 < dev["attitude"]["pitch_rad"] < 1.0  # the rod rests at about 31 deg
+    assert len(dev["gyro_bias_rad_s"]) == 3
+    atts = [json.loads(p) for k, p, _ in app.bus.sent if k == "gw/rod/rod-1/attitude"]
+    assert 100 <= len(atts) <= 120  # one per packet after the 0.5 s warm-up, at most 50 Hz
+    assert all(schemas.Attitude.model_validate_json(json.dumps(a)) for a in atts)
+
+
+def test_reel_command_goes_out_with_block(running: Callable[[], Running]) -> None:
+    app = running()
+    r = app.client.post("/api/rods/rod-1/reel", json={"action": "out", "speed_m_s": 0.8}, headers=app.auth)
+    assert r.status_code == 200, r.text
+    sent = [(k, p, b) for k, p, b in app.bus.sent if k == "rig/rod/rod-1/reel/cmd"]
+    assert len(sent) == 1 and sent[0][2] is True
+    cmd = schemas.decode(sent[0][0], sent[0][1])
+    assert isinstance(cmd, schemas.ReelCommand) and cmd.action == "out" and cmd.speed_m_s == 0.8
+    bad = app.client.post("/api/rods/rod-1/reel", json={"action": "out", "speed_m_s": -1}, headers=app.auth)
+    assert bad.status_code == 422
+    auto = app.client.post("/api/rods/rod-1/reel", json={"action": "auto"}, headers=app.auth).json()
+    assert auto["auto"] is True
+
+
+def test_config_queryable_answers_current_thresholds(running: Callable[[], Running]) -> None:
+    app = running()
+    app.client.put("/api/devices/hook-1/settings", json={"kind": "hook", "thresholds": {"swing_warn_deg": 4.0}},
+                   headers=app.auth)  # fmt: skip
+    replies = app.bus.get("gw/config/hook/hook-1")
+    assert [k for k, _ in replies] == ["gw/config/hook/hook-1"]
+    cfg = schemas.DeviceConfig.model_validate_json(replies[0][1])
+    assert cfg.thresholds["swing_warn_deg"] == 4.0 and cfg.thresholds["swing_critical_deg"] == 10.0
+    every = app.bus.get("gw/config/**")
+    assert "gw/config/hook/hook-1" in [k for k, _ in every]
+    unknown = app.bus.get("gw/config/rod/rod-77")
+    assert schemas.DeviceConfig.model_validate_json(unknown[0][1]).thresholds["bite_deviation_deg"] == 10.0
+
+
+def test_unknown_things_are_404(running: Callable[[], Running]) -> None:
+    app = running()
+    assert app.client.get("/api/devices/nobody").status_code == 404
+    assert app.client.post("/api/alarms/nope/ack", headers=app.auth).status_code == 404

@@ -1,0 +1,125 @@
+"""Ingest over real zenoh on loopback (multicast off, explicit endpoints, free ports): malformed packets are
+counted by reason and published on gw/diag/rejected while ingest goes on; presence follows liveliness tokens;
+the bounded hand-off counts drops."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+import zenoh
+from fastapi.testclient import TestClient
+
+from bench.bite_latency import free_port, observer_config
+from gateway import schemas
+from gateway.app import create_app
+from gateway.config import Settings
+from gateway.ingest.runner import Inbox
+from tests.gateway.conftest import rod_messages
+
+pytestmark = pytest.mark.timeout(120)
+
+
+@pytest.fixture
+def live(tmp_path: Path) -> Iterator[tuple[TestClient, zenoh.Session]]:
+    """The gateway on a real zenoh peer listening on a free port, and a device-side session connected to it."""
+    port = free_port()
+    settings = Settings(data_dir=tmp_path / "data", zenoh_listen=[f"tcp/127.0.0.1:{port}"])
+    with TestClient(create_app(settings)) as client, zenoh.open(observer_config(port)) as session:
+        time.sleep(0.5)  # link up
+        yield client, session
+
+
+def wait_for(cond: Callable[[], bool], timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < deadline, "condition not met in time"
+        time.sleep(0.05)
+
+
+def test_malformed_packets_are_counted_by_reason_and_ingest_goes_on(live: tuple[TestClient, zenoh.Session]) -> None:
+    client, session = live
+    rejected: list[dict[str, object]] = []
+    sub = session.declare_subscriber(
+        schemas.DIAG_REJECTED_KEY, lambda s: rejected.append(json.loads(s.payload.to_bytes()))
+    )
+    diag: list[dict[str, object]] = []
+    sub2 = session.declare_subscriber(schemas.DIAG_INGEST_KEY, lambda s: diag.append(json.loads(s.payload.to_bytes())))
+    good = rod_messages(1.0)
+    imu = [(k, p) for k, p in good if k.endswith("/imu")]
+    garbage = [
+        ("rig/rod/rod-1/imu", b"\x00\xffnot json"),  # bad_json
+        ("rig/rod/rod-1/imu", b'{"v": 2}'),  # version
+        ("rig/rod/rod-1/imu", b"[" * 600_000),  # too_large
+        ("rig/ball/ball-1/imu", imu[0][1]),  # unknown_key: balls have no imu topic
+        ("rig/rod/rod-2/imu", imu[0][1]),  # key_mismatch: payload says rod-1
+        ("rig/rod/rod-1/imu", imu[0][1].replace(b'"rate_hz":100.0', b'"rate_hz":1e9')),  # out_of_range
+        ("rig/rod/rod-1/imu", imu[0][1].replace(b'"boot_id":', b'"boot":')),  # schema
+    ]
+    for key, payload in imu[:5]:
+        session.put(key, payload)
+    for key, payload in garbage:
+        session.put(key, payload)
+    for key, payload in imu[5:]:
+        session.put(key, payload)
+    expect = {"bad_json": 1, "version": 1, "too_large": 1, "unknown_key": 1, "key_mismatch": 1, "out_of_range": 1,
+              "schema": 1}  # fmt: skip
+    wait_for(lambda: client.get("/api/stats").json()["rejected"] == expect)
+    wait_for(lambda: client.get("/api/stats").json()["devices"][0]["ok"] == len(imu))  # the good ones after too
+    stats = client.get("/api/stats").json()
+    assert stats["received"] == len(imu) + len(garbage)
+    dev = client.get("/api/devices/rod-1").json()
+    assert dev["stream"]["rejected"] == {"bad_json": 1, "version": 1, "too_large": 1, "out_of_range": 1,
+                                         "schema": 1}  # fmt: skip
+    wait_for(lambda: len(rejected) == len(garbage))
+    assert sorted(r["reason"] for r in rejected) == sorted(expect)
+    wait_for(lambda: bool(diag) and diag[-1]["rejected"] == expect, timeout_s=5.0)
+    sub.undeclare()
+    sub2.undeclare()
+
+
+def test_duplicates_and_losses_are_accounted(live: tuple[TestClient, zenoh.Session]) -> None:
+    client, session = live
+    imu = [(k, p) for k, p in rod_messages(1.0) if k.endswith("/imu")]
+    sent = imu[:3] + imu[2:3] + imu[5:]  # one duplicate, two lost
+    for key, payload in sent:
+        session.put(key, payload)
+    wait_for(lambda: client.get("/api/stats").json()["received"] == len(sent))
+    stream = client.get("/api/devices/rod-1").json()["stream"]
+    assert (stream["ok"], stream["duplicates"], stream["lost"]) == (len(imu) - 2, 1, 2)
+
+
+def test_presence_follows_liveliness_within_a_second(live: tuple[TestClient, zenoh.Session]) -> None:
+    client, session = live
+    token = session.liveliness().declare_token(schemas.device_token_key("hook", "hook-7"))
+    wait_for(lambda: client.get("/api/devices/hook-7").status_code == 200
+             and client.get("/api/devices/hook-7").json()["online"], timeout_s=5.0)  # fmt: skip
+    t0 = time.monotonic()
+    token.undeclare()
+    wait_for(lambda: not client.get("/api/devices/hook-7").json()["online"], timeout_s=5.0)
+    assert time.monotonic() - t0 < 1.0
+
+
+def test_inbox_counts_drops_when_full() -> None:
+    async def run() -> tuple[int, int]:
+        inbox = Inbox(asyncio.get_running_loop(), maxsize=3)
+        for i in range(5):
+            inbox.offer(f"k{i}", b"x")
+        got = await asyncio.wait_for(inbox.drain(10), 1.0)
+        return len(got), inbox.drops
+
+    assert asyncio.run(run()) == (3, 2)
+
+
+def test_inbox_drains_in_batches_in_order() -> None:
+    async def run() -> list[list[str]]:
+        inbox = Inbox(asyncio.get_running_loop(), maxsize=100)
+        for i in range(7):
+            inbox.offer(f"k{i}", b"")
+        return [[k for k, _, _ in await asyncio.wait_for(inbox.drain(3), 1.0)] for _ in range(3)]
+
+    assert asyncio.run(run()) == [["k0", "k1", "k2"], ["k3", "k4", "k5"], ["k6"]]

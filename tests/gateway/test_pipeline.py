@@ -1,0 +1,113 @@
+"""The pure pipeline: bites alarm and distractors do not (simulated rod, no transport), yaw unwrapping, spot
+ranking, live settings changes, attitude decimation."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from gateway import schemas
+from gateway.config import DeviceSettings, RodThresholds
+from gateway.pipeline import Output, Pipeline, PipelineSettings, _unwrap
+from tests.gateway.conftest import rod_messages
+
+
+def run(p: Pipeline, messages: list[tuple[str, bytes]], per_batch: int = 1) -> list[Output]:
+    packets = [schemas.decode(k, v) for k, v in messages]
+    return [p.process(packets[i : i + per_batch], now_wall_s=1e9 + 0.05 * i) for i in range(0, len(packets), per_batch)]
+
+
+def raised(outs: list[Output]) -> list[tuple[str, float]]:
+    return [(c.alarm.type, c.alarm.started_at) for o in outs for _, c, _ in o.alarms if c.kind == "raised"]
+
+
+def test_a_bite_alarms_once_near_its_start_and_handling_or_wind_do_not() -> None:
+    script = [
+        {"type": "handling", "t_s": 2.0, "duration_s": 3.0, "roll_deg": 30.0, "yaw_deg": 25.0},
+        {"type": "wind", "t_s": 6.0, "duration_s": 4.0, "strength": 1.0},
+        {"type": "bite", "t_s": 12.0, "depth_deg": 15.0, "duration_s": 1.5},
+    ]
+    messages = rod_messages(16.0, script)
+    start_wall_s = json.loads(messages[0][1])["wall_t0_us"] * 1e-6
+    alarms = raised(run(Pipeline(), messages))
+    assert [a for a, _ in alarms] == ["bite"], alarms
+    assert 12.0 <= alarms[0][1] - start_wall_s <= 12.5  # device wall time of the triggering sample
+
+
+def test_batches_give_the_same_alarms_as_single_packets() -> None:
+    messages = rod_messages(8.0, [{"type": "bite", "t_s": 4.0, "depth_deg": 15.0, "duration_s": 1.5}])
+    one = raised(run(Pipeline(), messages, per_batch=1))
+    many = raised(run(Pipeline(), messages, per_batch=25))
+    assert [a for a, _ in one] == [a for a, _ in many] == ["bite"]
+    assert abs(one[0][1] - many[0][1]) < 1e-6
+
+
+def test_attitude_is_published_per_packet_and_decimated() -> None:
+    messages = [m for m in rod_messages(3.0) if m[0].endswith("/imu")]
+    outs = run(Pipeline(), messages, per_batch=10)
+    atts = [a for o in outs for a in o.attitudes]
+    # the filter starts once 0.5 s (10 packets) arrived and then runs over those samples too
+    assert [a.seq for a in atts] == list(range(len(messages)))
+    slow = [a for o in run(Pipeline(PipelineSettings(attitude_interval_s=0.1)), messages, 10) for a in o.attitudes]
+    assert [a.seq for a in slow] == list(range(0, len(messages), 2))
+    pitch = np.degrees([a.pitch_rad for a in atts])
+    assert np.all(np.abs(pitch - 31.0) < 2.5), "the rod rests at about 31 deg"
+
+
+def test_a_new_filter_choice_restarts_that_device_only() -> None:
+    p = Pipeline()
+    run(p, rod_messages(1.0))
+    assert p.devices["rod-1"].filter_name == "default"
+    p.set_device_settings("rod-1", "rod", DeviceSettings(filter_name="mahony"))
+    assert "rod-1" not in p.devices
+    run(p, rod_messages(1.0, seed=1))
+    assert p.devices["rod-1"].filter_name == "mahony"
+
+
+def test_thresholds_change_live() -> None:
+    p = Pipeline()
+    run(p, rod_messages(1.0))
+    p.set_defaults("rod", RodThresholds(bite_deviation_deg=15.0))
+    rod = p.devices["rod-1"].rod
+    assert rod is not None and rod.thresholds.bite_deviation_deg == 15.0
+
+
+def env(device_id: str, spot: str, oxygen: float, seq: int = 0) -> schemas.EnvPacket:
+    return schemas.EnvPacket(
+        v=1, device_id=device_id, boot_id=1, seq=seq, t_us=seq * 1_000_000, wall_t_us=1_700_000_000_000_000 + seq,
+        spot=spot, air_temp_c=20.0, humidity_pct=60.0, light_lux=5000.0, water_temp_c=22.0, oxygen_mg_l=oxygen,
+        probe_depth_m=2.0,
+    )  # fmt: skip
+
+
+def test_spots_rank_low_oxygen_last_and_are_rate_limited() -> None:
+    p = Pipeline()
+    out = p.process([env("ball-1", "reeds", 1.5), env("ball-2", "bay", 8.0)], now_wall_s=1e9)
+    assert out.spots is not None
+    assert [s.spot for s in out.spots.spots] == ["bay", "reeds"]
+    assert [s.rank for s in out.spots.spots] == [1, 2]
+    assert out.spots.spots[0].score > out.spots.spots[1].score
+    assert p.process([env("ball-1", "reeds", 9.0, 1)], now_wall_s=1e9 + 0.5).spots is None  # < 1 s later
+    later = p.process([], now_wall_s=1e9 + 1.5).spots
+    assert later is not None and len(later.spots) == 2
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    steps=st.lists(st.floats(-3.0, 3.0), min_size=2, max_size=60),
+    start=st.floats(-math.pi, math.pi),
+    split=st.integers(1, 59),
+)
+def test_unwrap_is_continuous_and_agrees_with_the_wrapped_yaw(steps: list[float], start: float, split: int) -> None:
+    true = start + np.cumsum(steps)
+    wrapped = np.angle(np.exp(1j * true))
+    split = min(split, len(wrapped) - 1)
+    a, turns = _unwrap(math.nan, 0, wrapped[:split])
+    b, _ = _unwrap(float(wrapped[split - 1]), turns, wrapped[split:])
+    u = np.concatenate([a, b])
+    assert np.allclose(np.diff(u), np.diff(true), atol=1e-9)  # steps below pi are kept exactly
+    assert np.allclose(np.angle(np.exp(1j * (u - wrapped))), 0.0, atol=1e-9)
