@@ -60,7 +60,9 @@ def rng() -> np.random.Generator:
     return np.random.default_rng(1234)
 
 
-# numba compiles on first call (hundreds of ms): timing deadlines would make property tests flaky
+# numba compiles on first call (hundreds of ms): timing deadlines would make property tests flaky.
+# `numba_settings` states it per test; the profile keeps it for the other fusion tests that import these helpers.
+numba_settings = settings(deadline=None, max_examples=60)
 settings.register_profile("fusion", deadline=None, max_examples=60)
 settings.load_profile("fusion")
 

@@ -19,7 +19,7 @@ from gateway.fusion.complementary import (
     ComplementaryFilter,
     ComplementarySettings,
 )
-from tests.fusion.conftest import static_imu, synthetic_imu, trial_slice, unit_quats, vectors
+from tests.fusion.conftest import numba_settings, static_imu, synthetic_imu, trial_slice, unit_quats, vectors
 
 FILTERS = [ComplementaryFilter, AdaptiveComplementaryFilter]
 
@@ -43,6 +43,7 @@ def test_run_equals_repeated_update(cls, use_mag):
     assert a.kp_rad_s == pytest.approx(b.kp_rad_s, abs=1e-12)
 
 
+@numba_settings
 @given(unit_quats(), vectors(30.0), vectors(50.0), vectors(80.0), st.floats(1e-3, 0.05))
 def test_update_keeps_unit_norm(q0, gyr, acc, mag, dt):
     for f in (ComplementaryFilter(ComplementarySettings(k_rad_s=5.0, k_mag_rad_s=2.0)),

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from gateway.fusion import broad
 from gateway.fusion import quaternion as quat
 from gateway.fusion.mahony import MahonyFilter, MahonySettings
-from tests.fusion.conftest import static_imu, synthetic_imu, trial_slice, unit_quats, vectors
+from tests.fusion.conftest import numba_settings, static_imu, synthetic_imu, trial_slice, unit_quats, vectors
 
 
 def test_run_equals_repeated_update():
@@ -35,6 +35,7 @@ def test_run_rejects_mismatched_lengths():
         MahonyFilter().run(np.zeros((10, 3)), np.zeros((10, 3)), np.zeros((9, 3)), 0.01)
 
 
+@numba_settings
 @given(unit_quats(), vectors(30.0), vectors(50.0), vectors(80.0), st.floats(1e-3, 0.05))
 def test_update_keeps_unit_norm(q0, gyr, acc, mag, dt):
     f = MahonyFilter(MahonySettings(kp=5.0, ki=0.1, kp_mag=2.0))

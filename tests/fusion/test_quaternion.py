@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from gateway.fusion import quaternion as quat
-from tests.fusion.conftest import assert_quat_close, from_scipy, to_scipy, unit_quats, vectors
+from tests.fusion.conftest import assert_quat_close, from_scipy, numba_settings, to_scipy, unit_quats, vectors
 
 ATOL = 1e-12
 TRIG_ATOL = 1e-9
@@ -74,11 +74,13 @@ def test_euler_conventions_on_named_poses():
     np.testing.assert_allclose(quat.rotate(quat.from_euler(np.pi / 2, 0, 0), [0, 1.0, 0]), [0, 0, 1.0], atol=ATOL)
 
 
+@numba_settings
 @given(st.floats(-3.1, 3.1), st.floats(-1.5, 1.5), st.floats(-3.1, 3.1))
 def test_euler_round_trip_away_from_gimbal_lock(roll, pitch, yaw):
     np.testing.assert_allclose(quat.to_euler(quat.from_euler(roll, pitch, yaw)), [roll, pitch, yaw], atol=TRIG_ATOL)
 
 
+@numba_settings
 @given(unit_quats(), vectors())
 def test_q_and_minus_q_are_the_same_rotation(q, v):
     np.testing.assert_allclose(quat.rotate(q, v), quat.rotate(-q, v), atol=1e-11)
@@ -86,6 +88,7 @@ def test_q_and_minus_q_are_the_same_rotation(q, v):
     assert quat.angle_between(q, -q) == pytest.approx(0.0, abs=1e-6)
 
 
+@numba_settings
 @given(unit_quats(), vectors(20.0), st.floats(1e-4, 0.05))
 def test_updates_keep_unit_norm(q, gyr, dt):
     for update in (quat.first_order_update, quat.picard3_update, quat.integrate_exact):
@@ -93,6 +96,7 @@ def test_updates_keep_unit_norm(q, gyr, dt):
     assert np.linalg.norm(quat.gyro_step4(q, gyr, dt)) == pytest.approx(1.0, abs=1e-12)
 
 
+@numba_settings
 @given(unit_quats(), vectors(20.0).filter(lambda w: np.linalg.norm(w) > 0.5), st.floats(1e-3, 0.05))
 def test_picard3_is_closer_to_exact_than_first_order(q, gyr, dt):
     exact = quat.integrate_exact(q, gyr, dt)
@@ -112,6 +116,7 @@ def test_picard3_error_is_third_order(rng):
     assert 3 < f[0] / f[1] < 5
 
 
+@numba_settings
 @given(unit_quats(), vectors(20.0), st.floats(1e-4, 0.05))
 def test_numba_kernels_match_numpy(q, w, dt):
     p = quat.normalise(q[::-1])
@@ -121,6 +126,7 @@ def test_numba_kernels_match_numpy(q, w, dt):
     np.testing.assert_allclose(quat.gyro_step4(q, w, dt), quat.integrate_exact(q, w, dt), atol=ATOL)
 
 
+@numba_settings
 @given(st.lists(st.floats(-0.5, 0.5), min_size=2, max_size=200), st.floats(-3.0, 3.0))
 def test_yaw_wrap_then_unwrap_recovers_continuous_yaw(steps, start):
     yaw = start + np.cumsum(steps)
