@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -222,15 +223,16 @@ class TruthLabel:
 
 @dataclass(frozen=True)
 class RodState:
-    """One rod after a step (floats); angles in rad, ENU, quaternion wxyz body -> earth."""
+    """One rod after a step (floats); angles in rad, ENU, quaternion wxyz body -> earth.
+
+    `quat_wxyz`, `gyr_rad_s` (true body rate) and `acc_m_s2` (true specific force) are computed on first access,
+    so a controller reading only pitch, tension and line pays nothing for them.
+    """
 
     t_s: float
-    quat_wxyz: FloatArray
     roll_rad: float
     pitch_rad: float
     yaw_rad: float
-    gyr_rad_s: FloatArray
-    acc_m_s2: FloatArray
     tension_n: float
     line_out_m: float
     line_in_speed_m_s: float
@@ -241,6 +243,29 @@ class RodState:
     fish_distance_m: float
     breaking_strength_n: float
     line_broken: bool
+    euler_rate_rad_s: FloatArray
+    euler_acc_rad_s2: FloatArray
+    tip_lever_m: float
+
+    @cached_property
+    def _kinematics(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        e = np.array([self.roll_rad, self.pitch_rad, self.yaw_rad])
+        return tip_kinematics(e, self.euler_rate_rad_s, self.euler_acc_rad_s2, self.tip_lever_m)
+
+    @property
+    def quat_wxyz(self) -> FloatArray:
+        """True tip attitude, shape (4,)."""
+        return self._kinematics[0]
+
+    @property
+    def gyr_rad_s(self) -> FloatArray:
+        """True body angular rate, rad/s, shape (3,)."""
+        return self._kinematics[1]
+
+    @property
+    def acc_m_s2(self) -> FloatArray:
+        """True specific force in the body frame, m/s², shape (3,)."""
+        return self._kinematics[2]
 
 
 @dataclass(frozen=True)
@@ -602,16 +627,16 @@ class RodSim:
     def step(self, dt_s: float, reel_speed_cmd_m_s: float = 0.0) -> RodState:
         """Advance `dt_s`; the motor is commanded to `reel_speed_cmd_m_s` line-in speed (> 0 in, < 0 out)."""
         b = self.bank
-        blk = b.run_block(1, dt_s, reel_speed_cmd_m_s)
-        e = blk.euler_rad[0, 0]
+        b.step(dt_s, reel_speed_cmd_m_s)
+        e, de, dde = b.euler()
         return RodState(
-            t_s=b.t_s, quat_wxyz=blk.quat_wxyz[0, 0], roll_rad=float(e[0]), pitch_rad=float(e[1]),
-            yaw_rad=float(e[2]), gyr_rad_s=blk.gyr_rad_s[0, 0], acc_m_s2=blk.acc_m_s2[0, 0],
+            t_s=b.t_s, roll_rad=float(e[0, 0]), pitch_rad=float(e[0, 1]), yaw_rad=float(e[0, 2]),
             tension_n=float(b.tension[0]), line_out_m=float(b.line_out[0]),
             line_in_speed_m_s=float(-b.line_rate[0]), motor_speed_m_s=float(b.motor[0]), drag_n=float(b.drag[0]),
             fish_state=FISH_STATES[int(b.fish[0])], fish_stamina=float(b.fish_stamina[0]),
             fish_distance_m=float(b.fish_d[0]), breaking_strength_n=float(b.breaking[0]),
-            line_broken=bool(b.broken[0]),
+            line_broken=bool(b.broken[0]), euler_rate_rad_s=de[0], euler_acc_rad_s2=dde[0],
+            tip_lever_m=b.s.tip_lever_m,
         )
 
 

@@ -102,6 +102,8 @@ def test_a_tired_fish_is_landed_by_reeling_in() -> None:
     bank.inject(Fight(t_s=0.1, mass_kg=1.0, stamina=0.2, endurance_s=10.0))
     for _ in range(3000):
         bank.step(0.02, 0.8)
+        if (bank.fish == FISH_STATES.index("landed")).all():
+            break
     assert [FISH_STATES[f] for f in bank.fish] == ["landed"] * 4
     assert (bank.line_out <= bank.s.land_line_m).all()
     assert sum(lab.label == "landed" for lab in bank.drain_labels()) == 4
