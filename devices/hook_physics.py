@@ -22,8 +22,10 @@ arm `r_b` (body frame) from B, is
     f_b = R^T ((T/m) n + w) + ω_b' × r_b + ω_b × (ω_b × r_b)
 
 which is *not* gravity: for `r_b = 0` it always points along body z, whatever the swing.
-Integration: classical RK4 at `internal_rate_hz` (1 kHz), the state re-projected onto `|n| = 1, n . n' = 0`
-after each step; outputs are sampled every `internal_rate_hz / output_rate_hz` steps. Pure: time passed in.
+A scenario may hold the hook still at its initial displacement for `hold_s` (specific force = gravity
+reaction) and then release it. Integration: classical RK4 at `internal_rate_hz` (1 kHz), the state re-projected
+onto `|n| = 1, n . n' = 0` after each step; outputs are sampled every `internal_rate_hz / output_rate_hz` steps.
+Pure: time passed in.
 """
 
 from __future__ import annotations
@@ -89,6 +91,7 @@ class HookScenario:
     initial_sideways_rate_rad_s: float = 0.0  # rope rate perpendicular to the swing plane (elliptic/conical swing)
     initial_torsion_rad: float = 0.0
     initial_torsion_rate_rad_s: float = 0.0
+    hold_s: float = 0.0  # held still at the initial displacement until then (rates ignored), then released
     trolley_moves: tuple[TrolleyMove, ...] = ()
     wind_mean_m_s2: tuple[float, float] = (0.0, 0.0)  # steady wind force per unit mass, ENU x, y
     wind_std_m_s2: float = 0.0  # gusts: Ornstein-Uhlenbeck force per unit mass, per horizontal axis
@@ -277,9 +280,14 @@ def _integrate(settings: HookPhysicsSettings, scenario: HookScenario) -> dict[st
         out["torque"].append(tq_l[i])
         out["t"].append(i * dt)
 
+    n_hold = int(round(scenario.hold_s * rate))
+    if n_hold > 0:
+        vx = vy = vz = pd = 0.0
     for i in range(n_steps):
         if i % sub == 0:
             record(i)
+        if i < n_hold:
+            continue
         ex, ey, ez = wx_l[i] - ax_l[i], wy_l[i] - ay_l[i], -g
         tq = tq_l[i]
         s0 = (nx, ny, nz, vx, vy, vz, ph, pd)
@@ -316,6 +324,9 @@ def simulate(settings: HookPhysicsSettings, scenario: HookScenario) -> HookTruth
     k_j = settings.torsion_stiffness_n_m_rad / settings.torsion_inertia_kg_m2
     c_j = settings.torsion_damping_n_m_s_rad / settings.torsion_inertia_kg_m2
     phi_acc = -k_j * phi - c_j * phi_rate + st["torque"] / settings.torsion_inertia_kg_m2
+    held = t < scenario.hold_s - 0.5 * dt_int
+    ndd[held] = 0.0
+    phi_acc[held] = 0.0
     alpha = settings.rest_heading_rad + phi
     q, w_b = hook_attitude_and_rate(n, v, alpha, phi_rate)
     # ω_b' as the derivative along the state's own velocity (central difference; error O(h²) ≈ 1e-10 rad/s²).
@@ -325,6 +336,8 @@ def simulate(settings: HookPhysicsSettings, scenario: HookScenario) -> HookTruth
     w_dot = (w_plus - w_minus) / (2.0 * h)
     r_b = np.asarray(settings.lever_arm_m, dtype=np.float64)
     f_b_earth = tension[:, None] * n + st["wind"] + c * l * v  # rope pull + wind + air damping, per unit mass
+    f_b_earth[held] = -g_vec  # held: the holding force balances gravity
+    tension[held] = settings.gravity_m_s2 * n[held, 2]
     acc = _rotate_inverse(q, f_b_earth) + np.cross(w_dot, r_b) + np.cross(w_b, np.cross(w_b, r_b))
     mag = _rotate_inverse(q, np.broadcast_to(np.asarray(settings.earth_field_uT, dtype=np.float64), n.shape))
     susp = st["susp_pos"]

@@ -131,3 +131,19 @@ def test_trolley_move_makes_the_hook_swing_and_the_boom_tip_travel():
     # While accelerating north the hook lags behind, i.e. is displaced south (bearing -90°).
     accelerating = (truth.t_s > 1.5) & (truth.t_s < 2.0)
     np.testing.assert_allclose(truth.swing_bearing_rad[accelerating], -math.pi / 2, atol=1e-6)
+
+
+def test_held_hook_reads_gravity_then_swings_after_release():
+    settings = HookPhysicsSettings(lever_arm_m=(0.0, 0.0, 0.0), internal_rate_hz=500.0)
+    theta0 = math.radians(10.0)
+    truth = simulate(settings, HookScenario(duration_s=3.0, initial_swing_rad=theta0, hold_s=1.0))
+    held = truth.t_s < 1.0
+    g = settings.gravity_m_s2
+    # Held at 10° towards East: earth up in body = (sin, 0, cos) rotated; |f| = g and f_z = g cos Θ.
+    np.testing.assert_allclose(np.linalg.norm(truth.acc_m_s2[held], axis=1), g, atol=1e-9)
+    np.testing.assert_allclose(truth.acc_m_s2[held, 2], g * math.cos(theta0), atol=1e-9)
+    np.testing.assert_allclose(truth.gyr_rad_s[held], 0.0, atol=1e-12)
+    np.testing.assert_allclose(truth.swing_rad[held], theta0, atol=1e-12)
+    assert truth.swing_rad[-1] < theta0 - math.radians(1.0)
+    # After release the accelerometer reads tension along the rope again.
+    np.testing.assert_allclose(truth.acc_m_s2[~held, :2], 0.0, atol=1e-9)
