@@ -267,6 +267,8 @@ class Pipeline:
         """Create a device after its warm-up window: the filter starts from the window's mean acc (+ mag), and
         when the window was at rest its mean gyro seeds the filter's bias estimate."""
         self.kinds[p.device_id] = p.kind
+        n_warm = max(1, int(math.ceil(self.settings.warmup_s * p.rate_hz)))  # a big first batch: use its start only
+        gyr, acc, mag = gyr[:n_warm], acc[:n_warm], None if mag is None else mag[:n_warm]
         name, th = self.effective(p.kind, p.device_id)
         use_mag = mag is not None
         acc0, mag0 = acc.mean(axis=0), None if mag is None else mag.mean(axis=0)
@@ -326,6 +328,7 @@ class Pipeline:
         self, imu: dict[str, list[schemas.ImuPacket]], now: float, out: Output, conds: list[tuple[str, Condition]]
     ) -> None:
         blocks: dict[str, tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]] = {}
+        ends: dict[str, list[tuple[int, int, int]]] = {}  # per device: (last sample index, seq, t_us) per packet
         for dev_id, pkts in imu.items():
             dev = self.devices.get(dev_id)
             if dev is None:  # warm-up: collect, start the filter once the window is full
@@ -348,9 +351,12 @@ class Pipeline:
             dev.wall_offset_us = (last.wall_t0_us - last.t0_us) if last.wall_t0_us is not None else (
                 int(now * 1e6) - dev.t_us)  # fmt: skip
             blocks[dev_id] = (gyr, acc, mag if dev.use_mag else None, t_s)
+            idx = np.cumsum([p.n for p in pkts]) - 1
+            ends[dev_id] = [(int(i), p.seq, p.t0_us + int(round((p.n - 1) * 1e6 / p.rate_hz)))
+                            for i, p in zip(idx, pkts, strict=True)]  # fmt: skip
         quats = self._step_filters(blocks)
         for dev_id, q in quats.items():
-            self._post(self.devices[dev_id], q, blocks[dev_id], now, out, conds)
+            self._post(self.devices[dev_id], q, blocks[dev_id], ends[dev_id], now, out, conds)
 
     def _step_filters(
         self, blocks: dict[str, tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]]
@@ -386,24 +392,27 @@ class Pipeline:
         dev: ImuDevice,
         q: FloatArray,
         block: tuple[FloatArray, FloatArray, FloatArray | None, FloatArray],
+        ends: list[tuple[int, int, int]],
         now: float,
         out: Output,
         conds: list[tuple[str, Condition]],
     ) -> None:
+        """Euler, outputs at packet ends (decimated), device rules; conditions get wall times."""
         _, acc, _, t_s = block
         eul = to_euler(q)
         yaw_u, dev.yaw_turns = _unwrap(dev.yaw_last, dev.yaw_turns, eul[:, 2])
         dev.yaw_last = float(eul[-1, 2])
         dev.quat, dev.euler, dev.yaw_unwrapped = q[-1].copy(), eul[-1].copy(), float(yaw_u[-1])
         offset_s = dev.wall_offset_us * 1e-6
-        wall_last_us = dev.t_us + dev.wall_offset_us
-        if t_s[-1] - dev.last_attitude_t_s >= self.settings.attitude_interval_s - 1e-9:
-            dev.last_attitude_t_s = float(t_s[-1])
+        for i, seq, t_us in ends:
+            if t_s[i] - dev.last_attitude_t_s < self.settings.attitude_interval_s - 1e-9:
+                continue
+            dev.last_attitude_t_s = float(t_s[i])
             out.attitudes.append(schemas.Attitude(
-                device_id=dev.device_id, kind=dev.kind, seq=dev.seq, t_us=dev.t_us,  # type: ignore[arg-type]
-                wall_t_us=wall_last_us, quat_wxyz=tuple(float(x) for x in dev.quat),  # type: ignore[arg-type]
-                roll_rad=float(eul[-1, 0]), pitch_rad=float(eul[-1, 1]), yaw_rad=float(eul[-1, 2]),
-                yaw_unwrapped_rad=dev.yaw_unwrapped, filter=dev.filter_name,
+                device_id=dev.device_id, kind=dev.kind, seq=seq, t_us=t_us,  # type: ignore[arg-type]
+                wall_t_us=t_us + dev.wall_offset_us, quat_wxyz=tuple(float(x) for x in q[i]),  # type: ignore[arg-type]
+                roll_rad=float(eul[i, 0]), pitch_rad=float(eul[i, 1]), yaw_rad=float(eul[i, 2]),
+                yaw_unwrapped_rad=float(yaw_u[i]), filter=dev.filter_name,
             ))  # fmt: skip
         new: list[Condition] = []
         if dev.rod is not None:
@@ -422,13 +431,13 @@ class Pipeline:
             swing = hook_geo.swing_angle(q)
             tors = hook_geo.torsion(q, dev.rest_heading_rad)
             new = dev.hook.update(t_s, swing, tors)
-            dev.swing = schemas.Swing(
-                device_id=dev.device_id, seq=dev.seq, t_us=dev.t_us, wall_t_us=wall_last_us,
-                swing_angle_rad=float(swing[-1]),
-                swing_direction_rad=float(hook_geo.displacement_bearing(q[-1])),
-                torsion_rad=float(tors[-1]),
-            )  # fmt: skip
-            out.swings.append(dev.swing)
+            for i, seq, t_us in ends:
+                dev.swing = schemas.Swing(
+                    device_id=dev.device_id, seq=seq, t_us=t_us, wall_t_us=t_us + dev.wall_offset_us,
+                    swing_angle_rad=float(swing[i]), swing_direction_rad=float(hook_geo.displacement_bearing(q[i])),
+                    torsion_rad=float(tors[i]),
+                )  # fmt: skip
+                out.swings.append(dev.swing)
         conds.extend((dev.kind, replace(c, t_s=c.t_s + offset_s)) for c in new)
 
     # -- auto reel ------------------------------------------------------------------------------------------

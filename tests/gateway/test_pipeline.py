@@ -111,3 +111,10 @@ def test_unwrap_is_continuous_and_agrees_with_the_wrapped_yaw(steps: list[float]
     u = np.concatenate([a, b])
     assert np.allclose(np.diff(u), np.diff(true), atol=1e-9)  # steps below pi are kept exactly
     assert np.allclose(np.angle(np.exp(1j * (u - wrapped))), 0.0, atol=1e-9)
+
+
+def test_one_big_first_batch_gives_the_same_alarms_as_streaming() -> None:
+    messages = rod_messages(6.0, [{"type": "bite", "t_s": 3.0, "depth_deg": 15.0, "duration_s": 1.5}])
+    streamed = raised(run(Pipeline(), messages, per_batch=1))
+    at_once = raised(run(Pipeline(), messages, per_batch=len(messages)))
+    assert [a for a, _ in at_once] == [a for a, _ in streamed] == ["bite"]
