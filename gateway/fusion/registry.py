@@ -8,6 +8,7 @@ from gateway.fusion.base import AttitudeFilter
 
 # name -> "module:ClassName"; the class takes keyword `use_mag`. Imported lazily, so modules stay independent.
 FILTERS: dict[str, str] = {
+    "default": "gateway.fusion.default:DefaultFilter",
     "mahony": "gateway.fusion.mahony:MahonyFilter",
     "complementary": "gateway.fusion.complementary:ComplementaryFilter",
     "adaptive": "gateway.fusion.complementary:AdaptiveComplementaryFilter",

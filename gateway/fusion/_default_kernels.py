@@ -1,0 +1,573 @@
+"""Numba kernels of the default attitude filter: one flat state vector per device, one code path for 1 or N devices.
+
+The method follows the ideas of VQF (D. Laidig, T. Seel, "VQF: Highly accurate IMU orientation estimation with bias
+estimation and magnetic disturbance rejection", Information Fusion 91:187-204, 2023, doi:10.1016/j.inffus.2022.10.014):
+
+1. strapdown integration of the bias-corrected gyroscope into an almost-inertial frame I (eq. 3 of the paper);
+2. the accelerometer is rotated into I and low-pass filtered there, so body rotation does not smear it (sec. 3.2);
+3. the filtered specific force, rotated by the inclination correction, is turned fully vertical each sample, which
+   gives the 6D frame E6 (sec. 3.3);
+4. the inclination corrections are explained by a gyro bias seen through the (equally filtered) rotation matrix,
+   estimated by a 3-state Kalman filter in motion and directly from the low-passed gyro at rest (sec. 3.4, 3.5);
+5. heading: one angle delta between E6 and ENU, pulled towards the magnetometer's horizontal direction with a first-
+   order gain, frozen while the field's norm or dip departs from a tracked reference (sec. 3.6).
+
+All time constants are in seconds, so one set of defaults serves 50 Hz .. 1 kHz. Everything here is scalar code on
+flat float64 arrays: no allocation per sample, so `step_device` streams one device and `step_devices` loops it over N.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# ---- settings vector (built by DefaultSettings.to_array) ----
+P_TAU_ACC = 0  # s, accelerometer low-pass in I
+P_TAU_MAG = 1  # s, heading correction time constant
+P_REST_TAU = 2  # s, low-pass used by rest detection
+P_REST_GYR_TH = 3  # rad/s
+P_REST_ACC_TH = 4  # m/s²
+P_REST_MIN = 5  # s
+P_BIAS_CLIP = 6  # rad/s
+P_BIAS_SIGMA_INIT = 7  # rad/s
+P_BIAS_FORGET = 8  # s
+P_BIAS_SIGMA_MOTION = 9  # rad/s
+P_BIAS_VERT_FACTOR = 10  # 1
+P_BIAS_SIGMA_REST = 11  # rad/s
+P_MAG_CUR_TAU = 12  # s, low-pass of the current field norm and dip
+P_MAG_REF_TAU = 13  # s, adaptation of the accepted reference
+P_MAG_NORM_TH = 14  # 1, relative
+P_MAG_DIP_TH = 15  # rad
+P_MAG_NEW_T = 16  # s, a new steady field is accepted after this long (while rotating)
+P_MAG_NEW_FIRST_T = 17  # s, same, when no reference was ever accepted
+P_MAG_NEW_MIN_GYR = 18  # rad/s
+P_MAG_MIN_UNDIST_T = 19  # s
+P_MAG_MAX_REJECT_T = 20  # s
+P_MAG_REJECT_FACTOR = 21  # 1
+P_MOTION_BIAS_ON = 22
+P_REST_BIAS_ON = 23
+P_MAG_REJECT_ON = 24
+P_BIAS_WALK = 25  # rad/s, bias standard deviation gained per `P_BIAS_FORGET` seconds
+P_SCALE_ON = 26
+P_SCALE_SIGMA_INIT = 27  # 1, prior std of the per-axis gyro scale correction
+P_SCALE_WALK = 28  # 1, std gained per `P_BIAS_FORGET` seconds
+P_SCALE_CLIP = 29  # 1
+N_PARAMS = 30
+
+# ---- state vector ----
+S_QG = 0  # 4: strapdown quaternion body -> I
+S_QI = 4  # 4: inclination correction I -> E6
+S_DELTA = 8  # rad, heading of E6 in ENU
+S_ACC_LP = 9  # 3 (output) + 6 (filter memory): specific force in I, low-passed
+S_R_LP = 18  # 9 (output) + 18: rotation matrix E6<-body, low-passed like the acceleration
+S_RB_LP = 45  # 2 (output) + 4: horizontal part of R·bias, low-passed
+S_BIAS = 51  # 3, rad/s
+S_SCALE = 54  # 3, per-axis gyro scale correction k: rate = (gyr - bias) * (1 + k)
+S_BIAS_P = 57  # 36, covariance of (bias rad/s, k), row-major 6x6
+S_REST_GYR = 93  # 3 + 6: gyro low-pass for rest detection
+S_REST_ACC = 102  # 3 + 6: accelerometer low-pass for rest detection
+S_REST_T = 111  # s of rest so far
+S_REST = 112  # 1.0 at rest
+S_MAG_CUR = 113  # 2 (norm uT, dip rad) + 4
+S_MAG_REF_NORM = 119
+S_MAG_REF_DIP = 120
+S_MAG_UNDIST_T = 121
+S_MAG_REJECT_T = 122
+S_MAG_CAND_NORM = 123
+S_MAG_CAND_DIP = 124
+S_MAG_CAND_T = 125
+S_MAG_DIST = 126  # 1.0 while the field is judged disturbed
+S_K_MAG_INIT = 127  # fast initial heading gain (running mean), 0 when done
+S_RU_LP = 128  # 9 + 18: R·diag(rate), low-passed (how a scale error shows in the earth frame)
+S_RUK_LP = 155  # 2 + 4: horizontal part of R·diag(rate)·k, low-passed
+N_STATE = 161
+
+# ---- per-call coefficients (derived from settings and dt) ----
+C_ACC = 0  # 5: b0 b1 b2 a1 a2
+C_REST = 5  # 5
+C_MAG = 10  # 5
+C_K_MAG = 15
+C_K_REF = 16
+C_BIAS_V = 17
+C_BIAS_P0 = 18
+C_W_MOTION = 19
+C_W_VERT = 20
+C_W_REST = 21
+C_SCALE_V = 22
+C_SCALE_P0 = 23
+N_COEFFS = 24
+
+N_WORK = 80
+
+
+def new_state(settings: np.ndarray) -> np.ndarray:
+    """A fresh state vector: identity attitude, zero bias with its initial uncertainty, filters uninitialised."""
+    s = np.zeros(N_STATE)
+    s[S_QG] = 1.0
+    s[S_QI] = 1.0
+    lowpasses = (
+        (S_ACC_LP, 3), (S_R_LP, 9), (S_RB_LP, 2), (S_REST_GYR, 3), (S_REST_ACC, 3), (S_MAG_CUR, 2), (S_RU_LP, 9),
+        (S_RUK_LP, 2),
+    )
+    for base, n in lowpasses:
+        s[base + n : base + 3 * n] = np.nan  # NaN memory = "initialise from the first input"
+    for i in range(3):
+        s[S_BIAS_P + 7 * i] = settings[P_BIAS_SIGMA_INIT] ** 2
+        s[S_BIAS_P + 7 * (i + 3)] = settings[P_SCALE_SIGMA_INIT] ** 2 if settings[P_SCALE_ON] != 0.0 else 0.0
+    s[S_MAG_DIST] = 1.0
+    s[S_MAG_REJECT_T] = settings[P_MAG_MAX_REJECT_T]
+    s[S_MAG_CAND_NORM] = -1.0
+    s[S_K_MAG_INIT] = 1.0
+    return s
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _qmul(
+    aw: float, ax: float, ay: float, az: float, bw: float, bx: float, by: float, bz: float
+) -> tuple[float, float, float, float]:
+    """Hamilton product a ⊗ b, scalar first."""
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rotate(
+    w: float, x: float, y: float, z: float, vx: float, vy: float, vz: float
+) -> tuple[float, float, float]:
+    """q ⊗ v ⊗ q* for a unit quaternion q."""
+    return (
+        (1.0 - 2.0 * (y * y + z * z)) * vx + 2.0 * (x * y - w * z) * vy + 2.0 * (x * z + w * y) * vz,
+        2.0 * (x * y + w * z) * vx + (1.0 - 2.0 * (x * x + z * z)) * vy + 2.0 * (y * z - w * x) * vz,
+        2.0 * (x * z - w * y) * vx + 2.0 * (y * z + w * x) * vy + (1.0 - 2.0 * (x * x + y * y)) * vz,
+    )
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _normalise_q(s: np.ndarray, k: int) -> None:
+    n = math.sqrt(s[k] ** 2 + s[k + 1] ** 2 + s[k + 2] ** 2 + s[k + 3] ** 2)
+    s[k] /= n
+    s[k + 1] /= n
+    s[k + 2] /= n
+    s[k + 3] /= n
+
+
+@njit(cache=True, error_model="numpy")
+def _butter2(tau_s: float, dt_s: float, c: np.ndarray, k: int) -> None:
+    """Second-order Butterworth low-pass, cutoff fc = 1/(2π·tau), bilinear transform with pre-warping.
+
+    Writes b0 b1 b2 a1 a2 to c[k:k+5]; falls back to pass-through when fc nears Nyquist (tau < dt/π).
+    """
+    if tau_s * math.pi < dt_s:
+        c[k], c[k + 1], c[k + 2], c[k + 3], c[k + 4] = 1.0, 0.0, 0.0, 0.0, 0.0
+        return
+    w = math.tan(0.5 * dt_s / tau_s)  # tan(π fc dt)
+    d = w * w + math.sqrt(2.0) * w + 1.0
+    b0 = w * w / d
+    c[k] = b0
+    c[k + 1] = 2.0 * b0
+    c[k + 2] = b0
+    c[k + 3] = 2.0 * (w * w - 1.0) / d
+    c[k + 4] = (w * w - math.sqrt(2.0) * w + 1.0) / d
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _lowpass(x: float, c: np.ndarray, kc: int, s: np.ndarray, ks: int) -> float:
+    """One step of the biquad (transposed direct form II) whose memory is s[ks], s[ks+1].
+
+    NaN memory is replaced by the steady state for input x, so a filter starts at its first sample without a jump.
+    """
+    b0 = c[kc]
+    if math.isnan(s[ks]):
+        s[ks] = (1.0 - b0) * x
+        s[ks + 1] = (c[kc + 2] - c[kc + 4]) * x
+    y: float = b0 * x + s[ks]
+    s[ks] = c[kc + 1] * x - c[kc + 3] * y + s[ks + 1]
+    s[ks + 1] = c[kc + 2] * x - c[kc + 4] * y
+    return y
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _lowpass_vec(x: np.ndarray, n: int, c: np.ndarray, kc: int, s: np.ndarray, base: int) -> None:
+    """Filter x[:n] in place with the n-channel filter stored at s[base:base+3n] (outputs, then 2 memories each)."""
+    for i in range(n):
+        y = _lowpass(x[i], c, kc, s, base + n + 2 * i)
+        s[base + i] = y
+        x[i] = y
+
+
+@njit(cache=True, error_model="numpy")
+def _gain(tau_s: float, dt_s: float) -> float:
+    """First-order gain k = 1 - exp(-dt/tau); tau < 0 disables (k = 0), tau = 0 passes through (k = 1)."""
+    if tau_s < 0.0:
+        return 0.0
+    if tau_s == 0.0:
+        return 1.0
+    return 1.0 - math.exp(-dt_s / tau_s)
+
+
+@njit(cache=True, error_model="numpy")
+def coefficients(prm: np.ndarray, dt_s: float, c: np.ndarray) -> None:
+    """Derive the per-rate coefficients from the settings vector and the sample period."""
+    _butter2(prm[P_TAU_ACC], dt_s, c, C_ACC)
+    _butter2(prm[P_REST_TAU], dt_s, c, C_REST)
+    _butter2(prm[P_MAG_CUR_TAU], dt_s, c, C_MAG)
+    c[C_K_MAG] = _gain(prm[P_TAU_MAG], dt_s)
+    c[C_K_REF] = _gain(prm[P_MAG_REF_TAU], dt_s)
+    # Random-walk bias: its variance grows by v per sample, walk² per `forget` seconds (capped at sigma_init²);
+    # the measurement noise w = p(p+v)/v makes the steady-state posterior variance exactly p.
+    v = prm[P_BIAS_WALK] ** 2 * dt_s / prm[P_BIAS_FORGET]
+    c[C_BIAS_V] = v
+    c[C_BIAS_P0] = prm[P_BIAS_SIGMA_INIT] ** 2
+    pm = prm[P_BIAS_SIGMA_MOTION] ** 2
+    c[C_W_MOTION] = pm * (pm + v) / v
+    c[C_W_VERT] = c[C_W_MOTION] / max(prm[P_BIAS_VERT_FACTOR], 1e-10)
+    pr = prm[P_BIAS_SIGMA_REST] ** 2
+    c[C_W_REST] = pr * (pr + v) / v
+    on = prm[P_SCALE_ON] != 0.0
+    c[C_SCALE_V] = prm[P_SCALE_WALK] ** 2 * dt_s / prm[P_BIAS_FORGET] if on else 0.0
+    c[C_SCALE_P0] = prm[P_SCALE_SIGMA_INIT] ** 2 if on else 0.0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _wrap(a: float) -> float:
+    if a > math.pi:
+        return a - 2.0 * math.pi
+    if a < -math.pi:
+        return a + 2.0 * math.pi
+    return a
+
+
+@njit(cache=True, error_model="numpy")
+def _predict_bias(s: np.ndarray, c: np.ndarray) -> None:
+    """Bounded random walk of bias and scale: the variances grow until they reach their prior."""
+    for i in range(3):
+        if s[S_BIAS_P + 7 * i] < c[C_BIAS_P0]:
+            s[S_BIAS_P + 7 * i] += c[C_BIAS_V]
+        if s[S_BIAS_P + 7 * (i + 3)] < c[C_SCALE_P0]:
+            s[S_BIAS_P + 7 * (i + 3)] += c[C_SCALE_V]
+
+
+@njit(cache=True, error_model="numpy")
+def _bias_update(s: np.ndarray, prm: np.ndarray, c: np.ndarray, wk: np.ndarray) -> None:
+    """Kalman update of x = (bias rad/s, scale k) (paper sec. 3.4/3.5, extended by the scale states).
+
+    Innovation e = wk[0:3], measurement matrix H = wk[3:21] (3x6 row-major), noise variances wk[21:24].
+    Scratch (no allocation per sample): P H^T at wk[24:42], S at wk[42:51], S^-1 at wk[51:60], K at wk[60:78].
+    """
+    _predict_bias(s, c)
+    p = S_BIAS_P
+    for i in range(6):  # P H^T (6x3)
+        for j in range(3):
+            acc = 0.0
+            for m in range(6):
+                acc += s[p + 6 * i + m] * wk[3 + 6 * j + m]
+            wk[24 + 3 * i + j] = acc
+    for i in range(3):  # S = H P H^T + W (3x3)
+        for j in range(3):
+            acc = 0.0
+            for m in range(6):
+                acc += wk[3 + 6 * i + m] * wk[24 + 3 * m + j]
+            wk[42 + 3 * i + j] = acc
+        wk[42 + 4 * i] += wk[21 + i]
+    a, b, cc = wk[42], wk[43], wk[44]  # S^-1 by cofactors
+    d, e, f = wk[45], wk[46], wk[47]
+    g, h, k = wk[48], wk[49], wk[50]
+    c00 = e * k - f * h
+    c01 = f * g - d * k
+    c02 = d * h - e * g
+    inv_det = 1.0 / (a * c00 + b * c01 + cc * c02)
+    wk[51] = c00 * inv_det
+    wk[52] = (cc * h - b * k) * inv_det
+    wk[53] = (b * f - cc * e) * inv_det
+    wk[54] = c01 * inv_det
+    wk[55] = (a * k - cc * g) * inv_det
+    wk[56] = (cc * d - a * f) * inv_det
+    wk[57] = c02 * inv_det
+    wk[58] = (b * g - a * h) * inv_det
+    wk[59] = (a * e - b * d) * inv_det
+    for i in range(6):  # K = P H^T S^-1 (6x3)
+        for j in range(3):
+            acc = 0.0
+            for m in range(3):
+                acc += wk[24 + 3 * i + m] * wk[51 + 3 * m + j]
+            wk[60 + 3 * i + j] = acc
+    clip_b = prm[P_BIAS_CLIP]
+    clip_k = prm[P_SCALE_CLIP]
+    e0 = min(max(wk[0], -clip_b), clip_b)
+    e1 = min(max(wk[1], -clip_b), clip_b)
+    e2 = min(max(wk[2], -clip_b), clip_b)
+    for i in range(6):  # x += K e, clipped
+        dx = wk[60 + 3 * i] * e0 + wk[61 + 3 * i] * e1 + wk[62 + 3 * i] * e2
+        if i < 3:
+            s[S_BIAS + i] = min(max(s[S_BIAS + i] + dx, -clip_b), clip_b)
+        else:
+            s[S_SCALE + i - 3] = min(max(s[S_SCALE + i - 3] + dx, -clip_k), clip_k)
+    for i in range(6):  # P -= K (P H^T)^T
+        for j in range(6):
+            s[p + 6 * i + j] -= (
+                wk[60 + 3 * i] * wk[24 + 3 * j] + wk[61 + 3 * i] * wk[25 + 3 * j] + wk[62 + 3 * i] * wk[26 + 3 * j]
+            )
+
+
+@njit(cache=True, error_model="numpy")
+def _step_sample(
+    s: np.ndarray, prm: np.ndarray, c: np.ndarray, wk: np.ndarray,
+    gx: float, gy: float, gz: float, ax: float, ay: float, az: float,
+    mx: float, my: float, mz: float, use_mag: bool, dt_s: float,
+) -> None:
+    """Advance one device's state by one sample (gyro rad/s, specific force m/s², field uT)."""
+    rest_on = prm[P_REST_BIAS_ON] != 0.0
+    # -- rest detection, gyro half: deviation from its own low-pass, and a low-pass that must look like a bias
+    if rest_on or prm[P_MAG_REJECT_ON] != 0.0:
+        wk[0], wk[1], wk[2] = gx, gy, gz
+        _lowpass_vec(wk, 3, c, C_REST, s, S_REST_GYR)
+        dev2 = (gx - wk[0]) ** 2 + (gy - wk[1]) ** 2 + (gz - wk[2]) ** 2
+        big = max(abs(wk[0]), max(abs(wk[1]), abs(wk[2]))) > prm[P_BIAS_CLIP]
+        if dev2 >= prm[P_REST_GYR_TH] ** 2 or big:
+            s[S_REST_T] = 0.0
+            s[S_REST] = 0.0
+    # -- strapdown integration of the bias-free rate (exact for constant rate over dt)
+    ux = gx - s[S_BIAS]  # bias-free rate before the scale correction
+    uy = gy - s[S_BIAS + 1]
+    uz = gz - s[S_BIAS + 2]
+    wx = ux * (1.0 + s[S_SCALE])
+    wy = uy * (1.0 + s[S_SCALE + 1])
+    wz = uz * (1.0 + s[S_SCALE + 2])
+    wn = math.sqrt(wx * wx + wy * wy + wz * wz)
+    if wn > 1e-15:
+        half = 0.5 * wn * dt_s
+        sc = math.sin(half) / wn
+        q = _qmul(s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3], math.cos(half), sc * wx, sc * wy, sc * wz)
+        s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3] = q
+        _normalise_q(s, S_QG)
+    if ax == 0.0 and ay == 0.0 and az == 0.0:
+        return  # no accelerometer sample
+    # -- rest detection, accelerometer half
+    if rest_on:
+        wk[0], wk[1], wk[2] = ax, ay, az
+        _lowpass_vec(wk, 3, c, C_REST, s, S_REST_ACC)
+        dev2 = (ax - wk[0]) ** 2 + (ay - wk[1]) ** 2 + (az - wk[2]) ** 2
+        if dev2 >= prm[P_REST_ACC_TH] ** 2:
+            s[S_REST_T] = 0.0
+            s[S_REST] = 0.0
+        else:
+            s[S_REST_T] += dt_s
+            if s[S_REST_T] >= prm[P_REST_MIN]:
+                s[S_REST] = 1.0
+    # -- inclination: low-pass the specific force in I, rotate to E6, turn it fully vertical
+    fx, fy, fz = _rotate(s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3], ax, ay, az)
+    wk[0], wk[1], wk[2] = fx, fy, fz
+    _lowpass_vec(wk, 3, c, C_ACC, s, S_ACC_LP)
+    ex, ey, ez = _rotate(s[S_QI], s[S_QI + 1], s[S_QI + 2], s[S_QI + 3], wk[0], wk[1], wk[2])
+    en = math.sqrt(ex * ex + ey * ey + ez * ez)
+    if en == 0.0:
+        return
+    ex /= en
+    ey /= en
+    ez /= en
+    cw = math.sqrt(max(0.5 * (ez + 1.0), 0.0))
+    if cw > 1e-6:  # shortest rotation taking (ex, ey, ez) onto +z
+        q = _qmul(cw, 0.5 * ey / cw, -0.5 * ex / cw, 0.0, s[S_QI], s[S_QI + 1], s[S_QI + 2], s[S_QI + 3])
+    else:  # upside down: any half-turn about a horizontal axis
+        q = _qmul(0.0, 1.0, 0.0, 0.0, s[S_QI], s[S_QI + 1], s[S_QI + 2], s[S_QI + 3])
+    s[S_QI], s[S_QI + 1], s[S_QI + 2], s[S_QI + 3] = q
+    _normalise_q(s, S_QI)
+    # -- gyro bias (sec. 3.4/3.5)
+    motion_on = prm[P_MOTION_BIAS_ON] != 0.0
+    if motion_on or rest_on:
+        qw, qx, qy, qz = _qmul(
+            s[S_QI], s[S_QI + 1], s[S_QI + 2], s[S_QI + 3], s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3]
+        )
+        # rotation matrix E6 <- body, row-major, into wk[3:12]
+        wk[3] = 1.0 - 2.0 * (qy * qy + qz * qz)
+        wk[4] = 2.0 * (qx * qy - qw * qz)
+        wk[5] = 2.0 * (qx * qz + qw * qy)
+        wk[6] = 2.0 * (qx * qy + qw * qz)
+        wk[7] = 1.0 - 2.0 * (qx * qx + qz * qz)
+        wk[8] = 2.0 * (qy * qz - qw * qx)
+        wk[9] = 2.0 * (qx * qz - qw * qy)
+        wk[10] = 2.0 * (qy * qz + qw * qx)
+        wk[11] = 1.0 - 2.0 * (qx * qx + qy * qy)
+        bx, by, bz = s[S_BIAS], s[S_BIAS + 1], s[S_BIAS + 2]
+        kx, ky, kz = s[S_SCALE], s[S_SCALE + 1], s[S_SCALE + 2]
+        scale_on = prm[P_SCALE_ON] != 0.0
+        # horizontal earth-frame rates the current bias and scale estimates already remove, filtered like the
+        # acceleration so they line up in time with the corrections they explain
+        rb0 = _lowpass(wk[3] * bx + wk[4] * by + wk[5] * bz, c, C_ACC, s, S_RB_LP + 2)
+        rb1 = _lowpass(wk[6] * bx + wk[7] * by + wk[8] * bz, c, C_ACC, s, S_RB_LP + 4)
+        s[S_RB_LP], s[S_RB_LP + 1] = rb0, rb1
+        if scale_on:
+            ruk0 = _lowpass(wk[3] * ux * kx + wk[4] * uy * ky + wk[5] * uz * kz, c, C_ACC, s, S_RUK_LP + 2)
+            ruk1 = _lowpass(wk[6] * ux * kx + wk[7] * uy * ky + wk[8] * uz * kz, c, C_ACC, s, S_RUK_LP + 4)
+            s[S_RUK_LP], s[S_RUK_LP + 1] = ruk0, ruk1
+            for i in range(3):  # R diag(u) -> wk[24 + 3i + j] temporarily, low-passed, then into H below
+                for j in range(3):
+                    uj = ux if j == 0 else (uy if j == 1 else uz)
+                    y = _lowpass(wk[3 + 3 * i + j] * uj, c, C_ACC, s, S_RU_LP + 9 + 2 * (3 * i + j))
+                    s[S_RU_LP + 3 * i + j] = y
+        else:
+            ruk0 = ruk1 = 0.0
+        for i in range(9):
+            s[S_R_LP + i] = _lowpass(wk[3 + i], c, C_ACC, s, S_R_LP + 9 + 2 * i)
+        # H = [LP(R), -LP(R diag u)] (3x6) at wk[3:21]
+        for i in range(3):
+            for j in range(3):
+                wk[3 + 6 * i + j] = s[S_R_LP + 3 * i + j]
+                wk[6 + 6 * i + j] = -s[S_RU_LP + 3 * i + j] if scale_on else 0.0
+        if rest_on and s[S_REST] != 0.0:
+            # at rest the low-passed gyro is the bias; the scale is not observed
+            wk[0] = s[S_REST_GYR] - bx
+            wk[1] = s[S_REST_GYR + 1] - by
+            wk[2] = s[S_REST_GYR + 2] - bz
+            for i in range(18):
+                wk[3 + i] = 0.0
+            wk[3] = wk[10] = wk[17] = 1.0
+            wk[21] = wk[22] = wk[23] = c[C_W_REST]
+            _bias_update(s, prm, c, wk)
+        elif motion_on:
+            # the correction just applied is an earth-frame rate (-ey, ex, 0)/dt; predicted: H x, with the
+            # current estimates' own contribution (rb - ruk) already removed from the integrated rate
+            for i in range(3):
+                hx = 0.0
+                for j in range(3):
+                    hx += wk[3 + 6 * i + j] * s[S_BIAS + j] + wk[6 + 6 * i + j] * s[S_SCALE + j]
+                wk[i] = -hx
+            wk[0] += -ey / dt_s + rb0 - ruk0
+            wk[1] += ex / dt_s + rb1 - ruk1
+            wk[21] = wk[22] = c[C_W_MOTION]
+            wk[23] = c[C_W_VERT]
+            _bias_update(s, prm, c, wk)
+        else:  # only rest estimation, not at rest: the uncertainty still grows
+            _predict_bias(s, c)
+    if use_mag and not (mx == 0.0 and my == 0.0 and mz == 0.0):
+        _mag_step(s, prm, c, mx, my, mz, dt_s)
+
+
+@njit(cache=True, error_model="numpy")
+def _mag_step(s: np.ndarray, prm: np.ndarray, c: np.ndarray, mx: float, my: float, mz: float, dt_s: float) -> None:
+    """Heading correction (sec. 3.6) with magnetic disturbance detection by field norm and dip."""
+    qw, qx, qy, qz = _qmul(
+        s[S_QI], s[S_QI + 1], s[S_QI + 2], s[S_QI + 3], s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3]
+    )
+    hx, hy, hz = _rotate(qw, qx, qy, qz, mx, my, mz)
+    norm = math.sqrt(hx * hx + hy * hy + hz * hz)
+    if not norm > 1e-9:
+        return  # no usable field
+    if prm[P_MAG_REJECT_ON] != 0.0:
+        dip = -math.asin(max(-1.0, min(1.0, hz / norm)))
+        norm = _lowpass(norm, c, C_MAG, s, S_MAG_CUR + 2)
+        dip = _lowpass(dip, c, C_MAG, s, S_MAG_CUR + 4)
+        s[S_MAG_CUR], s[S_MAG_CUR + 1] = norm, dip
+        th_n = prm[P_MAG_NORM_TH]
+        th_d = prm[P_MAG_DIP_TH]
+        k_ref = c[C_K_REF]
+        ref_n = s[S_MAG_REF_NORM]
+        if abs(norm - ref_n) < th_n * ref_n and abs(dip - s[S_MAG_REF_DIP]) < th_d:
+            s[S_MAG_UNDIST_T] += dt_s
+            if s[S_MAG_UNDIST_T] >= prm[P_MAG_MIN_UNDIST_T]:
+                s[S_MAG_DIST] = 0.0
+                s[S_MAG_REF_NORM] += k_ref * (norm - ref_n)
+                s[S_MAG_REF_DIP] += k_ref * (dip - s[S_MAG_REF_DIP])
+        else:
+            s[S_MAG_UNDIST_T] = 0.0
+            s[S_MAG_DIST] = 1.0
+        # a new homogeneous field replaces the reference once it has stayed consistent while the body rotated
+        cand_n = s[S_MAG_CAND_NORM]
+        if abs(norm - cand_n) < th_n * cand_n and abs(dip - s[S_MAG_CAND_DIP]) < th_d:
+            g2 = s[S_REST_GYR] ** 2 + s[S_REST_GYR + 1] ** 2 + s[S_REST_GYR + 2] ** 2
+            if g2 >= prm[P_MAG_NEW_MIN_GYR] ** 2:
+                s[S_MAG_CAND_T] += dt_s
+            s[S_MAG_CAND_NORM] += k_ref * (norm - cand_n)
+            s[S_MAG_CAND_DIP] += k_ref * (dip - s[S_MAG_CAND_DIP])
+            if s[S_MAG_DIST] != 0.0 and (
+                s[S_MAG_CAND_T] >= prm[P_MAG_NEW_T]
+                or (s[S_MAG_REF_NORM] == 0.0 and s[S_MAG_CAND_T] >= prm[P_MAG_NEW_FIRST_T])
+            ):
+                s[S_MAG_REF_NORM] = s[S_MAG_CAND_NORM]
+                s[S_MAG_REF_DIP] = s[S_MAG_CAND_DIP]
+                s[S_MAG_DIST] = 0.0
+                s[S_MAG_UNDIST_T] = prm[P_MAG_MIN_UNDIST_T]
+        else:
+            s[S_MAG_CAND_T] = 0.0
+            s[S_MAG_CAND_NORM] = norm
+            s[S_MAG_CAND_DIP] = dip
+    err = _wrap(math.atan2(hx, hy) - s[S_DELTA])  # ENU: the horizontal field points North (+y)
+    k = c[C_K_MAG]
+    if prm[P_MAG_REJECT_ON] != 0.0:
+        if s[S_MAG_DIST] != 0.0:
+            if s[S_MAG_REJECT_T] <= prm[P_MAG_MAX_REJECT_T]:
+                s[S_MAG_REJECT_T] += dt_s
+                k = 0.0
+            else:  # rejected for too long: accept the field again, but slowly
+                k /= prm[P_MAG_REJECT_FACTOR]
+        else:
+            s[S_MAG_REJECT_T] = max(s[S_MAG_REJECT_T] - prm[P_MAG_REJECT_FACTOR] * dt_s, 0.0)
+    ki = s[S_K_MAG_INIT]
+    if ki != 0.0:  # start: average the first headings (gain 1, 1/2, 1/3, ...) until the regular gain takes over
+        k = max(k, ki)
+        ki = ki / (ki + 1.0)
+        s[S_K_MAG_INIT] = 0.0 if ki * prm[P_TAU_MAG] < dt_s else ki
+    s[S_DELTA] = _wrap(s[S_DELTA] + k * err)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _output(s: np.ndarray, use_mag: bool, out: np.ndarray, i: int) -> None:
+    qw, qx, qy, qz = _qmul(
+        s[S_QI], s[S_QI + 1], s[S_QI + 2], s[S_QI + 3], s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3]
+    )
+    if use_mag:
+        h = 0.5 * s[S_DELTA]
+        qw, qx, qy, qz = _qmul(math.cos(h), 0.0, 0.0, math.sin(h), qw, qx, qy, qz)
+    out[i, 0] = qw
+    out[i, 1] = qx
+    out[i, 2] = qy
+    out[i, 3] = qz
+
+
+@njit(cache=True, error_model="numpy")
+def _step_one(
+    s: np.ndarray, prm: np.ndarray, c: np.ndarray, wk: np.ndarray,
+    gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool, dt_s: float, out: np.ndarray,
+) -> None:
+    for i in range(gyr.shape[0]):
+        _step_sample(
+            s, prm, c, wk, gyr[i, 0], gyr[i, 1], gyr[i, 2], acc[i, 0], acc[i, 1], acc[i, 2],
+            mag[i, 0], mag[i, 1], mag[i, 2], use_mag, dt_s,
+        )
+        _output(s, use_mag, out, i)
+
+
+@njit(cache=True, error_model="numpy")
+def step_device(
+    s: np.ndarray, prm: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool, dt_s: float,
+    out: np.ndarray,
+) -> None:
+    """Filter n samples of one device: state s (N_STATE,), inputs (n, 3), quaternions written to out (n, 4)."""
+    c = np.empty(N_COEFFS)
+    wk = np.empty(N_WORK)
+    coefficients(prm, dt_s, c)
+    _step_one(s, prm, c, wk, gyr, acc, mag, use_mag, dt_s, out)
+
+
+@njit(cache=True, error_model="numpy")
+def step_devices(
+    s: np.ndarray, prm: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: np.ndarray,
+    dt_s: np.ndarray, active: np.ndarray, out: np.ndarray,
+) -> None:
+    """Filter n samples of N devices: states (N, N_STATE), inputs (N, n, 3), flags/periods (N,), out (N, n, 4).
+
+    Device d runs exactly the per-device code path with its own dt_s[d] and use_mag[d]; inactive slots are skipped.
+    """
+    c = np.empty(N_COEFFS)
+    wk = np.empty(N_WORK)
+    for d in range(s.shape[0]):
+        if not active[d]:
+            continue
+        coefficients(prm, dt_s[d], c)
+        _step_one(s[d], prm, c, wk, gyr[d], acc[d], mag[d], use_mag[d], dt_s[d], out[d])
