@@ -34,6 +34,8 @@ import re
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Final, Literal, TypeAlias
 
+import numpy as np
+from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_core import PydanticCustomError
 
@@ -279,6 +281,16 @@ class ImuPacket(WireModel):
     def n(self) -> int:
         """Samples in the packet."""
         return len(self.gyr_rad_s)
+
+    def arrays(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
+        """(gyr_rad_s, acc_m_s2, mag_uT or None) as float64 arrays of shape (n, 3)."""
+        mag = None if self.mag_uT is None else np.asarray(self.mag_uT, dtype=np.float64)
+        return np.asarray(self.gyr_rad_s, dtype=np.float64), np.asarray(self.acc_m_s2, dtype=np.float64), mag
+
+    def sample_times_us(self) -> NDArray[np.float64]:
+        """Device time of each sample, µs: t0_us + i · 1e6 / rate_hz."""
+        times: NDArray[np.float64] = self.t0_us + np.arange(self.n, dtype=np.float64) * (1e6 / self.rate_hz)
+        return times
 
 
 class ProfilePoint(WireModel):

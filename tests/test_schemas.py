@@ -44,6 +44,9 @@ def test_imu_round_trip_preserves_every_value() -> None:
     assert [list(r) for r in p.gyr_rad_s] == d["gyr_rad_s"]
     again = decode(IMU_KEY, p.to_json())
     assert again == p
+    gyr, acc, mag = p.arrays()
+    assert gyr.shape == (10, 3) and acc[3, 2] == 9.81 and mag is not None and mag[0, 2] == -44.0
+    assert p.sample_times_us()[-1] == 123_456 + 9 * 10_000
 
 
 def test_examples_round_trip_through_their_keys() -> None:
