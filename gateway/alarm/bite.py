@@ -10,9 +10,11 @@ Per block, all work is vectorised with numpy; Python does O(1) work plus one loo
   while both latches are armed and every sample of the block lies inside the re-arm band. Vibration (wind,
   waves) averages out; a holder drifting at r deg/s lags by only r * tau, far below theta1 for slow drifts.
 - Bite: deviation <= -theta1 held for `confirm_s` (the sensitivity step), or sooner by the acceleration cue:
-  deviation <= -cue_fraction * theta1 while the 30 ms mean of the tip's upward acceleration <= -cue_acc.
-  For any oscillation about rest, displacement and acceleration are in anti-phase (a = -w^2 x), so a tip
-  that is below rest is accelerating *upwards*: zero-mean vibration cannot satisfy the cue; a bite's onset can.
+  deviation <= -cue_fraction * theta1 while the 30 ms mean of the tip's upward acceleration is below
+  -max(cue_acc, CUE_NOISE_FACTOR * recent rms). For any free oscillation about rest, displacement and
+  acceleration are in anti-phase (a = -w^2 x): a tip below rest accelerates *upwards*, so zero-mean vibration
+  cannot meet the cue while a bite's onset can. Forced motion (gusts) breaks the anti-phase, hence the rms bar:
+  in wind the cue backs off and the pitch rule alone decides.
 - Drop-back: deviation >= drop_back held for `confirm_s`.
 - Hysteresis: each latch fires once, then re-arms only after the deviation has stayed inside the re-arm band
   (REARM_FRACTION of its threshold) for `rearm_quiet_s`. Detection time = time of the triggering sample.
@@ -36,6 +38,9 @@ BoolArray = NDArray[np.bool_]
 
 REARM_FRACTION = 0.7  # re-arm band: |deviation| below this share of the trigger threshold
 ACC_WINDOW = 3  # samples averaged for the acceleration cue (30 ms at 100 Hz)
+CUE_NOISE_FACTOR = 3.0  # the cue needs a downward acceleration >= this x the recent rms (wind raises the bar)
+ACC_RMS_DECAY_S = 10.0  # the rms estimate rises at once and decays with this time constant
+ACC_RMS_LAG_S = 0.5  # the cue uses an rms estimate 0.5-1 s old, so a bite's own onset cannot raise the bar
 REBASELINE_FACTOR = 6.0  # steady this many quiet times while disarmed -> new rest baseline
 STEADY_FRACTION = 0.3  # "steady": block mean within this share of theta1 of the candidate rest
 _EPS_S = 1e-9
@@ -108,6 +113,10 @@ class BiteState:
     near_drop_run_s: float = math.nan
     last_t_s: float = math.nan
     acc_tail: FloatArray = field(default_factory=lambda: np.zeros(0))
+    acc_ms: float = 0.0  # recent mean-square vertical acceleration, (m/s^2)^2: fast attack, slow decay
+    acc_ms_snapshot: float = 0.0  # acc_ms at the last checkpoint
+    acc_ms_lagged: float = 0.0  # acc_ms at the checkpoint before: what the cue uses
+    acc_checkpoint_s: float = -math.inf
     steady_ref_rad: float = math.nan
     steady_since_s: float = math.nan
 
@@ -239,9 +248,16 @@ class BiteDetector:
         if acc_up_m_s2 is not None:
             if lo <= -p.cue_rad and s.bite_armed:
                 acc_mean, s.acc_tail = trailing_mean(acc_up_m_s2, s.acc_tail, ACC_WINDOW)
-                cue = (dev <= -p.cue_rad) & (acc_mean <= -p.cue_acc_m_s2)
+                need = max(p.cue_acc_m_s2, CUE_NOISE_FACTOR * math.sqrt(s.acc_ms_lagged))
+                cue = (dev <= -p.cue_rad) & (acc_mean <= -need)
             else:
                 s.acc_tail = keep_tail(s.acc_tail, acc_up_m_s2, ACC_WINDOW - 1)
+            block_ms = float(np.dot(acc_up_m_s2, acc_up_m_s2)) / n
+            span_s = float(t_s[-1] - t_s[0]) * n / max(n - 1, 1)
+            s.acc_ms = max(block_ms, s.acc_ms * math.exp(-span_s / ACC_RMS_DECAY_S))
+            if t_s[-1] - s.acc_checkpoint_s >= ACC_RMS_LAG_S:
+                s.acc_ms_lagged, s.acc_ms_snapshot = s.acc_ms_snapshot, s.acc_ms
+                s.acc_checkpoint_s = float(t_s[-1])
         bite_ok = None
         if lo <= -p.bite_rad:
             bite_ok, s.bite_run_s = held(dev <= -p.bite_rad, t_s, s.bite_run_s, p.confirm_s)

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from gateway.alarm.bite import BiteDetector, run_starts, trailing_mean
 from gateway.config import RodThresholds
-from tests.alarm.scenarios import REST_DEG, noisy, pulse, raised_cosine_step, run_rod, times, tip_acc_up
+from tests.alarm.scenarios import RATE_HZ, REST_DEG, noisy, pulse, raised_cosine_step, run_rod, times, tip_acc_up
 
 NOISE_DEG = 0.2  # fused-pitch noise, 1 sigma
 ACC_NOISE = 0.3  # m/s^2, 1 sigma
@@ -238,3 +238,27 @@ def test_property_pitch_within_09_theta1_of_baseline_never_bites(sensitivity, se
     run = run_rod(t, pitch, acc, th=th, block=block)
     assert run.of("bite") == []
     assert math.isfinite(run.baselines[-1])
+
+
+def gusty_wind_deg(t: np.ndarray, rms_deg: float, rng: np.random.Generator) -> np.ndarray:
+    """Random forcing through a 2.5 Hz, damping 0.35 tip mode (like a rod in gusts), scaled to `rms_deg`."""
+    from scipy.signal import bilinear, lfilter
+
+    wn = 2 * np.pi * 2.5
+    b, a = bilinear([wn**2], [1.0, 2 * 0.35 * wn, wn**2], fs=RATE_HZ)
+    x = lfilter(b, a, rng.standard_normal(t.size))
+    return rms_deg * x / x.std()
+
+
+def test_gusty_forced_wind_does_not_fire_the_cue(rng, monkeypatch):
+    """Forced motion is not anti-phase, so the cue must back off in wind (rms bar); without the bar it fires."""
+    import gateway.alarm.bite as bite
+
+    t = times(120.0)
+    rel = gusty_wind_deg(t, 2.5, rng) * np.clip((t - 5.0) / 3.0, 0.0, 1.0)
+    pitch = noisy(t, rel, NOISE_DEG, rng)
+    acc = tip_acc_up(t, rel, ACC_NOISE, rng)
+    cue_bites = [c for c in run_rod(t, pitch, acc).of("bite") if c.alarm.details["cue"] == "accel"]
+    assert cue_bites == []
+    monkeypatch.setattr(bite, "CUE_NOISE_FACTOR", 0.0)
+    assert any(c.alarm.details["cue"] == "accel" for c in run_rod(t, pitch, acc).of("bite"))
