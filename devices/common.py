@@ -392,21 +392,35 @@ class FleetSettings:
         )
 
 
+def _bounded(cast: Callable[[str], Any], lo: float, hi: float) -> Callable[[str], Any]:
+    """argparse type: `cast(text)` within [lo, hi]."""
+
+    def parse(text: str) -> Any:
+        value = cast(text)
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"{text} is outside {lo:g}..{hi:g}")
+        return value
+
+    return parse
+
+
 def add_fleet_args(
     parser: argparse.ArgumentParser, *, id_prefix: str, rate_hz: float = 100.0, samples_per_packet: int = 10
 ) -> None:
     """Shared device options: count, seed, rate, batching, truth, loss, jitter, duration."""
     g = parser.add_argument_group("fleet")
-    g.add_argument("--count", type=int, default=1, help="instances in this process, ids PREFIX-1..PREFIX-N")
+    g.add_argument("--count", type=_bounded(int, 1, 100_000), default=1,
+                   help="instances in this process, ids PREFIX-1..PREFIX-N")
     g.add_argument("--id-prefix", default=id_prefix, help=f"device id prefix (default: {id_prefix})")
     g.add_argument("--seed", type=int, default=None, help="random seed (default: random)")
-    g.add_argument("--rate", type=float, default=rate_hz, help=f"sample rate, Hz, 1..1000 (default: {rate_hz:g})")
+    g.add_argument("--rate", type=_bounded(float, 0.01, 1000.0), default=rate_hz,
+                   help=f"sample rate, Hz, up to 1000 (default: {rate_hz:g})")
     g.add_argument(
-        "--samples-per-packet", type=int, default=samples_per_packet,
+        "--samples-per-packet", type=_bounded(int, 1, schemas.MAX_SAMPLES), default=samples_per_packet,
         help=f"samples batched per packet (default: {samples_per_packet})",
     )
     g.add_argument("--truth", action=argparse.BooleanOptionalAction, default=True, help="publish ground truth")
-    g.add_argument("--loss", type=float, default=0.0, help="packet loss probability 0..1 (default: 0)")
+    g.add_argument("--loss", type=_bounded(float, 0.0, 0.99), default=0.0, help="packet loss probability (default: 0)")
     g.add_argument("--burst", type=float, default=1.0, help="mean loss burst length in packets (default: 1)")
     g.add_argument("--jitter-ms", type=float, default=0.0, help="publish time jitter std, ms (default: 0)")
     g.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: run on)")

@@ -136,7 +136,7 @@ class BallFleet:
                  weather: Weather | None = None, noise: BallNoise | None = None) -> None:
         self.fleet, self.ids = fleet, fleet.ids
         self.command_selectors = tuple(schemas.ball_cmd_key(i) for i in self.ids) if len(self.ids) <= 16 else (
-            f"rig/ball/{fleet.id_prefix}-*/cmd",)
+            schemas.SEL_BALL_CMD,)
         self.time_scale, self.start_hour, self.rethrow_every_s = time_scale, start_hour, rethrow_every_s
         self.spots, self.weather, self.noise = tuple(spots), weather or Weather(), noise or BallNoise()
         self.rng = np.random.default_rng(fleet.seed)

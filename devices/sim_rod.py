@@ -52,8 +52,9 @@ class RodFleet:
                  with_mag: bool = True) -> None:
         self.fleet, self.rod = fleet, rod or RodSettings()
         self.ids = fleet.ids
+        # few devices: exact keys; many: one wildcard (on_command ignores ids that are not ours)
         self.command_selectors = tuple(schemas.reel_cmd_key(i) for i in self.ids) if len(self.ids) <= 16 else (
-            f"rig/rod/{fleet.id_prefix}-*/reel/cmd",)
+            schemas.SEL_REEL_CMD,)
         seed = fleet.seed
         self.rng = np.random.default_rng(seed)
         self.bank = RodBank(self.rod, fleet.count, None if seed is None else seed + 1, rates)

@@ -87,3 +87,17 @@ def test_cli_help_and_script_loading(capsys: pytest.CaptureFixture[str]) -> None
     assert sim_rod.load_script('[{"type": "bite", "t_s": 1}]') == [{"type": "bite", "t_s": 1}]
     with pytest.raises(ValueError):
         sim_rod.load_script('{"type": "bite"}')
+
+
+@pytest.mark.parametrize("count", [2, 20])
+def test_command_selectors_are_valid_key_expressions_matching_every_device(count: int) -> None:
+    import zenoh
+
+    from devices.sim_env_ball import BallFleet
+
+    rods = fleet(count=count)
+    balls = BallFleet(FleetSettings(count=count, seed=1, rate_hz=1.0, samples_per_packet=1, id_prefix="ball"))
+    for f, key_of in ((rods, schemas.reel_cmd_key), (balls, schemas.ball_cmd_key)):
+        sels = [zenoh.KeyExpr(s) for s in f.command_selectors]  # raises on an invalid expression
+        for dev in f.ids:
+            assert any(s.intersects(zenoh.KeyExpr(key_of(dev))) for s in sels)
