@@ -12,7 +12,8 @@ from fastapi import FastAPI, Request
 from fastapi.responses import HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
-from gateway.api import api_router
+from gateway import view3d
+from gateway.api import api_router, ws
 from gateway.config import Settings
 from gateway.errors import BadSettings, UnknownDevice
 from gateway.ingest.bus import Bus, ZenohBus
@@ -41,14 +42,19 @@ def create_app(settings: Settings, bus_factory: Callable[[Settings], Bus] = Zeno
         app.state.service = service
         try:
             await service.start()
+            ws.start_live(app, service)
             yield
         finally:
+            await ws.stop_live(app)
+            view3d.stop_view3d(app)
             await service.stop()
             bus.close()
             store.close()
 
     app = FastAPI(title="rig-gateway", lifespan=lifespan)
     app.include_router(api_router, prefix="/api")
+    app.include_router(ws.router)
+    app.include_router(view3d.router)
 
     @app.exception_handler(BadSettings)
     async def bad_settings(_: Request, exc: BadSettings) -> JSONResponse:

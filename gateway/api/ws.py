@@ -1,0 +1,309 @@
+"""Live stream for the dashboard: `/ws/stream` (WebSocket) with a bounded queue per client.
+
+Producers never wait on a client. The hub calls `LiveStream.on_hub` on the ingest task; it only appends to
+per-device buffers (attitude, swing) or, for alarms and reel commands, encodes one small frame and offers it to
+every client. A `tick` frame (every `tick_s`) carries the device cards, the buffered series since the last tick,
+the raw acceleration of each rod and the spot ranking. Each client owns a `ClientQueue` of encoded frames: when it
+is full the OLDEST frame is dropped and counted, so a slow browser sees a gap, never a stall of ingest.
+
+Raw IMU, reel and environment packets come from a second bus subscription whose callback (a zenoh thread) only
+appends the payload bytes to a short per-key deque; they are parsed at tick time and only while a client is
+connected. Frames are JSON objects with a `type`: `hello`, `tick`, `alarm`, `reel_cmd`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import contextlib
+import json
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect
+
+from gateway import schemas
+from gateway.api.routes.devices import device_view
+from gateway.ingest.runner import GatewayService
+
+log = logging.getLogger("gateway.ws")
+router = APIRouter()
+
+
+class ClientQueue:
+    """Bounded FIFO of encoded frames for one client. `put` never blocks: when full, the oldest frame is dropped
+    (and counted in `dropped`). `get` waits for the next frame."""
+
+    def __init__(self, maxsize: int) -> None:
+        if maxsize < 1:
+            raise ValueError(f"maxsize must be >= 1, got {maxsize}")
+        self.maxsize = maxsize
+        self.dropped = 0
+        self._items: collections.deque[str] = collections.deque()
+        self._ready = asyncio.Event()
+
+    def put(self, frame: str) -> None:
+        if len(self._items) >= self.maxsize:
+            self._items.popleft()
+            self.dropped += 1
+        self._items.append(frame)
+        self._ready.set()
+
+    async def get(self) -> str:
+        while not self._items:
+            self._ready.clear()
+            await self._ready.wait()
+        return self._items.popleft()
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+
+@dataclass(frozen=True)
+class LiveSettings:
+    """Stream rates and bounds. `tick_s`: period of tick frames; `series_max`: samples kept per device between
+    ticks (older ones are dropped); `raw_packets`: raw packets kept per key between ticks."""
+
+    queue_size: int = 256
+    tick_s: float = 0.1
+    series_max: int = 200
+    raw_packets: int = 8
+
+
+@dataclass
+class _Series:
+    """Samples of one device since the last tick (wall time in s)."""
+
+    t_s: collections.deque[float]
+    values: dict[str, collections.deque[float]] = field(default_factory=dict)
+
+    def add(self, t_s: float, **vals: float) -> None:
+        self.t_s.append(t_s)
+        for k, v in vals.items():
+            self.values.setdefault(k, collections.deque(maxlen=self.t_s.maxlen)).append(round(v, 5))
+
+    def take(self) -> dict[str, list[float]]:
+        out = {"t_s": [round(t, 3) for t in self.t_s], **{k: list(v) for k, v in self.values.items()}}
+        self.t_s.clear()
+        for v in self.values.values():
+            v.clear()
+        return out
+
+
+def _finite(x: Any) -> float | None:
+    return float(x) if isinstance(x, int | float) and math.isfinite(x) else None
+
+
+def raw_imu_summary(payloads: list[bytes], now_s: float) -> dict[str, Any]:
+    """Acceleration series (|a| and components, m/s²) and link fields from raw IMU packets (oldest first).
+    Sample i of a packet is at `wall_t0_us + i / rate_hz` (device clock when the wall time is absent: `now_s`)."""
+    t: list[float] = []
+    ax: list[float] = []
+    ay: list[float] = []
+    az: list[float] = []
+    norm: list[float] = []
+    link: dict[str, Any] = {}
+    for raw in payloads:
+        try:
+            p = json.loads(raw)
+            acc = p["acc_m_s2"]
+            rate = float(p["rate_hz"])
+            t0 = p.get("wall_t0_us")
+        except (ValueError, KeyError, TypeError):
+            continue
+        base = t0 / 1e6 if isinstance(t0, int | float) else now_s - len(acc) / rate
+        for i, a in enumerate(acc):
+            if not (isinstance(a, list) and len(a) == 3 and all(_finite(c) is not None for c in a)):
+                continue
+            t.append(round(base + i / rate, 3))
+            ax.append(round(a[0], 4))
+            ay.append(round(a[1], 4))
+            az.append(round(a[2], 4))
+            norm.append(round(math.sqrt(a[0] ** 2 + a[1] ** 2 + a[2] ** 2), 4))
+        for k in ("battery_v", "rssi_dbm", "temp_c"):
+            if _finite(p.get(k)) is not None:
+                link[k] = p[k]
+    return {"acc": {"t_s": t, "ax": ax, "ay": ay, "az": az, "norm": norm}, "link": link}
+
+
+class LiveStream:
+    """Fans pipeline results and sampled device state out to dashboard clients (see module docstring)."""
+
+    def __init__(self, service: GatewayService, settings: LiveSettings | None = None) -> None:
+        self.service = service
+        self.settings = settings or LiveSettings()
+        self.clients: set[ClientQueue] = set()
+        self.alarm_seq = 0
+        self.ticks = 0
+        self._series: dict[str, _Series] = {}
+        self._raw: dict[str, collections.deque[bytes]] = {}
+        self._task: asyncio.Task[None] | None = None
+
+    # -- producers --------------------------------------------------------------------------------------------
+
+    def on_hub(self, topic: str, model: schemas.WireModel) -> None:
+        """Hub listener (ingest task): buffer attitude/swing; broadcast alarms and reel commands at once."""
+        if isinstance(model, schemas.Attitude):
+            t = (model.wall_t_us or time.time() * 1e6) / 1e6
+            self._buf(model.device_id).add(
+                t, roll_deg=math.degrees(model.roll_rad), pitch_deg=math.degrees(model.pitch_rad),
+                yaw_deg=math.degrees(model.yaw_unwrapped_rad),
+            )  # fmt: skip
+        elif isinstance(model, schemas.Swing):
+            t = (model.wall_t_us or time.time() * 1e6) / 1e6
+            self._buf(model.device_id).add(
+                t, swing_deg=math.degrees(model.swing_angle_rad), direction_deg=math.degrees(model.swing_direction_rad),
+                torsion_deg=math.degrees(model.torsion_rad),
+            )  # fmt: skip
+        elif topic == "alarm":
+            self.alarm_seq += 1
+            self.broadcast({"type": "alarm", "alarm_seq": self.alarm_seq, "event": model.model_dump()})
+        elif topic == "reel_cmd":
+            self.broadcast({"type": "reel_cmd", "command": model.model_dump()})
+
+    def _buf(self, device_id: str) -> _Series:
+        s = self._series.get(device_id)
+        if s is None:
+            s = self._series[device_id] = _Series(collections.deque(maxlen=self.settings.series_max))
+        return s
+
+    def on_raw(self, key: str, payload: bytes) -> None:
+        """Bus callback (zenoh thread): keep the payload, nothing else."""
+        q = self._raw.get(key)
+        if q is None:
+            q = self._raw.setdefault(key, collections.deque(maxlen=self.settings.raw_packets))
+        q.append(payload)
+
+    def _take_raw(self, key: str) -> list[bytes]:
+        q = self._raw.get(key)
+        if not q:
+            return []
+        out = []
+        while q:
+            try:
+                out.append(q.popleft())
+            except IndexError:
+                break
+        return out
+
+    # -- frames -----------------------------------------------------------------------------------------------
+
+    def broadcast(self, frame: dict[str, Any]) -> None:
+        """Encode once, offer to every client (never blocks)."""
+        if not self.clients:
+            return
+        text = json.dumps(frame, separators=(",", ":"), allow_nan=False, default=str)
+        for c in self.clients:
+            c.put(text)
+
+    def tick_frame(self, now_s: float) -> dict[str, Any]:
+        """Device cards with their new samples since the last tick, plus the spot ranking."""
+        svc = self.service
+        devices = []
+        for device_id in sorted(svc.pipeline.kinds):
+            try:
+                card = device_view(svc, device_id, detail=False)
+            except Exception:  # a device half-registered mid-batch: skip it this tick
+                continue
+            s = self._series.get(device_id)
+            card["series"] = s.take() if s is not None else {"t_s": []}
+            kind = card["kind"]
+            if kind in schemas.IMU_KINDS:
+                raw = raw_imu_summary(self._take_raw(schemas.imu_key(kind, device_id)), now_s)
+                card["acc"], card["link"] = raw["acc"], raw["link"]
+            elif kind == "ball":
+                for raw_env in self._take_raw(schemas.env_key(device_id))[-1:]:
+                    with contextlib.suppress(ValueError):
+                        p = json.loads(raw_env)
+                        card["link"] = {k: p[k] for k in ("battery_v", "rssi_dbm") if _finite(p.get(k)) is not None}
+            devices.append(card)
+        ranking = svc.pipeline.rank_spots(now_s).model_dump()
+        return {"type": "tick", "wall_s": round(now_s, 3), "alarm_seq": self.alarm_seq, "devices": devices,
+                "spots": ranking["spots"]}  # fmt: skip
+
+    async def run(self) -> None:
+        """Tick loop; work is skipped while nobody listens (buffers are still bounded)."""
+        while True:
+            await asyncio.sleep(self.settings.tick_s)
+            if not self.clients:
+                continue
+            try:
+                frame = self.tick_frame(time.time())
+                self.ticks += 1
+                text = json.dumps(frame, separators=(",", ":"), default=str)
+                for c in self.clients:
+                    c.put(text)
+            except Exception:
+                log.exception("tick failed")
+
+    def start(self) -> None:
+        """Subscribe to raw device data and start ticking (call on the event loop after the service started)."""
+        for sel in (schemas.SEL_IMU, schemas.SEL_ENV):
+            self.service.bus.subscribe(sel, self.on_raw)
+        self.service.hub.listeners.append(self.on_hub)
+        self._task = asyncio.get_running_loop().create_task(self.run())
+
+    async def stop(self) -> None:
+        if self.on_hub in self.service.hub.listeners:
+            self.service.hub.listeners.remove(self.on_hub)
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+
+
+@router.websocket("/ws/stream")
+async def stream(ws: WebSocket) -> None:
+    """Live frames (see module docstring); read-only, so no token."""
+    live: LiveStream = ws.app.state.live
+    await ws.accept()
+    q = ClientQueue(live.settings.queue_size)
+    live.clients.add(q)
+    hello = {"type": "hello", "queue_size": q.maxsize, "tick_s": live.settings.tick_s, "alarm_seq": live.alarm_seq}
+    await ws.send_text(json.dumps(hello))
+
+    async def pump() -> None:
+        while True:
+            frame = await q.get()
+            if q.dropped and frame.startswith('{"type":"tick"'):
+                frame = frame[:-1] + f',"client_dropped":{q.dropped}}}'
+            await ws.send_text(frame)
+
+    sender = asyncio.create_task(pump())
+    try:
+        while True:  # the client only sends pings; a disconnect ends the loop
+            await ws.receive_text()
+    except WebSocketDisconnect:
+        pass
+    finally:
+        live.clients.discard(q)
+        sender.cancel()
+        with contextlib.suppress(asyncio.CancelledError, Exception):
+            await sender
+
+
+@router.get("/api/live", tags=["health"])
+def live_stats(request: Request) -> dict[str, Any]:
+    """Dashboard stream: connected clients, frames dropped for slow clients, ticks sent."""
+    live: LiveStream = request.app.state.live
+    return {"clients": len(live.clients), "dropped": sum(c.dropped for c in live.clients), "ticks": live.ticks,
+            "alarm_seq": live.alarm_seq, "queue_size": live.settings.queue_size}  # fmt: skip
+
+
+def start_live(app: Any, service: GatewayService) -> LiveStream:
+    """Lifespan hook: create the stream (queue size from Settings.ws_queue_size), start it, keep it on app.state."""
+    live = LiveStream(service, LiveSettings(queue_size=service.settings.ws_queue_size))
+    live.start()
+    app.state.live = live
+    return live
+
+
+async def stop_live(app: Any) -> None:
+    """Lifespan hook: stop the stream if it was started."""
+    live: LiveStream | None = getattr(app.state, "live", None)
+    if live is not None:
+        await live.stop()
