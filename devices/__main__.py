@@ -3,6 +3,10 @@
 Each device kind runs as its own subprocess (`python -m devices.sim_rod`, `devices.sim_env_ball`,
 `devices.sim_hook`) with the shared zenoh options passed through; the hook is skipped with a warning when
 `devices.sim_hook` is not installed. Ctrl-C (or --duration) stops them all.
+
+Contract for a child module: `python -m devices.sim_<kind>` accepts the options of `common.add_zenoh_args` and
+`common.add_fleet_args` (it is given `--mode --count --no-progress [--connect --listen --multicast --duration
+--no-truth --seed]`) and exits 0 on --duration or SIGINT.
 """
 
 from __future__ import annotations

@@ -15,6 +15,10 @@ Public API (the hook simulator builds on it; keep it stable):
   publishers, paced loop, command hand-off, loss; `run_main(fleet_factory, argv, ...)` wires it all for a `main()`.
 - `imu_payload(...)`: JSON bytes of one `rig.imu.v1` packet (fast path, same bytes pydantic would accept).
 - `DeviceClock`: per-instance monotonic µs clock with a random boot offset and its wall-clock anchor.
+- `encode_json(obj)`, `rows(array, decimals)`, `new_boot_id(rng)`: fast payload helpers.
+
+A simulator module is `build_parser()` (with `add_zenoh_args` + `add_fleet_args`), a Fleet class and
+`main(argv) = run_main(make_fleet, parser.parse_args(argv))`; `python -m devices` launches it with those options.
 
 Zenoh defaults (no flags needed): devices run in **peer** mode, multicast scouting **off**, and **connect** to
 `tcp/127.0.0.1:7447`, where the gateway listens. They start, publish and keep retrying the connection in the

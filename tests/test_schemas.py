@@ -143,19 +143,19 @@ def _decode_or_reason(key: str, payload: bytes) -> str:
     return "ok"
 
 
-@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(keys, st.binary(max_size=300))
 def test_fuzz_arbitrary_bytes(key: str, payload: bytes) -> None:
     _decode_or_reason(key, payload)
 
 
-@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(keys, json_values)
 def test_fuzz_arbitrary_json(key: str, value: object) -> None:
     _decode_or_reason(key, json.dumps(value).encode())
 
 
-@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.sampled_from(sorted(k for k in schemas.examples() if schemas.examples()[k][0].startswith("rig/"))),
        st.data())
 def test_fuzz_mutated_valid_packets(name: str, data: st.DataObject) -> None:
