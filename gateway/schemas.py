@@ -693,12 +693,14 @@ class SequenceTracker:
     Arithmetic is modulo 2**32 so the wrap 0xFFFFFFFF -> 0 is ordinary. A seq ahead of the newest by d
     (0 < d < 2**31) is new; d - 1 packets were lost. A seq behind the newest within `window` is `reordered`
     if unseen (one previously lost packet arrived late: the counters subtract it from `lost`), else `duplicate`;
-    further behind is counted as duplicate (too old to tell). A new boot_id restarts the stream (`reboot`).
+    further behind is counted as duplicate (too old to tell). A new boot_id restarts the stream (`reboot`);
+    late packets of the boot before are stale and counted as duplicates.
     Counters accumulate in `ok`, `lost`, `duplicates`, `reordered`, `reboots`.
     """
 
     window: int = 1024
     boot_id: int | None = None
+    previous_boot_id: int | None = None
     newest: int = 0
     _seen: set[int] = field(default_factory=set)
     ok: int = 0
@@ -709,7 +711,11 @@ class SequenceTracker:
 
     def update(self, boot_id: int, seq: int) -> SeqResult:
         """Classify one packet and update the counters."""
+        if boot_id == self.previous_boot_id and boot_id != self.boot_id:
+            self.duplicates += 1  # a straggler from before the reboot: stale, not a second reboot
+            return SeqResult("duplicate")
         if self.boot_id is None or boot_id != self.boot_id:
+            self.previous_boot_id = self.boot_id
             status: SeqStatus = "first" if self.boot_id is None else "reboot"
             if status == "reboot":
                 self.reboots += 1

@@ -183,6 +183,8 @@ def test_tracker_classifies_loss_duplicates_reorder_wrap_and_reboot() -> None:
     r = tr.update(10, 500)
     assert r.status == "reboot" and tr.reboots == 1
     assert tr.update(10, 501).status == "ok"
+    assert tr.update(9, 5).status == "duplicate"  # straggler from the old boot
+    assert tr.update(10, 502).status == "ok" and tr.reboots == 1
 
 
 @settings(max_examples=200, deadline=None)
