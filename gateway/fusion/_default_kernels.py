@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 # ---- settings vector (built by DefaultSettings.to_array) ----
 P_TAU_ACC = 0  # s, accelerometer low-pass in I
@@ -555,7 +555,7 @@ def step_device(
     _step_one(s, prm, c, wk, gyr, acc, mag, use_mag, dt_s, out)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", parallel=True)
 def step_devices(
     s: np.ndarray, prm: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: np.ndarray,
     dt_s: np.ndarray, active: np.ndarray, out: np.ndarray,
@@ -563,11 +563,11 @@ def step_devices(
     """Filter n samples of N devices: states (N, N_STATE), inputs (N, n, 3), flags/periods (N,), out (N, n, 4).
 
     Device d runs exactly the per-device code path with its own dt_s[d] and use_mag[d]; inactive slots are skipped.
+    Devices are independent, so they are spread over the CPU cores (numba prange); results do not depend on it.
     """
-    c = np.empty(N_COEFFS)
-    wk = np.empty(N_WORK)
-    for d in range(s.shape[0]):
-        if not active[d]:
-            continue
-        coefficients(prm, dt_s[d], c)
-        _step_one(s[d], prm, c, wk, gyr[d], acc[d], mag[d], use_mag[d], dt_s[d], out[d])
+    for d in prange(s.shape[0]):
+        if active[d]:
+            c = np.empty(N_COEFFS)
+            wk = np.empty(N_WORK)
+            coefficients(prm, dt_s[d], c)
+            _step_one(s[d], prm, c, wk, gyr[d], acc[d], mag[d], use_mag[d], dt_s[d], out[d])
