@@ -295,7 +295,13 @@ def _second_order(x: FloatArray, v: FloatArray, target: FloatArray, wn: float, z
 
 
 class RodBank:
-    """D rods simulated together (vectorised). See the module docstring for the model and API."""
+    """D rods simulated together (vectorised). See the module docstring for the model and API.
+
+    Stable state for controllers and benches, arrays of shape (D,) after each `step`: `t_s` (float), `tension`
+    (N at the tip), `line_tension` (N, fish line only), `line_out` (m), `line_rate` (m/s, d line_out / dt),
+    `motor` (line-in speed m/s), `drag` (N), `breaking` (N), `broken` (bool), `fish` (index into
+    FISH_STATES), `fish_stamina` (0..1), `fish_d` (fish distance, m); `euler()` gives the tip angles.
+    """
 
     def __init__(self, settings: RodSettings, n_rods: int = 1, seed: int | None = None,
                  rates: RandomEventRates | None = None):
