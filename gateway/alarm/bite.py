@@ -311,6 +311,8 @@ class BiteDetector:
         dt_s = t_end - s.last_t_s if not math.isnan(s.last_t_s) else t_end - float(t_s[0])
         s.last_t_s = t_end
         mean = float(np.add.reduce(pitch_rad)) / pitch_rad.size
+        if not math.isfinite(mean):
+            return  # a block with gaps (nan) never moves the baseline
         if s.bite_armed and s.drop_armed:
             s.steady_since_s = math.nan
             if lo > -REARM_FRACTION * p.bite_rad and hi < REARM_FRACTION * p.drop_back_rad:

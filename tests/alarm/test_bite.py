@@ -262,3 +262,18 @@ def test_gusty_forced_wind_does_not_fire_the_cue(rng, monkeypatch):
     assert cue_bites == []
     monkeypatch.setattr(bite, "CUE_NOISE_FACTOR", 0.0)
     assert any(c.alarm.details["cue"] == "accel" for c in run_rod(t, pitch, acc).of("bite"))
+
+
+@pytest.mark.parametrize("during_fight", [False, True])
+def test_nan_block_leaves_detector_state_finite(during_fight):
+    det = BiteDetector()
+    t = np.arange(10) / 100.0
+    rest = math.radians(REST_DEG)
+    det.update(t, np.full(10, rest))
+    if during_fight:
+        det.update(t + 0.1, np.full(10, rest - math.radians(15.0)))
+        assert not det.state.bite_armed
+    det.update(t + 0.2, np.full(10, np.nan))  # a lost block filled with nan
+    s = det.state
+    assert s.baseline_rad == pytest.approx(rest)
+    assert not math.isnan(s.steady_ref_rad) or math.isnan(s.steady_since_s)
