@@ -169,6 +169,8 @@ class BiteReport:
     cross_ms: list[float]
     missed: int
     false_alarms: list[dict[str, Any]]
+    pipeline_ms: list[float] = field(default_factory=list)  # triggering sample (device wall) -> alarm received
+    cues: list[str] = field(default_factory=list)
 
 
 def analyse(rec: Recorder, theta1_rad: float, grace_s: float = 1.0) -> BiteReport:
@@ -178,6 +180,8 @@ def analyse(rec: Recorder, theta1_rad: float, grace_s: float = 1.0) -> BiteRepor
     bites = [w for w in windows if w.label == "bite"]
     alarms = [(t, a) for t, a in rec.decoded("/alarm") if a["state"] == "raised"]
     onset, cross, missed, used = [], [], 0, set()
+    pipe: list[float] = []
+    cues: list[str] = []
     for w in bites:
         hits = [(t, i) for i, (t, a) in enumerate(alarms) if a["alarm"] == "bite" and w.start_wall_s - 0.2 <= t
                 <= min(w.end_wall_s, w.start_wall_s + 10) + grace_s]  # fmt: skip
@@ -187,6 +191,10 @@ def analyse(rec: Recorder, theta1_rad: float, grace_s: float = 1.0) -> BiteRepor
         t, i = hits[0]
         used.add(i)
         onset.append(1e3 * (t - w.start_wall_s))
+        a = alarms[i][1]
+        if a.get("source_wall_us") is not None:
+            pipe.append(1e3 * t - a["source_wall_us"] * 1e-3)
+        cues.append("accel" if "by accel" in a["message"] else "pitch")
         if w.cross_wall_s is not None:
             cross.append(1e3 * (t - w.cross_wall_s))
     false = []
@@ -194,7 +202,7 @@ def analyse(rec: Recorder, theta1_rad: float, grace_s: float = 1.0) -> BiteRepor
         in_bite = any(w.start_wall_s - 0.2 <= t <= min(w.end_wall_s, w.start_wall_s + 10) + grace_s for w in bites)
         if i not in used and not in_bite:
             false.append(a)
-    return BiteReport(len(bites), onset, cross, missed, false)
+    return BiteReport(len(bites), onset, cross, missed, false, pipe, cues)
 
 
 def run_session(script: list[dict[str, Any]], duration_s: float, seed: int, work: Path,
@@ -239,6 +247,8 @@ def main(argv: list[str] | None = None) -> int:
     cross: list[float] = []
     missed = bites = 0
     false: list[dict[str, Any]] = []
+    pipe: list[float] = []
+    cues: list[str] = []
     for k in tqdm(range(args.sessions), desc="sessions", unit="session"):
         script = bite_script(args.bites, args.spacing, depth_deg=args.depth_deg)
         duration = 6.0 + args.bites * args.spacing + 2.0
@@ -250,10 +260,15 @@ def main(argv: list[str] | None = None) -> int:
         missed += r.missed
         bites += r.bites
         false += r.false_alarms
+        pipe += r.pipeline_ms
+        cues += r.cues
     print(f"bites {bites}, alarmed {bites - missed}, missed {missed}, false alarms {len(false)}")
-    for name, xs in (("from fish pull onset", onset), ("from true theta1 crossing", cross)):
+    rows = (("from fish pull onset", onset), ("from true theta1 crossing", cross),
+            ("triggering sample -> alarm received (packetising + transport + gateway)", pipe))  # fmt: skip
+    for name, xs in rows:
         worst = max(xs, default=math.nan)
         print(f"latency {name}: p50 {pct(xs, 50):.1f} ms, p99 {pct(xs, 99):.1f} ms, max {worst:.1f} ms (n={len(xs)})")
+    print(f"detections by cue: pitch {cues.count('pitch')}, accel {cues.count('accel')}")
     for a in false[:10]:
         print("false alarm:", a["alarm"], a["message"])
     return 0

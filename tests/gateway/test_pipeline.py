@@ -118,3 +118,14 @@ def test_one_big_first_batch_gives_the_same_alarms_as_streaming() -> None:
     streamed = raised(run(Pipeline(), messages, per_batch=1))
     at_once = raised(run(Pipeline(), messages, per_batch=len(messages)))
     assert [a for a, _ in at_once] == [a for a, _ in streamed] == ["bite"]
+
+
+def test_auto_reel_sends_controller_commands_only_while_on() -> None:
+    p = Pipeline()
+    messages = rod_messages(3.0, [{"type": "bite", "t_s": 1.5, "depth_deg": 15.0, "duration_s": 1.0}])
+    assert p.set_auto_reel("rod-1", True)
+    outs = run(p, messages[: len(messages) // 2])
+    cmds = [c for o in outs for c in o.reel_commands]
+    assert cmds and all(dev == "rod-1" and f["action"] in ("speed", "stop") for dev, f in cmds)
+    p.set_auto_reel("rod-1", False)
+    assert not [c for o in run(p, messages[len(messages) // 2 :]) for c in o.reel_commands]
