@@ -12,6 +12,7 @@ FILTERS: dict[str, str] = {
     "mahony": "gateway.fusion.mahony:MahonyFilter",
     "complementary": "gateway.fusion.complementary:ComplementaryFilter",
     "adaptive": "gateway.fusion.complementary:AdaptiveComplementaryFilter",
+    "hook": "gateway.fusion.hook_filter:HookFilter",
 }
 
 
