@@ -13,6 +13,8 @@ FILTERS: dict[str, str] = {
     "complementary": "gateway.fusion.complementary:ComplementaryFilter",
     "adaptive": "gateway.fusion.complementary:AdaptiveComplementaryFilter",
     "hook": "gateway.fusion.hook_filter:HookFilter",
+    "kf": "gateway.fusion.kf:KalmanAngleFilter",
+    "ekf": "gateway.fusion.ekf:QuaternionEkf",
 }
 
 
