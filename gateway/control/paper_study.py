@@ -332,6 +332,7 @@ def save_plot(curves: dict[str, tuple[FloatArray, FloatArray, str]], path: Path,
         panel.axhline(1.0, color="k", lw=0.5)
         panel.axhspan(0.98, 1.02, color="g", alpha=0.1)
         panel.set_xscale("symlog", linthresh=0.1)
+        panel.set_xlim(0.0, max(float(c[0][-1]) for c in curves.values()))
         panel.set_title(f"{ax_name}: unit step (x axis linear to 0.1 s, log beyond)")
         panel.set_xlabel("t (s)")
         panel.set_ylabel("angle (rad)")
