@@ -122,15 +122,16 @@ class HookTruth:
     extra: dict[str, FloatArray] = field(default_factory=dict)
 
 
-def _ou_process(rng: np.random.Generator, n: int, dims: int, std: float, tau_s: float, dt_s: float) -> FloatArray:
-    """Stationary Ornstein-Uhlenbeck samples (n, dims) with standard deviation `std` and correlation time `tau_s`."""
-    out = np.zeros((n, dims))
+def _ou_process(
+    rng: np.random.Generator, n: int, x0: FloatArray, std: float, tau_s: float, dt_s: float
+) -> FloatArray:
+    """n Ornstein-Uhlenbeck samples (n, dims) continuing from `x0`, stationary std `std`, correlation `tau_s`."""
+    out = np.zeros((n, x0.shape[0]))
     if std <= 0.0 or n == 0:
         return out
     a = math.exp(-dt_s / tau_s)
-    b = std * math.sqrt(1.0 - a * a)
-    noise = rng.standard_normal((n, dims)) * b
-    x = rng.standard_normal(dims) * std
+    noise = rng.standard_normal((n, x0.shape[0])) * (std * math.sqrt(1.0 - a * a))
+    x = x0.copy()
     for i in range(n):
         x = a * x + noise[i]
         out[i] = x
@@ -221,37 +222,62 @@ def hook_attitude_and_rate(
     return q, 2.0 * _qmul(_conj(q), qd)[..., 1:]
 
 
-def _integrate(settings: HookPhysicsSettings, scenario: HookScenario) -> dict[str, FloatArray]:
-    """RK4 over the internal grid; returns the state at each output sample (plain-float loop: fast in CPython)."""
+@dataclass
+class _State:
+    """Integrator state between chunks (ENU; `step` counts internal steps since t = 0)."""
+
+    s: list[float]  # nx, ny, nz, vx, vy, vz, phi, phi_rate
+    susp: list[float]  # boom-tip x, y, vx, vy
+    gust: FloatArray  # (2,) OU wind force per unit mass
+    gust_torque: FloatArray  # (1,) OU torque
+    step: int = 0
+
+
+def _initial_state(scenario: HookScenario, rng: np.random.Generator) -> _State:
+    th0, b0 = scenario.initial_swing_rad, scenario.initial_swing_bearing_rad
+    w0 = 0.0 if scenario.hold_s > 0 else scenario.initial_sideways_rate_rad_s
+    pd = 0.0 if scenario.hold_s > 0 else scenario.initial_torsion_rate_rad_s
+    # The hook is displaced towards b0, so the rope (hook -> tip) leans the other way.
+    s = [
+        -math.sin(th0) * math.cos(b0), -math.sin(th0) * math.sin(b0), math.cos(th0),
+        -math.sin(b0) * w0, math.cos(b0) * w0, 0.0, scenario.initial_torsion_rad, pd,
+    ]  # fmt: skip
+    return _State(
+        s, [0.0, 0.0, 0.0, 0.0], rng.standard_normal(2) * scenario.wind_std_m_s2,
+        rng.standard_normal(1) * scenario.wind_torque_std_n_m,
+    )
+
+
+def _integrate(
+    settings: HookPhysicsSettings, scenario: HookScenario, state: _State, n_out: int, rng: np.random.Generator
+) -> dict[str, FloatArray]:
+    """RK4 over the internal grid for `n_out` output samples from `state` (advanced in place); returns the state
+    at each output sample (plain-float loop: fast in CPython)."""
     rate = settings.internal_rate_hz
     sub = round(rate / scenario.output_rate_hz)
     if abs(sub * scenario.output_rate_hz - rate) > 1e-9 * rate:
         raise ValueError("internal_rate_hz must be an integer multiple of output_rate_hz")
     dt = 1.0 / rate
-    n_out = int(round(scenario.duration_s * scenario.output_rate_hz))
     n_steps = n_out * sub
-    rng = np.random.default_rng(scenario.seed)
-    gust = _ou_process(rng, n_steps + 1, 2, scenario.wind_std_m_s2, scenario.wind_tau_s, dt)
-    gust_torque = _ou_process(rng, n_steps + 1, 1, scenario.wind_torque_std_n_m, scenario.wind_tau_s, dt)[:, 0]
-    t_grid = np.arange(n_steps + 1, dtype=np.float64) * dt
+    gust = _ou_process(rng, n_steps, state.gust, scenario.wind_std_m_s2, scenario.wind_tau_s, dt)
+    gust_torque = _ou_process(rng, n_steps, state.gust_torque, scenario.wind_torque_std_n_m, scenario.wind_tau_s, dt)
+    if n_steps:
+        state.gust, state.gust_torque = gust[-1].copy(), gust_torque[-1].copy()
+    t_grid = (state.step + np.arange(n_steps, dtype=np.float64)) * dt
     a_susp = suspension_acceleration(scenario.trolley_moves, t_grid + 0.5 * dt)  # held over each step
-    wind = np.zeros((n_steps + 1, 3))
+    wind = np.zeros((n_steps, 3))
     wind[:, :2] = gust + np.asarray(scenario.wind_mean_m_s2)
     g, l, c = settings.gravity_m_s2, settings.rope_length_m, settings.swing_damping_1_s
     k_j = settings.torsion_stiffness_n_m_rad / settings.torsion_inertia_kg_m2
     c_j = settings.torsion_damping_n_m_s_rad / settings.torsion_inertia_kg_m2
     inv_j = 1.0 / settings.torsion_inertia_kg_m2
     wx_l, wy_l, ax_l, ay_l, tq_l = (
-        wind[:, 0].tolist(), wind[:, 1].tolist(), a_susp[:, 0].tolist(), a_susp[:, 1].tolist(), gust_torque.tolist()
-    )
-
-    th0, b0 = scenario.initial_swing_rad, scenario.initial_swing_bearing_rad
-    # The hook is displaced towards b0, so the rope (hook -> tip) leans the other way.
-    nx, ny, nz = -math.sin(th0) * math.cos(b0), -math.sin(th0) * math.sin(b0), math.cos(th0)
-    w0 = scenario.initial_sideways_rate_rad_s
-    vx, vy, vz = -math.sin(b0) * w0, math.cos(b0) * w0, 0.0
-    ph, pd = scenario.initial_torsion_rad, scenario.initial_torsion_rate_rad_s
-    px = py = vxa = vya = 0.0  # suspension-point horizontal position and velocity
+        wind[:, 0].tolist(), wind[:, 1].tolist(), a_susp[:, 0].tolist(), a_susp[:, 1].tolist(),
+        gust_torque[:, 0].tolist(),
+    )  # fmt: skip
+    nx, ny, nz, vx, vy, vz, ph, pd = state.s
+    px, py, vxa, vya = state.susp
+    n_hold = int(round(scenario.hold_s * rate))
 
     def deriv(
         s: tuple[float, float, float, float, float, float, float, float], ex: float, ey: float, ez: float, tq: float
@@ -269,24 +295,18 @@ def _integrate(settings: HookPhysicsSettings, scenario: HookScenario) -> dict[st
     keys = ("n", "v", "phi", "phi_rate", "susp_pos", "susp_vel", "wind", "torque", "t")
     out: dict[str, list[object]] = {k: [] for k in keys}
 
-    def record(i: int) -> None:
-        out["n"].append((nx, ny, nz))
-        out["v"].append((vx, vy, vz))
-        out["phi"].append(ph)
-        out["phi_rate"].append(pd)
-        out["susp_pos"].append((px, py, l))
-        out["susp_vel"].append((vxa, vya, 0.0))
-        out["wind"].append((wx_l[i], wy_l[i], 0.0))
-        out["torque"].append(tq_l[i])
-        out["t"].append(i * dt)
-
-    n_hold = int(round(scenario.hold_s * rate))
-    if n_hold > 0:
-        vx = vy = vz = pd = 0.0
     for i in range(n_steps):
         if i % sub == 0:
-            record(i)
-        if i < n_hold:
+            out["n"].append((nx, ny, nz))
+            out["v"].append((vx, vy, vz))
+            out["phi"].append(ph)
+            out["phi_rate"].append(pd)
+            out["susp_pos"].append((px, py, l))
+            out["susp_vel"].append((vxa, vya, 0.0))
+            out["wind"].append((wx_l[i], wy_l[i], 0.0))
+            out["torque"].append(tq_l[i])
+            out["t"].append((state.step + i) * dt)
+        if state.step + i < n_hold:
             continue
         ex, ey, ez = wx_l[i] - ax_l[i], wy_l[i] - ay_l[i], -g
         tq = tq_l[i]
@@ -307,12 +327,36 @@ def _integrate(settings: HookPhysicsSettings, scenario: HookScenario) -> dict[st
         py += vya * dt + 0.5 * ay_l[i] * dt * dt
         vxa += ax_l[i] * dt
         vya += ay_l[i] * dt
-    return {k: np.asarray(v, dtype=np.float64) for k, v in out.items()}
+    state.s = [nx, ny, nz, vx, vy, vz, ph, pd]
+    state.susp = [px, py, vxa, vya]
+    state.step += n_steps
+    arrays = {k: np.asarray(v, dtype=np.float64) for k, v in out.items()}
+    for k, dims in (("n", 3), ("v", 3), ("susp_pos", 3), ("susp_vel", 3), ("wind", 3)):
+        arrays[k] = arrays[k].reshape(-1, dims)
+    return arrays
 
 
 def simulate(settings: HookPhysicsSettings, scenario: HookScenario) -> HookTruth:
     """Integrate the scenario and return the ground truth at `scenario.output_rate_hz`."""
-    st = _integrate(settings, scenario)
+    return HookStream(settings, scenario).advance(int(round(scenario.duration_s * scenario.output_rate_hz)))
+
+
+class HookStream:
+    """The same simulation in chunks, for live devices: `advance(n)` returns the next n output samples."""
+
+    def __init__(self, settings: HookPhysicsSettings, scenario: HookScenario) -> None:
+        self.settings, self.scenario = settings, scenario
+        self.rng = np.random.default_rng(scenario.seed)
+        self.state = _initial_state(scenario, self.rng)
+
+    def advance(self, n_samples: int) -> HookTruth:
+        """Integrate `n_samples` output samples further; the truth of those samples."""
+        st = _integrate(self.settings, self.scenario, self.state, n_samples, self.rng)
+        return _truth(self.settings, self.scenario, st)
+
+
+def _truth(settings: HookPhysicsSettings, scenario: HookScenario, st: dict[str, FloatArray]) -> HookTruth:
+    """Ground truth (attitude, rates, specific force...) from integrator states at the output samples."""
     n, v, phi, phi_rate = st["n"], st["v"], st["phi"], st["phi_rate"]
     t = st["t"]
     dt_int = 1.0 / settings.internal_rate_hz
