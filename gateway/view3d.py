@@ -116,6 +116,8 @@ class View3D:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.updates = 0
+        self.server.initial_camera.position = (1.0, -4.5, 2.2)
+        self.server.initial_camera.look_at = (1.5, 0.5, 1.0)
         s = self.server.scene
         s.add_grid("/ground", width=20.0, height=20.0, cell_size=1.0, plane="xy")
         s.add_frame("/world", axes_length=0.5, axes_radius=0.01)

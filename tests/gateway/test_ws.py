@@ -1,0 +1,138 @@
+"""Live stream (/ws/stream): bounded drop-oldest client queues, raw acceleration summary, frames from real ingest."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from gateway.api.ws import ClientQueue, LiveSettings, LiveStream, raw_imu_summary
+from tests.gateway.conftest import Running, rod_messages
+
+BITE = [{"type": "bite", "t_s": 3.0, "depth_deg": 15.0, "duration_s": 1.5}]
+
+
+@given(maxsize=st.integers(1, 20), ops=st.lists(st.booleans(), max_size=200))
+def test_client_queue_is_bounded_and_keeps_the_newest(maxsize: int, ops: list[bool]) -> None:
+    """True = put the next frame, False = get one if any: the queue never exceeds maxsize, nothing is lost
+    silently (got + held + dropped = put), and what is held is the newest frames in order."""
+
+    async def run() -> None:
+        q = ClientQueue(maxsize)
+        put, got = 0, []
+        for op in ops:
+            if op:
+                q.put(str(put))
+                put += 1
+            elif len(q):
+                got.append(int(await q.get()))
+            assert len(q) <= maxsize
+        held = [int(await q.get()) for _ in range(len(q))]
+        assert len(got) + len(held) + q.dropped == put
+        assert got + held == sorted(got + held)  # FIFO, no reordering
+        if put:
+            assert held == [] or held[-1] == put - 1  # the newest frame is never the one dropped
+
+    asyncio.run(run())
+
+
+def test_client_queue_rejects_zero_size() -> None:
+    with pytest.raises(ValueError, match="maxsize"):
+        ClientQueue(0)
+
+
+def test_get_waits_for_a_put() -> None:
+    async def run() -> str:
+        q = ClientQueue(3)
+        waiter = asyncio.create_task(q.get())
+        await asyncio.sleep(0.01)
+        assert not waiter.done()
+        q.put("x")
+        return await asyncio.wait_for(waiter, 1.0)
+
+    assert asyncio.run(run()) == "x"
+
+
+def test_raw_imu_summary_reference_values() -> None:
+    """|a| of (3, 4, 12) is 13; sample i of a packet is at wall_t0 + i / rate; bad rows and packets are skipped."""
+    p1 = {"acc_m_s2": [[3.0, 4.0, 12.0], [0.0, 0.0, 9.81]], "rate_hz": 100.0, "wall_t0_us": 10_000_000,
+          "battery_v": 4.0, "rssi_dbm": -60.0}  # fmt: skip
+    p2 = {"acc_m_s2": [[1.0, 2.0, 2.0], [1.0, "x", 2.0]], "rate_hz": 50.0, "wall_t0_us": 10_020_000}
+    out = raw_imu_summary([json.dumps(p1).encode(), b"{not json", json.dumps(p2).encode()], now_s=99.0)
+    acc = out["acc"]
+    assert acc["norm"] == pytest.approx([13.0, 9.81, 3.0], abs=1e-4)
+    assert acc["t_s"] == pytest.approx([10.0, 10.01, 10.02], abs=1e-9)
+    assert acc["ax"] == [3.0, 0.0, 1.0]
+    assert out["link"] == {"battery_v": 4.0, "rssi_dbm": -60.0}
+
+
+def test_raw_imu_summary_without_wall_time_ends_at_now() -> None:
+    p = {"acc_m_s2": [[0.0, 0.0, 1.0]] * 4, "rate_hz": 4.0}
+    t = raw_imu_summary([json.dumps(p).encode()], now_s=100.0)["acc"]["t_s"]
+    assert t == pytest.approx([99.0, 99.25, 99.5, 99.75])
+
+
+class _NoService:
+    """Just enough of a GatewayService for broadcast(): nothing is read from it."""
+
+
+def test_slow_client_drops_old_frames_and_never_blocks_the_producer() -> None:
+    live = LiveStream(_NoService(), LiveSettings(queue_size=4))  # type: ignore[arg-type]
+    slow, fast = ClientQueue(4), ClientQueue(1000)
+    live.clients |= {slow, fast}
+    for i in range(100):
+        live.broadcast({"type": "test", "i": i})
+    assert len(slow) == 4 and slow.dropped == 96
+    assert len(fast) == 100 and fast.dropped == 0
+
+    async def drain(q: ClientQueue) -> list[int]:
+        return [json.loads(await q.get())["i"] for _ in range(len(q))]
+
+    assert asyncio.run(drain(slow)) == [96, 97, 98, 99]
+
+
+def _frames_until(ws: Any, pred: Callable[[dict[str, Any]], bool], limit: int = 200) -> dict[str, Any]:
+    for _ in range(limit):
+        f = json.loads(ws.receive_text())
+        if pred(f):
+            return f
+    raise AssertionError("expected frame not received")
+
+
+def test_stream_ticks_carry_device_series_matching_rest(running: Callable[[], Running]) -> None:
+    app = running()
+    with app.client.websocket_connect("/ws/stream") as ws:
+        hello = json.loads(ws.receive_text())
+        assert hello["type"] == "hello" and hello["queue_size"] == 256
+        app.feed(rod_messages(2.0))
+        tick = _frames_until(ws, lambda f: f["type"] == "tick" and any(d["series"]["t_s"] for d in f["devices"]))
+        rod = next(d for d in tick["devices"] if d["device_id"] == "rod-1")
+        rest = app.client.get("/api/devices/rod-1").json()
+        # the last streamed pitch is the attitude REST shows (no packets arrive in between)
+        assert rod["series"]["pitch_deg"][-1] == pytest.approx(math.degrees(rest["attitude"]["pitch_rad"]), abs=1e-3)
+        assert len(rod["series"]["t_s"]) == len(rod["series"]["roll_deg"]) == len(rod["series"]["yaw_deg"])
+        assert rod["acc"]["norm"] and all(5.0 < a < 15.0 for a in rod["acc"]["norm"])  # a rod at rest: ~g
+        assert rod["reel"]["mode"] in ("stop", "in", "out", "auto")
+    stats = app.client.get("/api/live").json()
+    assert stats["clients"] == 0 and stats["ticks"] >= 1
+
+
+def test_stream_sends_bite_alarm_and_reel_command(running: Callable[[], Running]) -> None:
+    app = running()
+    with app.client.websocket_connect("/ws/stream") as ws:
+        ws.receive_text()
+        app.feed(rod_messages(6.0, BITE))
+        alarm = _frames_until(ws, lambda f: f["type"] == "alarm")
+        assert alarm["event"]["alarm"] == "bite" and alarm["event"]["state"] == "raised"
+        r = app.client.post("/api/rods/rod-1/reel", json={"action": "in", "speed_m_s": 0.4}, headers=app.auth)
+        assert r.status_code == 200
+        cmd = _frames_until(ws, lambda f: f["type"] == "reel_cmd")
+        assert cmd["command"]["action"] == "in" and cmd["command"]["speed_m_s"] == 0.4
+        tick = _frames_until(ws, lambda f: f["type"] == "tick")
+        assert tick["alarm_seq"] >= alarm["alarm_seq"]
