@@ -139,7 +139,7 @@ if __name__ == "__main__":
     p.add_argument("--repeats", type=int, default=3, help="runs per case; the best is reported (default: 3)")
     p.add_argument("--n-update", type=int, default=20000, help="samples for the per-sample update() case")
     p.add_argument("--devices", type=int, nargs="+", default=[1, 100, 1000], help="batch sizes (default: 1 100 1000)")
-    p.add_argument("--batch-samples", type=int, default=500_000,
+    p.add_argument("--batch-samples", type=int, default=200_000,
                    help="aggregate samples per batched run (default: %(default)s)")
     args = p.parse_args()
     main(args.data_dir, args.trial, args.repeats, args.n_update, args.devices, args.batch_samples)

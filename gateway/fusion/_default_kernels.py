@@ -564,10 +564,25 @@ def step_devices(
 
     Device d runs exactly the per-device code path with its own dt_s[d] and use_mag[d]; inactive slots are skipped.
     Devices are independent, so they are spread over the CPU cores (numba prange); results do not depend on it.
+    For a handful of devices the thread start-up costs more than it saves: use `step_devices_serial`.
     """
     for d in prange(s.shape[0]):
         if active[d]:
             c = np.empty(N_COEFFS)
             wk = np.empty(N_WORK)
+            coefficients(prm, dt_s[d], c)
+            _step_one(s[d], prm, c, wk, gyr[d], acc[d], mag[d], use_mag[d], dt_s[d], out[d])
+
+
+@njit(cache=True, error_model="numpy")
+def step_devices_serial(
+    s: np.ndarray, prm: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: np.ndarray,
+    dt_s: np.ndarray, active: np.ndarray, out: np.ndarray,
+) -> None:
+    """`step_devices` on one thread (same arguments, same results)."""
+    c = np.empty(N_COEFFS)
+    wk = np.empty(N_WORK)
+    for d in range(s.shape[0]):
+        if active[d]:
             coefficients(prm, dt_s[d], c)
             _step_one(s[d], prm, c, wk, gyr[d], acc[d], mag[d], use_mag[d], dt_s[d], out[d])

@@ -13,6 +13,9 @@ from gateway.fusion import _default_kernels as K
 from gateway.fusion.base import FloatArray
 from gateway.fusion.default import DefaultSettings, initial_state
 
+PARALLEL_MIN_SAMPLES = 4000
+"""Below this many samples per step (devices × samples) one thread is faster than waking the others."""
+
 
 class DefaultFilterBatch:
     """N default filters in rows of flat arrays; rows follow `device_ids` (order of joining, compacted on removal)."""
@@ -97,5 +100,6 @@ class DefaultFilterBatch:
         act = np.ones(n_dev, dtype=np.bool_) if active is None else np.asarray(active, dtype=np.bool_)
         assert act.shape == (n_dev,)
         out = np.full((n_dev, gyr.shape[1], 4), np.nan)
-        K.step_devices(self.states, self._params, gyr, acc, mag, use_mag, self.dt_s, act, out)
+        kernel = K.step_devices if n_dev * gyr.shape[1] >= PARALLEL_MIN_SAMPLES else K.step_devices_serial
+        kernel(self.states, self._params, gyr, acc, mag, use_mag, self.dt_s, act, out)
         return out

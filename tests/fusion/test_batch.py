@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from gateway.fusion import batch as batch_module
 from gateway.fusion.batch import DefaultFilterBatch
 from gateway.fusion.default import DefaultFilter
 from tests.fusion.conftest import synthetic_imu
@@ -21,7 +22,9 @@ def _devices(n_dev: int, seconds: float) -> list[dict[str, np.ndarray]]:
     ]
 
 
-def test_batch_equals_per_device():
+@pytest.mark.parametrize("parallel", [False, True])
+def test_batch_equals_per_device(parallel, monkeypatch):
+    monkeypatch.setattr(batch_module, "PARALLEL_MIN_SAMPLES", 0 if parallel else 10**9)
     n_dev, block, n_blocks = 6, 10, 150
     data = _devices(n_dev, seconds=n_blocks * block / 50.0)
     use_mag = [i % 3 != 2 for i in range(n_dev)]
