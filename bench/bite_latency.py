@@ -74,6 +74,16 @@ def wait_http(port: int, timeout_s: float = 60.0) -> None:
     raise TimeoutError(f"gateway on port {port} did not answer within {timeout_s} s")
 
 
+def _stats(http_port: int) -> dict[str, Any]:
+    import httpx
+
+    try:
+        stats: dict[str, Any] = httpx.get(f"http://127.0.0.1:{http_port}/api/stats", timeout=5.0).json()
+        return stats
+    except httpx.HTTPError:
+        return {}
+
+
 def observer_config(zenoh_port: int) -> zenoh.Config:
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
@@ -88,6 +98,7 @@ class Recorder:
 
     samples: list[tuple[float, str, bytes]] = field(default_factory=list)
     lock: threading.Lock = field(default_factory=threading.Lock)
+    gateway_stats: dict[str, Any] = field(default_factory=dict)
 
     def __call__(self, sample: zenoh.Sample) -> None:
         t = time.time()
@@ -218,6 +229,7 @@ def run_session(script: list[dict[str, Any]], duration_s: float, seed: int, work
             time.sleep(0.5)
             rod = run_rod(zport, script, duration_s, seed, rod_args)
             time.sleep(1.0)
+            rec.gateway_stats = _stats(hport)
             for s in subs:
                 s.undeclare()  # type: ignore[no-untyped-call]
     finally:
@@ -255,6 +267,10 @@ def main(argv: list[str] | None = None) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             rec, _ = run_session(script, duration, args.seed + k, Path(tmp))
         r = analyse(rec, theta1)
+        d = rec.gateway_stats.get("batch_delay_ms")
+        if d:
+            print(f"gateway batch delay (packet arrival -> results to zenoh): p50 {d['p50']:.2f} ms, "
+                  f"p99 {d['p99']:.2f} ms, max {d['max']:.2f} ms over {d['n']} batches")
         onset += r.onset_ms
         cross += r.cross_ms
         missed += r.missed

@@ -94,6 +94,7 @@ class GatewayService:
         self.presence = Presence()
         self.started_s = time.time()
         self.batches = 0
+        self.batch_delay_s: collections.deque[float] = collections.deque(maxlen=2000)  # oldest arrival -> emitted
         self.inbox: Inbox | None = None
         self._tasks: list[asyncio.Task[Any]] = []
         self._rejected_window = (0, 0)  # (second, published in it)
@@ -155,6 +156,7 @@ class GatewayService:
         if packets:
             self.batches += 1
             self.hub.emit(self.pipeline.process(packets, now))
+            self.batch_delay_s.append(time.monotonic() - items[0][2])
 
     def _publish_rejected(self, key: str, err: schemas.DecodeError, size: int, now: float) -> None:
         second, n = self._rejected_window

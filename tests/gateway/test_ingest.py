@@ -72,6 +72,7 @@ def test_malformed_packets_are_counted_by_reason_and_ingest_goes_on(live: tuple[
     wait_for(lambda: client.get("/api/stats").json()["devices"][0]["ok"] == len(imu))  # the good ones after too
     stats = client.get("/api/stats").json()
     assert stats["received"] == len(imu) + len(garbage)
+    assert stats["batch_delay_ms"]["n"] >= 1 and 0.0 <= stats["batch_delay_ms"]["p50"] <= stats["batch_delay_ms"]["max"]
     dev = client.get("/api/devices/rod-1").json()
     assert dev["stream"]["rejected"] == {"bad_json": 1, "version": 1, "too_large": 1, "out_of_range": 1,
                                          "schema": 1}  # fmt: skip

@@ -32,5 +32,11 @@ def stats(service: ServiceDep) -> dict[str, Any]:
         snap["queue_drops"] = service.inbox.drops
         snap["queue_depth"] = len(service.inbox)
     snap["batches"] = service.batches
+    delays = sorted(service.batch_delay_s)
+    if delays:  # arrival of a batch's oldest packet -> its results handed to zenoh, last 2000 batches
+        snap["batch_delay_ms"] = {
+            "p50": 1e3 * delays[len(delays) // 2], "p99": 1e3 * delays[min(len(delays) - 1, int(0.99 * len(delays)))],
+            "max": 1e3 * delays[-1], "n": len(delays),
+        }  # fmt: skip
     snap["published"] = service.hub.published
     return snap
