@@ -107,7 +107,7 @@ class View3D:
 
         self.server = viser.ViserServer(host=settings.viser_host, port=settings.viser_port, label="rig-gateway 3D",
                                         verbose=False)  # fmt: skip
-        self.server.gui.configure_theme(show_share_button=False, control_layout="collapsible", dark_mode=False)
+        self.server.gui.configure_theme(show_share_button=False, dark_mode=False)
         self.rate_hz = rate_hz
         self.devices: dict[str, DeviceView] = {}
         self._raw: dict[str, bytes] = {}
