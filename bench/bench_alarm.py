@@ -26,6 +26,7 @@ from tqdm import tqdm
 
 from devices.common import G_M_S2
 from devices.rod_physics import Bite, Handling, RodBank, RodSettings, Waves, Wind
+from gateway.alarm.bite import tip_acc_up
 from gateway.alarm.rules import RodAlarms
 from gateway.config import RodThresholds
 
@@ -57,13 +58,6 @@ def bench_cost(n_rods: int, n_blocks: int, block: int, seed: int) -> dict[str, f
     return out
 
 
-def vertical_acc(quat_wxyz: np.ndarray, acc_body: np.ndarray) -> np.ndarray:
-    """Earth-frame up component of the specific force minus g (m/s^2)."""
-    w, x, y, z = np.moveaxis(quat_wxyz, -1, 0)
-    row = np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z], axis=-1)
-    return np.asarray(np.einsum("...i,...i->...", row, acc_body) - G_M_S2)
-
-
 def bench_detection(n_rods: int, minutes: float, block: int, seed: int, use_acc: bool) -> dict[str, float]:
     rng = np.random.default_rng(seed)
     bank = RodBank(RodSettings(), n_rods, seed=seed)
@@ -92,7 +86,7 @@ def bench_detection(n_rods: int, minutes: float, block: int, seed: int, use_acc:
     for _ in tqdm(range(n_blocks), desc=f"detection ({'pitch+acc' if use_acc else 'pitch only'})", leave=False):
         blk = bank.run_block(block, 1.0 / RATE_HZ)
         pitch = blk.euler_rad[..., 1] + math.radians(0.2) * rng.standard_normal((n_rods, block))
-        acc = vertical_acc(blk.quat_wxyz, blk.acc_m_s2) + 0.1 * rng.standard_normal((n_rods, block))
+        acc = tip_acc_up(blk.quat_wxyz, blk.acc_m_s2, G_M_S2) + 0.1 * rng.standard_normal((n_rods, block))
         for i, r in enumerate(rods):
             _, conds = r.update(blk.t_s, pitch[i], None, None, acc[i] if use_acc else None)
             alarms[i] += [c.t_s for c in conds if c.type == "bite" and c.severity is not None]

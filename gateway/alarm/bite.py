@@ -121,6 +121,17 @@ class BiteState:
     steady_since_s: float = math.nan
 
 
+def tip_acc_up(quat_wxyz: FloatArray, acc_m_s2: FloatArray, g_m_s2: float = 9.81) -> FloatArray:
+    """Earth-frame vertical (ENU z) acceleration of the IMU, gravity removed (m/s^2, up > 0), shape (...,).
+
+    Rotates the body specific force by the body->earth quaternion (third row of R(q)) and subtracts g.
+    """
+    w, x, y, z = (quat_wxyz[..., i] for i in range(4))
+    up: FloatArray = (2 * (x * z - w * y) * acc_m_s2[..., 0] + 2 * (y * z + w * x) * acc_m_s2[..., 1]
+                      + (w * w - x * x - y * y + z * z) * acc_m_s2[..., 2] - g_m_s2)  # fmt: skip
+    return up
+
+
 def run_starts(cond: BoolArray, t_s: FloatArray, carry_s: float) -> FloatArray:
     """Start time of the run of True containing each sample (nan where False).
 

@@ -277,3 +277,17 @@ def test_nan_block_leaves_detector_state_finite(during_fight):
     s = det.state
     assert s.baseline_rad == pytest.approx(rest)
     assert not math.isnan(s.steady_ref_rad) or math.isnan(s.steady_since_s)
+
+
+def test_tip_acc_up_matches_scipy_rotation():
+    from gateway.alarm.bite import tip_acc_up as acc_up
+
+    rng = np.random.default_rng(3)
+    rot = Rotation.random(50, random_state=4)
+    acc_body = rng.normal(0.0, 5.0, (50, 3))
+    ref = rot.apply(acc_body)[:, 2] - 9.81  # scipy rotates body -> earth with the same rotation
+    q_xyzw = rot.as_quat()
+    q_wxyz = q_xyzw[:, [3, 0, 1, 2]]
+    np.testing.assert_allclose(acc_up(q_wxyz, acc_body), ref, atol=1e-9)
+    level_at_rest = acc_up(np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.0, 0.0, 9.81]))
+    assert abs(float(level_at_rest)) < 1e-12
