@@ -321,7 +321,14 @@ def _step_sample(
     gx: float, gy: float, gz: float, ax: float, ay: float, az: float,
     mx: float, my: float, mz: float, use_mag: bool, dt_s: float,
 ) -> None:
-    """Advance one device's state by one sample (gyro rad/s, specific force m/s², field uT)."""
+    """Advance one device's state by one sample (gyro rad/s, specific force m/s², field uT).
+
+    A non-finite gyro sample is skipped (the state stays); a non-finite or zero acc / mag sample means "no reading".
+    """
+    if not math.isfinite(gx + gy + gz):
+        return
+    if not math.isfinite(ax + ay + az):
+        ax = ay = az = 0.0
     rest_on = prm[P_REST_BIAS_ON] != 0.0
     # -- rest detection, gyro half: deviation from its own low-pass, and a low-pass that must look like a bias
     if rest_on or prm[P_MAG_REJECT_ON] != 0.0:
@@ -445,7 +452,7 @@ def _step_sample(
             _bias_update(s, prm, c, wk)
         else:  # only rest estimation, not at rest: the uncertainty still grows
             _predict_bias(s, c)
-    if use_mag and not (mx == 0.0 and my == 0.0 and mz == 0.0):
+    if use_mag and not (mx == 0.0 and my == 0.0 and mz == 0.0) and math.isfinite(mx + my + mz):
         _mag_step(s, prm, c, mx, my, mz, dt_s)
 
 

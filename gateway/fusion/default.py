@@ -191,6 +191,8 @@ class DefaultFilter(AttitudeFilter):
         self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float
     ) -> FloatArray:
         """One sample; returns the body->ENU quaternion (4,). A zero acc or mag sample means "no reading"."""
+        if not dt_s > 0:
+            raise ValueError(f"dt_s must be positive, got {dt_s}")
         buf = self._one_in
         buf[0, 0] = gyr_rad_s
         buf[1, 0] = acc_m_s2
@@ -204,7 +206,13 @@ class DefaultFilter(AttitudeFilter):
     def update_block(
         self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float
     ) -> FloatArray:
-        """n samples of one packet, inputs (n, 3) sampled every `dt_s`; returns quaternions (n, 4)."""
+        """n samples of one packet, inputs (n, 3) sampled every `dt_s`; returns quaternions (n, 4).
+
+        Rows with a non-finite gyro are skipped (the attitude is held); zero or non-finite acc / mag rows are treated
+        as missing readings.
+        """
+        if not dt_s > 0:
+            raise ValueError(f"dt_s must be positive, got {dt_s}")
         gyr = np.ascontiguousarray(gyr_rad_s, dtype=np.float64)
         acc = np.ascontiguousarray(acc_m_s2, dtype=np.float64)
         use_mag = self.use_mag and mag_uT is not None

@@ -67,6 +67,28 @@ def test_update_update_block_and_run_agree():
         np.testing.assert_allclose(fs[0].quaternion, q_run[-1])
 
 
+def test_missing_and_invalid_samples():
+    """NaN gyro rows hold the attitude, NaN/zero acc and mag rows are skipped readings; a bad dt is refused."""
+    d = synthetic_imu(10.0, seed=4)
+    gyr, acc, mag = d["gyr"].copy(), d["acc"].copy(), d["mag"].copy()
+    gyr[300:310] = np.nan
+    acc[400:450] = np.nan
+    acc[500:550] = 0.0
+    mag[600:700] = np.nan
+    f = DefaultFilter()
+    f.initialise(d["acc"][0], d["mag"][0])
+    q = f.run(gyr, acc, mag, d["dt_s"])
+    assert np.all(np.isfinite(q)) and np.all(np.isfinite(f.state))
+    np.testing.assert_array_equal(q[300:310], np.tile(q[299], (10, 1)))
+    # the 0.1 s gyro gap loses a few degrees of real rotation: inclination comes back (tau_acc), heading slowly
+    assert _tilt_deg(q[-1], d["q_true"][-1]) < 1.0
+    assert _deg(q[-1], d["q_true"][-1]) < 10.0
+    with pytest.raises(ValueError):
+        f.update(gyr[0], acc[0], mag[0], 0.0)
+    with pytest.raises(ValueError):
+        f.update_block(gyr[:10], acc[:10], mag[:10], -0.01)
+
+
 def test_registered_as_default():
     f = make_filter("default", use_mag=False)
     assert isinstance(f, DefaultFilter) and not f.use_mag
