@@ -68,10 +68,10 @@ class _Thresholds(BaseModel):
 SENSITIVITY_STEPS: dict[int, tuple[float, float, float, float]] = {
     # step: (theta1_scale, confirm_s, cue_fraction, cue_acc_m_s2)
     1: (1.5, 0.05, 0.0, 0.0),
-    2: (1.25, 0.03, 0.6, 4.0),
-    3: (1.0, 0.02, 0.5, 3.0),
-    4: (0.8, 0.01, 0.45, 2.5),
-    5: (0.6, 0.0, 0.4, 2.0),
+    2: (1.25, 0.03, 0.3, 4.0),
+    3: (1.0, 0.02, 0.2, 3.0),
+    4: (0.8, 0.01, 0.15, 2.5),
+    5: (0.6, 0.0, 0.1, 2.0),
 }
 
 

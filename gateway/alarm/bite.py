@@ -6,6 +6,7 @@ Roll and yaw never alarm (seed 000 Table 2): pitch = elevation of the rod axis, 
 
 Per block, all work is vectorised with numpy; Python does O(1) work plus one loop turn per latch change.
 
+- Warm-up: the first WARMUP_S seconds only learn the rest pitch (their mean) and the vibration level.
 - Rest baseline: an exponential average (time constant `baseline_tau_s`) of block-mean pitch, updated only
   while both latches are armed and every sample of the block lies inside the re-arm band. Vibration (wind,
   waves) averages out; a holder drifting at r deg/s lags by only r * tau, far below theta1 for slow drifts.
@@ -39,8 +40,9 @@ BoolArray = NDArray[np.bool_]
 REARM_FRACTION = 0.7  # re-arm band: |deviation| below this share of the trigger threshold
 ACC_WINDOW = 3  # samples averaged for the acceleration cue (30 ms at 100 Hz)
 CUE_NOISE_FACTOR = 3.0  # the cue needs a downward acceleration >= this x the recent rms (wind raises the bar)
-ACC_RMS_DECAY_S = 10.0  # the rms estimate rises at once and decays with this time constant
+ACC_RMS_DECAY_S = 3.0  # the rms estimate rises at once and decays with this time constant
 ACC_RMS_LAG_S = 0.5  # the cue uses an rms estimate 0.5-1 s old, so a bite's own onset cannot raise the bar
+WARMUP_S = 2.0  # the first 2 s only learn the rest pitch (mean) and the vibration level: no alarms
 REBASELINE_FACTOR = 6.0  # steady this many quiet times while disarmed -> new rest baseline
 STEADY_FRACTION = 0.3  # "steady": block mean within this share of theta1 of the candidate rest
 _EPS_S = 1e-9
@@ -119,6 +121,10 @@ class BiteState:
     acc_checkpoint_s: float = -math.inf
     steady_ref_rad: float = math.nan
     steady_since_s: float = math.nan
+    warmed: bool = False
+    warm_until_s: float = math.nan
+    warm_sum_rad: float = 0.0
+    warm_n: int = 0
 
 
 def tip_acc_up(quat_wxyz: FloatArray, acc_m_s2: FloatArray, g_m_s2: float = 9.81) -> FloatArray:
@@ -228,7 +234,7 @@ class BiteDetector:
 
     def rebaseline(self, pitch_rad: float) -> None:
         """Take `pitch_rad` as the new rest (e.g. the angler re-set the rod) and re-arm both latches."""
-        self.state = BiteState(baseline_rad=pitch_rad)
+        self.state = BiteState(baseline_rad=pitch_rad, warmed=True)
 
     def update(
         self,
@@ -249,8 +255,8 @@ class BiteDetector:
         n = t_s.size
         if n == 0:
             return RodBlock((), s.baseline_rad, 0.0, math.nan, 0.0)
-        if math.isnan(s.baseline_rad):
-            s.baseline_rad = float(np.median(pitch_rad))
+        if not s.warmed:
+            return self._warm_up(t_s, pitch_rad, acc_up_m_s2)
         dev = pitch_rad - s.baseline_rad
         i_min = int(dev.argmin())
         lo, hi = float(dev[i_min]), float(dev.max())
@@ -263,12 +269,7 @@ class BiteDetector:
                 cue = (dev <= -p.cue_rad) & (acc_mean <= -need)
             else:
                 s.acc_tail = keep_tail(s.acc_tail, acc_up_m_s2, ACC_WINDOW - 1)
-            block_ms = float(np.dot(acc_up_m_s2, acc_up_m_s2)) / n
-            span_s = float(t_s[-1] - t_s[0]) * n / max(n - 1, 1)
-            s.acc_ms = max(block_ms, s.acc_ms * math.exp(-span_s / ACC_RMS_DECAY_S))
-            if t_s[-1] - s.acc_checkpoint_s >= ACC_RMS_LAG_S:
-                s.acc_ms_lagged, s.acc_ms_snapshot = s.acc_ms_snapshot, s.acc_ms
-                s.acc_checkpoint_s = float(t_s[-1])
+            self._track_acc(t_s, acc_up_m_s2)
         bite_ok = None
         if lo <= -p.bite_rad:
             bite_ok, s.bite_run_s = held(dev <= -p.bite_rad, t_s, s.bite_run_s, p.confirm_s)
@@ -314,6 +315,38 @@ class BiteDetector:
         used = s.baseline_rad
         self._track_baseline(t_s, pitch_rad, lo, hi)
         return RodBlock(tuple(events), used, lo, float(t_s[i_min]), float(dev[-1]))
+
+    def _warm_up(self, t_s: FloatArray, pitch_rad: FloatArray, acc_up_m_s2: FloatArray | None) -> RodBlock:
+        """Learn the rest pitch as the mean of the first WARMUP_S seconds (nan samples skipped); no alarms."""
+        s = self.state
+        if math.isnan(s.warm_until_s):
+            s.warm_until_s = float(t_s[0]) + WARMUP_S
+        ok = pitch_rad[np.isfinite(pitch_rad)]
+        s.warm_sum_rad += float(np.add.reduce(ok))
+        s.warm_n += ok.size
+        if s.warm_n:
+            s.baseline_rad = s.warm_sum_rad / s.warm_n
+        if acc_up_m_s2 is not None:
+            s.acc_tail = keep_tail(s.acc_tail, acc_up_m_s2, ACC_WINDOW - 1)
+            self._track_acc(t_s, acc_up_m_s2)
+        s.last_t_s = float(t_s[-1])
+        s.warmed = s.warm_n > 0 and s.last_t_s >= s.warm_until_s
+        dev = pitch_rad - s.baseline_rad
+        return RodBlock(
+            (), s.baseline_rad, float(np.nanmin(dev)) if ok.size else math.nan, float(t_s[0]), float(dev[-1])
+        )
+
+    def _track_acc(self, t_s: FloatArray, acc_up_m_s2: FloatArray) -> None:
+        """Vibration level for the cue's bar: mean square with fast attack and ACC_RMS_DECAY_S decay, lagged."""
+        s, n = self.state, t_s.size
+        block_ms = float(np.dot(acc_up_m_s2, acc_up_m_s2)) / n
+        if not math.isfinite(block_ms):
+            return
+        span_s = float(t_s[-1] - t_s[0]) * n / max(n - 1, 1)
+        s.acc_ms = max(block_ms, s.acc_ms * math.exp(-span_s / ACC_RMS_DECAY_S))
+        if t_s[-1] - s.acc_checkpoint_s >= ACC_RMS_LAG_S:
+            s.acc_ms_lagged, s.acc_ms_snapshot = s.acc_ms_snapshot, s.acc_ms
+            s.acc_checkpoint_s = float(t_s[-1])
 
     def _track_baseline(self, t_s: FloatArray, pitch_rad: FloatArray, lo: float, hi: float) -> None:
         """Follow the rest pitch while quiet and armed; re-take it after a long steady spell while disarmed."""

@@ -210,7 +210,7 @@ def test_block_size_does_not_change_detections(block, rng):
 @given(
     sensitivity=st.integers(1, 5),
     seed=st.integers(0, 2**32 - 1),
-    n=st.integers(20, 1500),
+    n=st.integers(300, 1500),  # beyond the 2 s warm-up
     block=st.integers(1, 64),
     shape=st.sampled_from(["uniform", "walk", "square"]),
     with_acc=st.booleans(),
@@ -269,6 +269,7 @@ def test_nan_block_leaves_detector_state_finite(during_fight):
     det = BiteDetector()
     t = np.arange(10) / 100.0
     rest = math.radians(REST_DEG)
+    det.rebaseline(rest)  # skip the warm-up
     det.update(t, np.full(10, rest))
     if during_fight:
         det.update(t + 0.1, np.full(10, rest - math.radians(15.0)))
