@@ -260,6 +260,12 @@ class Store:
             ).fetchall()
         return [_alarm_from(r) for r in rows], total
 
+    def active_alarms(self) -> list[Alarm]:
+        """Every active alarm (no paging): what `AlarmEngine(active=...)` resumes from after a restart."""
+        with self._lock:
+            rows = self._conn.execute("SELECT * FROM alarms WHERE status = 'active' ORDER BY started_at").fetchall()
+        return [_alarm_from(r) for r in rows]
+
     def acknowledge(self, alarm_id: str, by: str, t: float) -> Alarm | None:
         """Acknowledge (does not clear). None if unknown; an already acknowledged alarm is returned unchanged."""
         with self._tx():

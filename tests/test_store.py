@@ -117,7 +117,8 @@ def test_restart_keeps_everything(tmp_path):
         assert (b.id, b.acknowledged, b.details["cue"]) == (a.id, True, "accel")
         assert s2.events()[0]["payload"] == {"addr": "tcp/1.2.3.4"}
         # the engine resumes from the stored active rows: an update hits the same alarm
-        resumed = AlarmEngine(active=s2.list_alarms(status="active")[0])
+        assert [x.id for x in s2.active_alarms()] == [a.id]
+        resumed = AlarmEngine(active=s2.active_alarms())
         [ch] = resumed.evaluate([Condition("rod-1", "bite", Severity.MAJOR, 5.0, -14.0, -10.0, "bite")])
         assert ch.kind == "updated" and s2.upsert_alarm(ch.alarm).id == a.id
 
