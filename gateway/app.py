@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import sys
 from collections.abc import AsyncIterator, Callable
@@ -27,8 +28,11 @@ PLACEHOLDER = """<!doctype html><title>rig-gateway</title><h1>rig-gateway</h1>
 <a href="/api/alarms">alarms</a>, <a href="/api/spots">spots</a>, <a href="/api/stats">ingest statistics</a>.</p>"""
 
 
-def create_app(settings: Settings, bus_factory: Callable[[Settings], Bus] = ZenohBus.open) -> FastAPI:
-    """The gateway as an ASGI app; the bus opens (and always closes) in the lifespan."""
+def create_app(
+    settings: Settings, bus_factory: Callable[[Settings], Bus] = ZenohBus.open, *, warm_up: bool = True
+) -> FastAPI:
+    """The gateway as an ASGI app; the bus opens (and always closes) in the lifespan. `warm_up` compiles the
+    fusion kernels before ingest starts (in-process tests that already compiled them may skip it)."""
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -41,6 +45,8 @@ def create_app(settings: Settings, bus_factory: Callable[[Settings], Bus] = Zeno
         service = GatewayService(settings, bus, store)
         app.state.service = service
         try:
+            if warm_up:
+                await asyncio.to_thread(service.pipeline.warm_up)  # compile before the first packet, not on it
             await service.start()
             ws.start_live(app, service)
             yield

@@ -235,6 +235,27 @@ class Pipeline:
         if dev.filt is None and self._batch is not None:
             self._batch.remove(device_id)
 
+    def warm_up(self) -> None:
+        """Compile the numba kernels (default batch filter, hook filter) on dummy data, leaving no state behind.
+
+        Called once at start-up: a first compile can take tens of seconds on a busy machine, and done on the first
+        packet it would stall ingest (and delay every alarm) for that long."""
+        from gateway.fusion.batch import DefaultFilterBatch
+
+        acc, mag = np.array([0.0, 0.0, G_M_S2]), np.array([0.0, 20.0, -44.0])
+        batch = DefaultFilterBatch()
+        batch.add("warm-up", dt_s=0.01, acc_m_s2=acc, mag_uT=mag)
+        n = 5
+        batch.step(np.zeros((1, n, 3)), np.tile(acc, (1, n, 1)), np.tile(mag, (1, n, 1)))
+        for name in {self.settings.hook_filter, self.settings.default_filter} - {DEFAULT_FILTER}:
+            try:
+                f = _make_filter(name, True)
+            except KeyError:
+                continue
+            f.initialise(acc, mag)
+            step = getattr(f, "update_block", None) or f.run
+            step(np.zeros((n, 3)), np.tile(acc, (n, 1)), np.tile(mag, (n, 1)), 0.01)
+
     # -- processing -----------------------------------------------------------------------------------------
 
     def process(self, packets: Iterable[schemas.Packet], now_wall_s: float | None = None) -> Output:

@@ -64,7 +64,7 @@ def running(settings: Settings) -> Iterator[Callable[[], Running]]:
             c.__exit__(None, None, None)
         clients.clear()
         bus = MemoryBus()
-        client = TestClient(create_app(settings, lambda _: bus))
+        client = TestClient(create_app(settings, lambda _: bus, warm_up=False))
         client.__enter__()
         clients.append(client)
         token = (settings.data_dir / "api_token").read_text().strip()

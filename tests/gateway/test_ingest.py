@@ -29,7 +29,7 @@ def live(tmp_path: Path) -> Iterator[tuple[TestClient, zenoh.Session]]:
     """The gateway on a real zenoh peer listening on a free port, and a device-side session connected to it."""
     port = free_port()
     settings = Settings(data_dir=tmp_path / "data", zenoh_listen=[f"tcp/127.0.0.1:{port}"])
-    with TestClient(create_app(settings)) as client, zenoh.open(observer_config(port)) as session:
+    with TestClient(create_app(settings, warm_up=False)) as client, zenoh.open(observer_config(port)) as session:
         time.sleep(0.5)  # link up
         yield client, session
 

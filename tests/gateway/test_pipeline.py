@@ -129,3 +129,10 @@ def test_auto_reel_sends_controller_commands_only_while_on() -> None:
     assert cmds and all(dev == "rod-1" and f["action"] in ("speed", "stop") for dev, f in cmds)
     p.set_auto_reel("rod-1", False)
     assert not [c for o in run(p, messages[len(messages) // 2 :]) for c in o.reel_commands]
+
+
+def test_warm_up_leaves_no_state_behind() -> None:
+    p = Pipeline()
+    p.warm_up()
+    assert p.devices == {} and p.kinds == {} and p._batch is None
+    assert raised(run(p, rod_messages(6.0, [{"type": "bite", "t_s": 3.0, "depth_deg": 15.0}]))) != []
