@@ -1,0 +1,252 @@
+"""Score the gateway's published attitude of a replayed real recording against its reference, BROAD's way.
+
+    # the gateway (exact mode: one attitude per sample, no bias seed) and a 1-sample-per-packet import
+    python -m gateway.recording.exact_gateway --filter default &
+    python -m gateway.recording.import_broad DATA/15_undisturbed_fast_translation_A.mat -o rec/ --samples-per-packet 1
+    python -m gateway.recording.score rec/15_undisturbed_fast_translation_A.rigrec --live --replay --speed 20
+    # or from a recording of the gateway's output made with `record -k 'gw/**'`
+    python -m gateway.recording.score rec/15_...rigrec --attitudes gwrec/
+
+Prints RMSE (deg) of total / heading / inclination error over the reference's movement samples
+(gateway.fusion.broad.score), next to the offline `gateway.fusion.evaluate` figures for the same filter on the
+same samples, and their difference; `--check TOL` exits 1 when any figure differs by more than TOL degrees.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import threading
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+from tqdm import tqdm
+
+from gateway import schemas
+from gateway.fusion import broad
+from gateway.fusion.base import FloatArray
+from gateway.fusion.evaluate import registered_runner
+from gateway.recording._cli import add_zenoh_args, zenoh_config
+from gateway.recording.format import Record, read_meta, read_recording
+from gateway.recording.reference import TOPIC as REF_TOPIC
+from gateway.recording.replay import DEVICE_KEYS, Publisher, replay, select
+
+
+@dataclass(frozen=True)
+class RecordedTrial:
+    """A BROAD-style trial rebuilt from a recording's IMU and reference packets (one device)."""
+
+    trial: broad.Trial
+    kind: str
+    device_id: str
+    t0_us: int  # device time of sample 0
+
+    def index(self, t_us: int) -> int:
+        """Sample index of a device time (µs); exact because sample times are rounded to whole µs."""
+        return int(round((t_us - self.t0_us) * self.trial.rate_hz * 1e-6))
+
+
+def recorded_trial(records: Iterable[Record], name: str = "recording") -> RecordedTrial:
+    """Collect the first device's IMU packets and reference packets (ordered by seq, duplicates dropped)."""
+    imu: dict[int, schemas.ImuPacket] = {}
+    ref: dict[int, dict[str, Any]] = {}
+    device: tuple[str, str] | None = None
+    for r in records:
+        parts = r.key.split("/")
+        if len(parts) != 4 or parts[0] != "rig" or parts[3] not in ("imu", REF_TOPIC):
+            continue
+        if device is None:
+            device = (parts[1], parts[2])
+        if (parts[1], parts[2]) != device:
+            continue
+        if parts[3] == "imu":
+            p = schemas.decode(r.key, r.payload)
+            assert isinstance(p, schemas.ImuPacket)
+            imu.setdefault(p.seq, p)
+        else:
+            d = json.loads(r.payload)
+            ref.setdefault(int(d["seq"]), d)
+    if device is None or not imu:
+        raise ValueError("no IMU packets in the recording")
+    pkts = [imu[s] for s in sorted(imu)]
+    gyr = np.concatenate([p.arrays()[0] for p in pkts])
+    acc = np.concatenate([p.arrays()[1] for p in pkts])
+    mags = [p.arrays()[2] for p in pkts]
+    mag = np.concatenate(mags) if all(m is not None for m in mags) else np.full_like(gyr, np.nan)  # type: ignore[arg-type]
+    n = gyr.shape[0]
+    q_ref, pos, movement = np.full((n, 4), np.nan), np.full((n, 3), np.nan), np.zeros(n, dtype=bool)
+    i = 0
+    for p in pkts:
+        d = ref.get(p.seq)
+        if d is not None:
+            for j, (q, x, m) in enumerate(zip(d["quat_wxyz"], d.get("pos_m") or [None] * p.n, d["movement"],
+                                              strict=True)):  # fmt: skip
+                if q is not None:
+                    q_ref[i + j] = q
+                if x is not None:
+                    pos[i + j] = x
+                movement[i + j] = bool(m)
+        i += p.n
+    trial = broad.Trial(name, pkts[0].rate_hz, gyr, acc, mag, q_ref, pos, movement, broad.groups_from_name(name))
+    return RecordedTrial(trial, device[0], device[1], pkts[0].t0_us)
+
+
+def attitude_array(rt: RecordedTrial, attitudes: Iterable[schemas.Attitude]) -> FloatArray:
+    """(N, 4) estimate per sample from the gateway's Attitude messages (NaN where none was received)."""
+    q = np.full((rt.trial.n, 4), np.nan)
+    for a in attitudes:
+        i = rt.index(a.t_us)
+        if 0 <= i < rt.trial.n:
+            q[i] = a.quat_wxyz
+    return q
+
+
+def attitudes_from_records(records: Iterable[Record], kind: str, device_id: str) -> list[schemas.Attitude]:
+    """Attitude messages of one device found in a recording of the gateway's output."""
+    key = schemas.attitude_key(kind, device_id)
+    return [schemas.Attitude.model_validate_json(r.payload) for r in records if r.key == key]
+
+
+@dataclass(frozen=True)
+class Comparison:
+    gateway: broad.Score
+    offline: broad.Score
+    offline_full: broad.Score
+    covered: int
+    samples: int
+    filter_name: str
+    mode: broad.Mode
+
+    @property
+    def max_diff_deg(self) -> float:
+        a, b = self.gateway.as_dict(), self.offline.as_dict()
+        return max(abs(a[k] - b[k]) for k in a)
+
+
+def compare(rt: RecordedTrial, q_gw: FloatArray, filter_name: str, mode: broad.Mode) -> Comparison:
+    """Score the gateway's estimate and the offline evaluate run of the same filter on the samples received."""
+    out = registered_runner(filter_name)(rt.trial, mode)
+    if out is None:
+        raise ValueError(f"filter {filter_name!r} does not support {mode}")
+    q_off = out[0]
+    have = np.all(np.isfinite(q_gw), axis=-1)
+    q_off_same = np.where(have[:, None], q_off, np.nan)
+    return Comparison(broad.score(q_gw, rt.trial, mode), broad.score(q_off_same, rt.trial, mode),
+                      broad.score(q_off, rt.trial, mode), int(have.sum()), rt.trial.n, filter_name, mode)  # fmt: skip
+
+
+def format_comparison(c: Comparison) -> str:
+    rows = [("gateway (zenoh)", c.gateway), ("offline evaluate, same samples", c.offline),
+            ("offline evaluate, all samples", c.offline_full)]  # fmt: skip
+    lines = [f"filter {c.filter_name} {c.mode}: attitude for {c.covered}/{c.samples} samples",
+             f"{'':32s} {'total':>8s} {'heading':>8s} {'incl':>8s}   (RMSE deg over movement samples)"]
+    lines += [f"{name:32s} {s.total_deg:8.3f} {s.heading_deg:8.3f} {s.inclination_deg:8.3f}" for name, s in rows]
+    lines.append(f"largest |gateway - offline| = {c.max_diff_deg:.6f} deg")
+    return "\n".join(lines)
+
+
+class AttitudeCollector:
+    """Zenoh callback target: decodes nothing on zenoh's thread, only appends the bytes."""
+
+    def __init__(self) -> None:
+        self.payloads: list[bytes] = []
+        self.lock = threading.Lock()
+        self.last_s = time.monotonic()
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        with self.lock:
+            self.payloads.append(sample.payload.to_bytes())
+            self.last_s = time.monotonic()
+
+    def attitudes(self) -> list[schemas.Attitude]:
+        with self.lock:
+            return [schemas.Attitude.model_validate_json(p) for p in self.payloads]
+
+
+def wait_for_gateway(session: zenoh.Session, timeout_s: float) -> bool:
+    """True once the gateway's liveliness token `gw/alive` is visible (a replay before that would be lost)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if any(r.ok is not None for r in session.liveliness().get(schemas.GW_ALIVE_KEY, timeout=1.0)):
+            return True
+        time.sleep(0.2)
+    return False
+
+
+def collect_live(
+    session: zenoh.Session, rt: RecordedTrial, recording: Path | None, speed: float | None, idle_s: float,
+    timeout_s: float, progress: bool = True,
+) -> list[schemas.Attitude]:  # fmt: skip
+    """Subscribe to the device's attitude key; replay `recording` if given; stop `idle_s` after the last one."""
+    col = AttitudeCollector()
+    sub = session.declare_subscriber(schemas.attitude_key(rt.kind, rt.device_id), col)
+    deadline = time.monotonic() + timeout_s
+    if not wait_for_gateway(session, min(timeout_s, 60.0)):
+        raise TimeoutError(f"no gateway ({schemas.GW_ALIVE_KEY} liveliness token) within {min(timeout_s, 60.0)} s")
+    time.sleep(0.5)  # the gateway's subscriptions reach us shortly after its token
+    if recording is not None:
+        recs = list(select(read_recording(recording), DEVICE_KEYS))
+        pub = Publisher(session)
+        with tqdm(total=len(recs), desc="replay", unit="sample", file=sys.stderr, disable=not progress) as bar:
+            replay(pub.put, recs, speed, progress=bar)
+        col.last_s = max(col.last_s, time.monotonic())
+    while time.monotonic() < deadline and time.monotonic() - col.last_s < idle_s:
+        time.sleep(0.05)
+    sub.undeclare()  # type: ignore[no-untyped-call]
+    if recording is not None:
+        pub.close()
+    return col.attitudes()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m gateway.recording.score", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    p.add_argument("recording", type=Path, help="imported recording with IMU + reference packets (import_broad)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--attitudes", type=Path, help="a recording of the gateway's gw/** output")
+    src.add_argument("--live", action="store_true", help="subscribe to the gateway's attitude key now")
+    p.add_argument("--replay", action="store_true", help="with --live: replay RECORDING to the gateway as well")
+    p.add_argument("--speed", type=float, default=10.0, help="replay speed (default: 10× real time; 0 = fast)")
+    p.add_argument("--idle-s", type=float, default=3.0, help="--live: stop this long after the last attitude")
+    p.add_argument("--timeout-s", type=float, default=600.0, help="--live: give up after this long")
+    p.add_argument("--filter", help="filter for the offline row (default: the one named in the attitude messages)")
+    p.add_argument("--check", type=float, metavar="DEG", help="exit 1 if any figure differs by more than DEG")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_zenoh_args(p)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    meta = read_meta(args.recording)
+    rt = recorded_trial(read_recording(args.recording), str(meta.get("trial", args.recording.stem)))
+    if args.live:
+        with zenoh.open(zenoh_config(args)) as session:
+            atts = collect_live(session, rt, args.recording if args.replay else None, args.speed or None,
+                                args.idle_s, args.timeout_s, not args.no_progress)  # fmt: skip
+    else:
+        atts = attitudes_from_records(read_recording(args.attitudes), rt.kind, rt.device_id)
+    if not atts:
+        print(f"no attitude received for {rt.kind}/{rt.device_id}", file=sys.stderr)
+        return 2
+    name = args.filter or atts[-1].filter or "default"
+    mode: broad.Mode = "9D" if bool(np.all(np.isfinite(rt.trial.mag_uT))) else "6D"
+    c = compare(rt, attitude_array(rt, atts), name, mode)
+    if args.json:
+        print(json.dumps({"filter": name, "mode": mode, "covered": c.covered, "samples": c.samples,
+                          "gateway": c.gateway.as_dict(), "offline": c.offline.as_dict(),
+                          "offline_all": c.offline_full.as_dict(), "max_diff_deg": c.max_diff_deg}, indent=1))
+    else:
+        print(format_comparison(c))
+    return 1 if args.check is not None and not c.max_diff_deg <= args.check else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

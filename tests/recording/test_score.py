@@ -1,0 +1,94 @@
+"""Scoring: a BROAD trial replayed through zenoh and the gateway scores exactly like the offline evaluate run
+(so nothing was lost, reordered or altered on the way); attitude messages map back to their samples."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.bite_latency import free_port
+from gateway import schemas
+from gateway.fusion import broad
+from gateway.fusion.evaluate import registered_runner
+from gateway.recording import score
+from gateway.recording.format import Record, read_recording
+from gateway.recording.import_broad import import_trial
+
+pytestmark = pytest.mark.timeout(180)
+REPO = Path(__file__).resolve().parents[2]
+
+
+def cut_trial(trial: broad.Trial, rest_s: float = 1.0, move_s: float = 8.0) -> broad.Trial:
+    """The first `rest_s` (the filter's rest window) joined to 0.5 s before the movement and `move_s` of it."""
+    m0 = int(np.flatnonzero(trial.movement)[0])
+    r = int(rest_s * trial.rate_hz)
+    idx = np.r_[0:r, m0 - int(0.5 * trial.rate_hz) : m0 + int(move_s * trial.rate_hz)]
+    return broad.Trial(f"{trial.name}_cut", trial.rate_hz, trial.gyr_rad_s[idx], trial.acc_m_s2[idx],
+                       trial.mag_uT[idx], trial.quat_ref[idx], trial.pos_m[idx], trial.movement[idx], trial.groups)
+
+
+def test_attitudes_map_to_their_samples_and_score_like_offline(tmp_path: Path, broad_dir: Path) -> None:
+    trial = cut_trial(broad.load_trial(broad_dir / "08_undisturbed_fast_rotation_with_breaks_A.mat"), move_s=3.0)
+    recs = list(read_recording(import_trial(trial, tmp_path, "b-1", "rod", samples_per_packet=10)))
+    rt = score.recorded_trial(recs)
+    out = registered_runner("mahony")(rt.trial, "9D")
+    assert out is not None
+    q = out[0]
+    # what a gateway publishing the last sample of each packet would send
+    atts = []
+    for r in recs:
+        if r.key.endswith("/imu"):
+            p = schemas.decode(r.key, r.payload)
+            assert isinstance(p, schemas.ImuPacket)
+            i = rt.index(p.t0_us) + p.n - 1
+            t_us = p.t0_us + round((p.n - 1) * 1e6 / p.rate_hz)
+            atts.append(Record("gw/rod/b-1/attitude", schemas.Attitude(
+                device_id="b-1", kind="rod", seq=p.seq, t_us=t_us, quat_wxyz=tuple(q[i]), roll_rad=0.0,
+                pitch_rad=0.0, yaw_rad=0.0, yaw_unwrapped_rad=0.0, filter="mahony").to_json(), 0))  # fmt: skip
+    got = score.attitudes_from_records(atts, "rod", "b-1")
+    q_gw = score.attitude_array(rt, got)
+    have = np.all(np.isfinite(q_gw), axis=1)
+    assert have.sum() == len(atts) == -(-trial.n // 10)
+    np.testing.assert_array_equal(np.flatnonzero(have), np.minimum(np.arange(len(atts)) * 10 + 9, trial.n - 1))
+    c = score.compare(rt, q_gw, "mahony", "9D")
+    assert c.max_diff_deg < 1e-9 and c.covered == len(atts)
+    assert c.gateway.total_deg > 0.1  # a real error, not an empty mask
+    full = broad.score(q, trial, "9D")
+    assert c.offline_full == full
+
+
+def test_broad_trial_through_zenoh_and_the_gateway_scores_like_evaluate(tmp_path: Path, broad_dir: Path) -> None:
+    trial = cut_trial(broad.load_trial(broad_dir / "08_undisturbed_fast_rotation_with_breaks_A.mat"))
+    rec = import_trial(trial, tmp_path, "b-1", "rod", samples_per_packet=1)
+    port = free_port()
+    gw = subprocess.Popen([sys.executable, "-m", "gateway.recording.exact_gateway", "--filter", "default", "--listen",
+                           f"tcp/127.0.0.1:{port}", "--data-dir", str(tmp_path / "gw")], cwd=REPO,
+                          stdout=subprocess.PIPE, text=True, env=os.environ | {"PYTHONUNBUFFERED": "1"})  # fmt: skip
+    try:
+        assert gw.stdout is not None
+        assert "ready" in gw.stdout.readline()
+        out_json = tmp_path / "score.json"
+        with open(out_json, "w") as f:
+            rc = subprocess.run([sys.executable, "-m", "gateway.recording.score", str(rec), "--live", "--replay",
+                                 "--speed", "20", "--idle-s", "2", "--check", "0.01", "--json", "--no-progress",
+                                 "--connect", f"tcp/127.0.0.1:{port}"], cwd=REPO, stdout=f, timeout=150).returncode
+    finally:
+        gw.terminate()
+        try:
+            gw.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            gw.kill()
+            gw.wait()
+    res = json.loads(out_json.read_text())
+    assert res["covered"] == res["samples"] == trial.n  # one attitude per sample, none lost
+    assert res["filter"] == "default" and res["mode"] == "9D"
+    for k in ("total", "heading", "inclination"):
+        assert res["gateway"][k] == pytest.approx(res["offline_all"][k], abs=0.01)
+    assert res["gateway"]["total"] > 0.1
+    assert res["max_diff_deg"] <= 0.01 and rc == 0
