@@ -319,8 +319,9 @@ const Alarms = {
     if (!r.ok) return;
     this.items = (await r.json()).items;
     this.render();
-    const act = await (this.view === "active" ? Promise.resolve({ items: this.items }) : fetch("/api/alarms?status=active&limit=200").then((x) => x.json()));
-    this.banner(act.items);
+    // the banner stays until a bite is acknowledged, even when the alarm already cleared (last 10 minutes)
+    const bites = await fetch("/api/alarms?type=bite&acknowledged=false&limit=50").then((x) => x.json());
+    this.banner(bites.items.filter((a) => a.started_at > Date.now() / 1000 - View.clockSkew - 600));
   },
   render() {
     const rows = this.items.map((a) => el("tr", { class: `sev-${a.severity} ${a.status}`, "data-testid": `alarm-${a.id}`, "data-type": a.type },

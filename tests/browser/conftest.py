@@ -1,0 +1,146 @@
+"""Real-browser fixtures: the whole system (gateway + simulated rod and ball over zenoh on loopback, multicast off)
+and headless Debian Chromium driven by Playwright. Every request the browser makes is recorded.
+
+Needs `/usr/bin/chromium` (scripts/ci-apt.sh) and the `playwright` pip package; never `playwright install`.
+Screenshots go to test-output/.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]  # fmt: skip
+REPO = Path(__file__).resolve().parents[2]
+OUT = REPO / "test-output"
+BITE_AT_S = 15.0  # device time of the scripted bite: after the page is open and the first tests ran
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def get_json(url: str) -> Any:
+    with urllib.request.urlopen(url, timeout=5) as r:
+        return json.loads(r.read())
+
+
+@dataclass
+class System:
+    base: str
+    token: str
+    data_dir: Path
+    procs: list[subprocess.Popen[bytes]] = field(default_factory=list)
+    started_s: float = 0.0
+
+
+def _stop(p: subprocess.Popen[bytes]) -> None:
+    if p.poll() is None:
+        p.send_signal(signal.SIGINT)
+        try:
+            p.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+@pytest.fixture(scope="session")
+def chromium_path() -> Path:
+    if not CHROMIUM.exists():
+        pytest.skip(f"{CHROMIUM} not found: run scripts/ci-apt.sh (apt-get install chromium) for the browser tests")
+    pytest.importorskip("playwright", reason="pip install playwright (never `playwright install`)")
+    return CHROMIUM
+
+
+@pytest.fixture(scope="module")
+def system(chromium_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
+    """Gateway (REST on a free port, zenoh listening on another, viser on a third) and `python -m devices`
+    (one rod with a scripted bite at BITE_AT_S, one ball) connected to it."""
+    tmp = tmp_path_factory.mktemp("browser")
+    http, zport, vport = free_port(), free_port(), free_port()
+    endpoint = f"tcp/127.0.0.1:{zport}"
+    env = {**os.environ, "RIG_VISER_PORT": str(vport), "PYTHONUNBUFFERED": "1"}
+    script = tmp / "bite.json"
+    script.write_text(json.dumps([{"type": "bite", "t_s": BITE_AT_S, "depth_deg": 25.0, "duration_s": 4.0}]))
+    log_gw = open(tmp / "gateway.log", "wb")  # noqa: SIM115 - closed at teardown
+    log_dev = open(tmp / "devices.log", "wb")  # noqa: SIM115
+    gw = subprocess.Popen(
+        [sys.executable, "-m", "gateway", "--data-dir", str(tmp / "data"), "--port", str(http), "--listen", endpoint],
+        cwd=REPO, env=env, stdout=log_gw, stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    sysm = System(f"http://127.0.0.1:{http}", "", tmp / "data", [gw])
+    try:
+        deadline = time.monotonic() + 120
+        while True:
+            try:
+                get_json(sysm.base + "/api/health")
+                break
+            except OSError:
+                assert gw.poll() is None, (tmp / "gateway.log").read_text()
+                assert time.monotonic() < deadline, "gateway did not start"
+                time.sleep(0.2)
+        sysm.token = (tmp / "data" / "api_token").read_text().strip()
+        dev = subprocess.Popen(
+            [sys.executable, "-m", "devices", "--connect", endpoint, "--only", "rod", "--only", "ball", "--seed", "7",
+             "--no-random-events", "--rod-args", f"--script {script} --no-progress"],
+            cwd=REPO, env=env, stdout=log_dev, stderr=subprocess.STDOUT,
+        )  # fmt: skip
+        sysm.procs.append(dev)
+        sysm.started_s = time.monotonic()
+        while {d["device_id"] for d in get_json(sysm.base + "/api/devices") if d.get("online")} < {"rod-1", "ball-1"}:
+            assert dev.poll() is None, (tmp / "devices.log").read_text()
+            assert time.monotonic() - sysm.started_s < 120, "devices did not come online"
+            time.sleep(0.2)
+        yield sysm
+    finally:
+        for p in reversed(sysm.procs):
+            _stop(p)
+        log_gw.close()
+        log_dev.close()
+
+
+@dataclass
+class Browser:
+    page: Any
+    requests: list[str]
+    console: list[str]
+    page_errors: list[str]
+
+    def shot(self, name: str) -> Path:
+        OUT.mkdir(exist_ok=True)
+        path = OUT / f"{name}.png"
+        self.page.evaluate("window.scrollTo(0, 0)")  # else the sticky header lands mid-page in full-page shots
+        self.page.screenshot(path=str(path), full_page=True)
+        return path
+
+
+@pytest.fixture(scope="module")
+def browser(system: System, chromium_path: Path) -> Iterator[Browser]:
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=str(chromium_path), args=CHROMIUM_ARGS)
+        ctx = b.new_context(viewport={"width": 1400, "height": 1000})
+        rec = Browser(ctx.new_page(), [], [], [])
+        ctx.on("request", lambda r: rec.requests.append(r.url))
+        rec.page.on("console", lambda m: rec.console.append(f"{m.type}: {m.text}"))
+        rec.page.on("pageerror", lambda e: rec.page_errors.append(str(e)))
+        yield rec
+        ctx.close()
+        b.close()
