@@ -370,6 +370,13 @@ class HookFilter(AttitudeFilter):
     def quaternion(self) -> FloatArray:
         return attitude_and_rate(self.ekf.x)[0]
 
+    def seed_gyro_bias(self, bias_rad_s: FloatArray, std_rad_s: float = 0.002) -> None:
+        """Start the bias estimate from a rest window's mean gyro (and trust it to `std_rad_s`)."""
+        self.ekf.x[_BIAS] = np.asarray(bias_rad_s, dtype=np.float64)
+        self.ekf.P[_BIAS, :] = 0.0
+        self.ekf.P[:, _BIAS] = 0.0
+        self.ekf.P[_BIAS, _BIAS] = std_rad_s**2
+
     @property
     def gyro_bias_rad_s(self) -> FloatArray:
         """Current gyroscope bias estimate, rad/s, body frame."""

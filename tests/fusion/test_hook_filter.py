@@ -9,6 +9,9 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from devices.common import EARTH_FIELD_ENU_UT, G_M_S2, ImuErrorModel, SensorModel
 from devices.hook_physics import HookPhysicsSettings, HookScenario, TrolleyMove, simulate
@@ -97,3 +100,28 @@ def test_rope_length_matters():
     err_bad = rmse_deg((hook.swing_angle(bad) - truth.swing_rad)[scored])
     assert err_good <= 0.2
     assert err_bad > 1.5 * err_good
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    arrays(np.float64, (200, 3), elements=st.floats(-0.5, 0.5)),
+    arrays(np.float64, (200, 3), elements=st.floats(-3.0, 3.0)),
+)
+def test_any_input_gives_unit_quaternions_and_a_rope_below_horizontal(gyr_noise, acc_noise):
+    """Arbitrary (even non-physical) rates and forces never break the state: unit q, Θ < 90°."""
+    acc = np.array([0.0, 0.0, G_M_S2]) + acc_noise
+    f = HookFilter(use_mag=False)
+    f.initialise(np.array([0.0, 0.0, G_M_S2]), None)
+    q = f.run(gyr_noise, acc, None, DT_S)
+    assert np.all(np.isfinite(q))
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-9)
+    assert np.all(hook.swing_angle(q) < math.pi / 2)
+
+
+def test_seeded_bias_is_used():
+    truth, gyr, acc, mag = swing_data(seed=5, duration_s=1.0, kick_m_s2=0.0)
+    f = started_filter(acc, mag)
+    f.seed_gyro_bias(gyr[:50].mean(axis=0))
+    np.testing.assert_allclose(f.gyro_bias_rad_s, gyr[:50].mean(axis=0))
+    q = f.run(gyr, acc, None, DT_S)
+    assert float(np.degrees(np.max(hook.swing_angle(q)))) < 0.5
