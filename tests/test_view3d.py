@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import socket
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +14,11 @@ from hypothesis import strategies as st
 
 from gateway import schemas
 from gateway.config import Settings
+from gateway.fusion import broad
 from gateway.fusion import quaternion as quat
+from gateway.fusion.registry import make_filter
+from gateway.replay_view import euler_deg, replay_data, run
+from gateway.replay_view import main as replay_main
 from gateway.view3d import View3D, hook_geometry, raw_attitude, rod_curve, segments
 
 angles = st.floats(-1.2, 1.2)
@@ -96,10 +101,10 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def test_scene_follows_attitude_truth_and_picker(tmp_path: object) -> None:
+def test_scene_follows_attitude_truth_and_picker(tmp_path: Path) -> None:
     """Feed the view like the hub and the bus do; one step() draws the picked rod from the fused quaternion and
     the truth ghost from the truth packet; the picker lists the devices; raw appears when switched on."""
-    view = View3D(Settings(viser_port=_free_port(), data_dir=tmp_path))  # type: ignore[arg-type]
+    view = View3D(Settings(viser_port=_free_port(), data_dir=tmp_path))
     try:
         q = quat.from_euler(0.0, math.radians(20), 0.5)
         att = schemas.Attitude(device_id="rod-1", kind="rod", seq=1, t_us=1, quat_wxyz=tuple(q), roll_rad=0.0,
@@ -122,3 +127,73 @@ def test_scene_follows_attitude_truth_and_picker(tmp_path: object) -> None:
         assert "rod-1" in view.status.content and "pitch 20.0" in view.status.content
     finally:
         view.stop()
+
+
+# -- replay view ----------------------------------------------------------------------------------------------------
+
+
+def test_euler_deg_unwraps_yaw_and_keeps_gaps() -> None:
+    """Yaw 170° -> 190° (wrapped to -170°) is shown continuous; a lost reference row stays NaN."""
+    yaw = np.radians([170.0, 180.0, 190.0])
+    q = quat.from_euler(np.zeros(3), np.radians([5.0, 5.0, 5.0]), yaw)
+    q = np.vstack([q, np.full((1, 4), np.nan)])
+    e = euler_deg(q)
+    assert e[:3, 2] == pytest.approx([170.0, 180.0, 190.0], abs=1e-9)
+    assert e[:3, 1] == pytest.approx([5.0, 5.0, 5.0], abs=1e-9)
+    assert np.isnan(e[3]).all()
+
+
+def _trial(q_ref: np.ndarray, rate_hz: float = 100.0) -> broad.Trial:
+    n = q_ref.shape[0]
+    z = np.zeros((n, 3))
+    return broad.Trial("t", rate_hz, z, z, z, q_ref, z, np.zeros(n, dtype=bool))
+
+
+def test_replay_data_error_is_the_rotation_between_estimate_and_reference() -> None:
+    """Estimate = reference turned 5° about body x: error 5° everywhere the reference exists."""
+    q_ref = quat.from_euler(np.zeros(4), np.linspace(0.0, 0.5, 4), np.linspace(-1.0, 1.0, 4))
+    q_est = quat.multiply(q_ref, quat.from_axis_angle([1.0, 0.0, 0.0], math.radians(5.0)))
+    q_ref[2] = np.nan
+    d = replay_data(_trial(q_ref), q_est)
+    assert d.error_deg[[0, 1, 3]] == pytest.approx([5.0, 5.0, 5.0], abs=1e-9)
+    assert np.isnan(d.error_deg[2])
+    assert d.t_s == pytest.approx([0.0, 0.01, 0.02, 0.03])
+    assert d.index(0.016) == 2 and d.index(-1.0) == 0 and d.index(99.0) == 3
+    w = d.window(0.015, 0.006)
+    assert (w.start, w.stop) == (1, 3)
+
+
+def test_replay_loads_a_gateway_recording(tmp_path: Path) -> None:
+    """A .rigrec of a simulated rod (imu + reel records): the rod's IMU samples become the trial, the filter runs,
+    the estimate has unit norm; no optical reference, so no error."""
+    from gateway.recording.format import Record, write_recording
+    from tests.gateway.conftest import rod_messages
+
+    msgs = rod_messages(1.0)
+    path = tmp_path / "rod.rigrec"
+    write_recording(path, [Record(k, p, i * 1000) for i, (k, p) in enumerate(msgs)], {"source": "test"})
+    n_imu = sum(1 for k, _ in msgs if k.endswith("/imu"))
+    data = run(path, "mahony", "6D")
+    assert data.q_est.shape == (5 * n_imu, 4)
+    assert np.linalg.norm(data.q_est, axis=1) == pytest.approx(np.ones(5 * n_imu), abs=1e-9)
+    assert np.isnan(data.error_deg).all()
+    assert abs(data.euler_est_deg[-1, 1]) > 5.0  # the rod rests tip-up in its holder: pitch well above 0
+
+
+def test_replay_on_broad_matches_the_filter_run(broad_dir: Path) -> None:
+    """First 4 s of a BROAD trial: the replay's estimate error is the evaluate error (same filter, same start)."""
+    path = sorted(broad_dir.glob("01_*.mat"))[0]
+    trial = broad.load_trial(path).slice(0, 1144)
+    q_est = broad.run_filter(make_filter("mahony", use_mag=True), trial, "9D")
+    d = replay_data(trial, q_est)
+    ok = np.isfinite(d.error_deg)
+    expected = np.degrees(quat.angle_between(q_est[ok], trial.quat_ref[ok]))
+    assert d.error_deg[ok] == pytest.approx(expected, abs=1e-12)
+    assert np.nanmedian(d.error_deg) < 20.0  # a sane filter on BROAD (heading offset included)
+
+
+def test_replay_cli_help_and_missing_file(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        replay_main(["--help"])
+    assert exc.value.code == 0 and "BROAD" in capsys.readouterr().out
+    assert replay_main(["/nonexistent/file.mat"]) == 2

@@ -1,0 +1,198 @@
+"""Replay view: open a recording, run a filter over it and scrub through it in viser (seed 004's playback).
+
+    python -m gateway.replay_view ../shared/data/broad/01_undisturbed_slow_rotation_A.mat
+    python -m gateway.replay_view var/recordings/session.rigrec --filter mahony --port 8092
+
+Input: a BROAD `.mat` trial (`gateway.fusion.broad.load_trial`) or a `.rigrec` recording / directory of them
+(`gateway.recording`: the first device's IMU packets, with its optical reference if recorded). The filter runs
+once over the whole trial; then a time slider (and Play) drives the 3-D pose: the estimate as a solid body frame,
+the reference as a grey ghost. A uPlot shows roll, pitch, yaw (unwrapped) of both in a window around the slider
+time, plus the total angle error. Binds 127.0.0.1 by default; the share button is hidden.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from tqdm import tqdm
+
+from gateway.fusion import broad
+from gateway.fusion import quaternion as quat
+from gateway.fusion.registry import FILTERS, make_filter
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ReplayData:
+    """Per-sample arrays of one trial for display: time (s), estimate and reference (wxyz, NaN where the
+    reference is lost), their Euler angles in degrees (yaw unwrapped) and the total angle error (deg)."""
+
+    name: str
+    t_s: FloatArray
+    q_est: FloatArray
+    q_ref: FloatArray
+    euler_est_deg: FloatArray
+    euler_ref_deg: FloatArray
+    error_deg: FloatArray
+
+    def index(self, t_s: float) -> int:
+        """Sample nearest to `t_s`, clamped to the trial."""
+        return int(np.clip(np.searchsorted(self.t_s, t_s), 0, len(self.t_s) - 1))
+
+    def window(self, t_s: float, half_width_s: float) -> slice:
+        """Samples within ±half_width_s of `t_s`."""
+        lo, hi = np.searchsorted(self.t_s, [t_s - half_width_s, t_s + half_width_s])
+        return slice(int(lo), int(hi))
+
+
+def euler_deg(q: FloatArray) -> FloatArray:
+    """(N, 3) roll, pitch, yaw in degrees (design.md Z-Y-X), yaw unwrapped; NaN rows stay NaN."""
+    out = np.full((q.shape[0], 3), np.nan)
+    ok = np.all(np.isfinite(q), axis=1)
+    if ok.any():
+        e = quat.to_euler(q[ok])
+        e[:, 2] = np.unwrap(e[:, 2])
+        out[ok] = np.degrees(e)
+    return out
+
+
+def replay_data(trial: broad.Trial, q_est: FloatArray) -> ReplayData:
+    """Display arrays from a trial and the estimate of a filter run over it."""
+    ok = np.all(np.isfinite(trial.quat_ref), axis=1)
+    err = np.full(trial.n, np.nan)
+    if ok.any():
+        err[ok] = np.degrees(quat.angle_between(q_est[ok], trial.quat_ref[ok]))
+    return ReplayData(trial.name, np.arange(trial.n) / trial.rate_hz, q_est, trial.quat_ref, euler_deg(q_est),
+                      euler_deg(trial.quat_ref), err)  # fmt: skip
+
+
+def load(path: Path) -> broad.Trial:
+    """A BROAD `.mat` trial, or the first device of a `.rigrec` recording (file or directory)."""
+    if path.suffix == ".mat":
+        return broad.load_trial(path)
+    from gateway.recording.format import read_recording
+    from gateway.recording.score import recorded_trial
+
+    return recorded_trial(read_recording(path), name=path.stem).trial
+
+
+def run(path: Path, filter_name: str, mode: broad.Mode) -> ReplayData:
+    """Load, run the filter, compute display arrays (with a progress bar over the stages)."""
+    with tqdm(total=3, desc=f"replay {path.name}", unit="step") as bar:
+        trial = load(path)
+        bar.update()
+        use_mag = mode == "9D" and bool(np.all(np.isfinite(trial.mag_uT)))
+        q_est = broad.run_filter(make_filter(filter_name, use_mag=use_mag), trial, "9D" if use_mag else "6D")
+        bar.update()
+        data = replay_data(trial, q_est)
+        bar.update()
+    return data
+
+
+def serve(data: ReplayData, host: str, port: int, plot_half_width_s: float = 10.0) -> None:  # pragma: no cover
+    """viser server with the scrubbing GUI; blocks until Ctrl-C."""
+    import viser
+    import viser.uplot as uplot
+
+    server = viser.ViserServer(host=host, port=port, label=f"replay {data.name}", verbose=False)
+    server.gui.configure_theme(show_share_button=False)
+    server.initial_camera.position = (0.8, -0.8, 0.6)
+    server.initial_camera.look_at = (0.0, 0.0, 0.0)
+    server.scene.add_grid("/ground", width=2.0, height=2.0, cell_size=0.1, position=(0.0, 0.0, -0.3))
+    est = server.scene.add_frame("/estimate", axes_length=0.3, axes_radius=0.012)
+    server.scene.add_box("/estimate/body", color=(30, 110, 220), dimensions=(0.3, 0.18, 0.04))
+    ref = server.scene.add_frame("/reference", axes_length=0.36, axes_radius=0.005)
+    server.scene.add_box("/reference/body", color=(170, 170, 170), dimensions=(0.32, 0.2, 0.02), opacity=0.35)
+    t_end = float(data.t_s[-1])
+    gui = server.gui
+    gui.add_markdown(f"**{data.name}** — blue: estimate, grey: reference · {t_end:.1f} s")
+    slider = gui.add_slider("time (s)", min=0.0, max=t_end, step=0.01, initial_value=0.0)
+    playing = gui.add_checkbox("Play", initial_value=False)
+    speed = gui.add_dropdown("Speed", options=("0.25x", "0.5x", "1x", "2x", "5x"), initial_value="1x")
+    readout = gui.add_markdown("")
+    names = ("roll", "pitch", "yaw")
+    colors = ("#e53e3e", "#2f855a", "#2b6cb0")
+    series = [uplot.Series(label="t (s)")]
+    for n, c in zip(names, colors, strict=True):
+        series.append(uplot.Series(label=f"{n} est", stroke=c, width=1.5))
+        series.append(uplot.Series(label=f"{n} ref", stroke=c, width=1.0, dash=(4.0, 4.0)))
+    series.append(uplot.Series(label="error", stroke="#000", width=1.0))
+
+    def plot_data(t_s: float) -> tuple[FloatArray, ...]:
+        w = data.window(t_s, plot_half_width_s)
+        step = max(1, (w.stop - w.start) // 1500)  # keep the browser fast
+        cols = [data.t_s[w][::step]]
+        for k in range(3):
+            cols += [data.euler_est_deg[w, k][::step], data.euler_ref_deg[w, k][::step]]
+        cols.append(data.error_deg[w][::step])
+        return tuple(np.ascontiguousarray(c) for c in cols)
+
+    plot = gui.add_uplot(plot_data(0.0), tuple(series), title="attitude (deg) around the slider time",
+                         scales={"x": uplot.Scale(time=False, auto=True)}, aspect=1.4)  # fmt: skip
+
+    def show(t_s: float) -> None:
+        i = data.index(t_s)
+        est.wxyz = tuple(data.q_est[i])
+        ok = bool(np.all(np.isfinite(data.q_ref[i])))
+        ref.visible = ok
+        if ok:
+            ref.wxyz = tuple(data.q_ref[i])
+        e = data.euler_est_deg[i]
+        err = data.error_deg[i]
+        readout.content = (f"t = {data.t_s[i]:.2f} s · roll {e[0]:.1f}° pitch {e[1]:.1f}° yaw {e[2]:.1f}°"
+                           + ("" if math.isnan(err) else f" · error {err:.2f}°"))  # fmt: skip
+        plot.data = plot_data(t_s)
+
+    @slider.on_update
+    def _(_: object) -> None:
+        show(slider.value)
+
+    show(0.0)
+    print(f"replay view on http://{host}:{server.get_port()} (Ctrl-C to stop)")
+    stop = threading.Event()
+    try:
+        last = time.monotonic()
+        while not stop.wait(0.05):
+            now = time.monotonic()
+            if playing.value:
+                t = slider.value + (now - last) * float(speed.value.rstrip("x"))
+                slider.value = t if t <= t_end else 0.0  # type: ignore[misc]
+            last = now
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m gateway.replay_view", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    p.add_argument("path", type=Path, help="BROAD .mat file, or a .rigrec recording (file or directory)")
+    p.add_argument("--filter", default="default", choices=sorted(FILTERS), help="attitude filter (default: default)")
+    p.add_argument("--mode", choices=["6D", "9D"], default="9D", help="use the magnetometer (9D) or not (default 9D)")
+    p.add_argument("--host", default="127.0.0.1", help="viser bind address (default: 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8090, help="viser port (default: 8090; the next free one if taken)")
+    p.add_argument("--window", type=float, default=10.0, help="plot half-width around the slider, s (default: 10)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if not args.path.exists():
+        print(f"no such file: {args.path}")
+        return 2
+    data = run(args.path, args.filter, args.mode)
+    serve(data, args.host, args.port, args.window)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
