@@ -58,7 +58,9 @@ def bench_cost(n_rods: int, n_blocks: int, block: int, seed: int) -> dict[str, f
     return out
 
 
-def bench_detection(n_rods: int, minutes: float, block: int, seed: int, use_acc: bool) -> dict[str, float]:
+def bench_detection(
+    n_rods: int, minutes: float, block: int, seed: int, use_acc: bool, sensitivity: int = 3
+) -> dict[str, float]:
     rng = np.random.default_rng(seed)
     bank = RodBank(RodSettings(), n_rods, seed=seed)
     horizon = minutes * 60.0
@@ -80,7 +82,7 @@ def bench_detection(n_rods: int, minutes: float, block: int, seed: int, use_acc:
                 bank.inject(Handling(mid, 4.0, math.radians(rng.uniform(-40, 40)), math.radians(rng.uniform(-25, 25))),
                             i)  # fmt: skip
             t += gap
-    rods = [RodAlarms(f"rod-{i}", RodThresholds()) for i in range(n_rods)]
+    rods = [RodAlarms(f"rod-{i}", RodThresholds(sensitivity=sensitivity)) for i in range(n_rods)]
     alarms: list[list[float]] = [[] for _ in range(n_rods)]
     n_blocks = int(horizon * RATE_HZ) // block
     for _ in tqdm(range(n_blocks), desc=f"detection ({'pitch+acc' if use_acc else 'pitch only'})", leave=False):
@@ -116,7 +118,8 @@ def main() -> None:
     ap.add_argument("--rods", type=int, default=50, help="simulated rods in the detection benchmark")
     ap.add_argument("--minutes", type=float, default=10.0, help="simulated minutes per rod")
     ap.add_argument("--block", type=int, default=10, help="samples per block (100 Hz)")
-    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--seed", type=int, default=5, help="seeds 1-2 were used to tune the cue; 5 is held out")
+    ap.add_argument("--sensitivity", type=int, default=3, choices=range(1, 6), help="bite sensitivity step")
     ap.add_argument("--skip-cost", action="store_true")
     ap.add_argument("--skip-detection", action="store_true")
     a = ap.parse_args()
@@ -129,8 +132,9 @@ def main() -> None:
               f"1000 rods x 100 Hz need {share:.0%} of one core at the median")  # fmt: skip
     if not a.skip_detection:
         for use_acc in (True, False):
-            d = bench_detection(a.rods, a.minutes, a.block, a.seed, use_acc)
-            print(f"detection ({'pitch + accel cue' if use_acc else 'pitch only'}): {d['detected']}/{d['bites']} "
+            d = bench_detection(a.rods, a.minutes, a.block, a.seed, use_acc, a.sensitivity)
+            print(f"detection (sensitivity {a.sensitivity}, {'pitch + accel cue' if use_acc else 'pitch only'}): "
+                  f"{d['detected']}/{d['bites']} "
                   f"bites, latency p50 {d['p50_ms']:.0f} ms, p99 {d['p99_ms']:.0f} ms, max {d['max_ms']:.0f} ms; "
                   f"{d['false_alarms']} false alarms ({d['false_per_rod_h']:.2f} per rod-hour)")  # fmt: skip
 
