@@ -59,7 +59,7 @@ def start_gateway(
     )  # fmt: skip
 
 
-def wait_http(port: int, timeout_s: float = 60.0) -> None:
+def wait_http(port: int, timeout_s: float = 180.0) -> None:
     """Wait until the gateway's /api/health answers."""
     import httpx
 
