@@ -6,13 +6,14 @@ Here the tilt comes from the pendulum dynamics instead: gravity sets the rope's 
 gyroscope (which measures the rope's swing rate) reveals where "down" is, and the tension magnitude
 `T/m = g cos Θ + l |n'|²` (accelerometer z) pins the swing amplitude (seed 001 Fig. 1, eq. 6).
 
-State (10): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
+State (12): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
 `n_z = sqrt(1 - |p|²)`); `v = p'`; the hook heading about the rope `α` (swing-twist split
 `q = q_swing(n) ⊗ q_z(α)`, see gateway.fusion.hook) and its rate `α'`; the gyroscope bias `b` (rad/s, body);
-the offset of the tension channel (m/s²).
+the offset of the tension channel (m/s²); the equilibrium tilt `e` (steady horizontal force / g, e.g. wind).
 
-* Predict: RK4 of the free pendulum `p'' = -(g/l) n_z p - |n'|² p` (boom tip assumed still: trolley moves and
-  wind enter as process noise on `v`), `α` integrates `α'`; `α'`, `b` and the offset random-walk.
+* Predict: RK4 of the pendulum `p'' = -(g/l)(n_z p - e + (p·e) p) - |n'|² p` (boom tip assumed still: trolley
+  moves and gusts enter as process noise on `v`), `α` integrates `α'`; `α'`, `b`, offset and `e` random-walk.
+  `e` is observable because tension `g n_z` then has a component at the swing frequency ∝ `e · amplitude`.
 * Update: gyroscope `ω_b(n, n', α, α') + b` (exact kinematics of the split, as in devices.hook_physics);
   accelerometer z `T/m + [ω' × r + ω × (ω × r)]_z + offset` (lever arm `r` of the IMU from the rope axis) after
   subtracting the zero-g offset calibrated at rest; in 9D the magnetometer `Rᵀ m_ref` for heading only (its
@@ -39,7 +40,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 from gateway.fusion.base import AttitudeFilter, FloatArray
 from gateway.fusion.quaternion import njit
 
-N_STATE = 10
+N_STATE = 12
 _P, _V, _ALPHA, _ALPHA_RATE, _BIAS, _ACC_BIAS = slice(0, 2), slice(2, 4), 4, 5, slice(6, 9), 9
 
 
@@ -57,12 +58,14 @@ class HookFilterSettings:
     torsion_accel_psd: float = 1.0  # (rad/s²)²/Hz: the hook's twist is driven by the rope's torsion spring
     gyro_bias_psd: float = 1e-8  # (rad/s)²/s: bias random walk
     acc_bias_psd: float = 1e-6  # (m/s²)²/s: drift of the tension channel's offset
+    equilibrium_psd: float = 1e-6  # rad²/s: drift of the equilibrium tilt (steady wind force / g)
     surprise_gate: float = 16.0  # χ² (2 dof) gate on the swing-rate innovation for adaptive process noise
     init_swing_std: float = 0.02  # rad, per horizontal axis: hanging still at initialisation
     init_rate_std_rad_s: float = 0.02
     init_heading_std_rad: float = 0.05  # 6D: heading is a free gauge, start it tight at 0
     init_bias_std_rad_s: float = 0.03  # MPU-6050 residual start-up bias is about 1 °/s
     init_acc_offset_std_m_s2: float = 0.1  # left after the rest calibration (scale error × g, bias drift)
+    init_equilibrium_std: float = 0.002  # rad: steady wind tilt at start
 
 
 # --- model kernels (numba, scalar code per sample) ---------------------------------------------------------------
@@ -86,7 +89,7 @@ def _cross3(a: FloatArray, b: FloatArray) -> FloatArray:
 
 @njit
 def attitude_and_rate(x: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """`q = q_swing(n) ⊗ q_z(α)` and the body rate `2 vec(q* ⊗ q')` in rad/s for one state (10,)."""
+    """`q = q_swing(n) ⊗ q_z(α)` and the body rate `2 vec(q* ⊗ q')` in rad/s for one state (12,)."""
     px, py, vx, vy, alpha, alpha_rate = x[0], x[1], x[2], x[3], x[4], x[5]
     nz = np.sqrt(max(1.0 - px * px - py * py, 1e-6))
     vz = -(px * vx + py * vy) / nz
@@ -104,26 +107,29 @@ def attitude_and_rate(x: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 
 @njit
-def _pendulum_accel(px: float, py: float, vx: float, vy: float, g_over_l: float) -> tuple[float, float]:
-    """`p'' = -(g/l) n_z p - |n'|² p`: the horizontal part of the free spherical pendulum's `n''`."""
+def _pendulum_accel(
+    px: float, py: float, vx: float, vy: float, g_over_l: float, ex: float, ey: float
+) -> tuple[float, float]:
+    """`p'' = -(g/l)(n_z p - e + (p·e) p) - |n'|² p`: horizontal part of `n''` for a pendulum whose equilibrium
+    is tilted by a steady horizontal force `g e` per unit mass (steady wind); `e = 0` is the free pendulum."""
     nz = np.sqrt(max(1.0 - px * px - py * py, 1e-6))
     vz = -(px * vx + py * vy) / nz
-    k = g_over_l * nz + vx * vx + vy * vy + vz * vz
-    return -k * px, -k * py
+    k = g_over_l * (nz + px * ex + py * ey) + vx * vx + vy * vy + vz * vz
+    return -k * px + g_over_l * ex, -k * py + g_over_l * ey
 
 
 @njit
 def process(x: FloatArray, dt_s: float, g_over_l: float) -> FloatArray:
-    """State (10,) after `dt_s`: RK4 of the free pendulum `p'' = -(g/l) n_z p - |n'|² p`, α integrates α'."""
-    px, py, vx, vy = x[0], x[1], x[2], x[3]
-    a1x, a1y = _pendulum_accel(px, py, vx, vy, g_over_l)
+    """State (12,) after `dt_s`: RK4 of the pendulum (`_pendulum_accel`), α integrates α'."""
+    px, py, vx, vy, ex, ey = x[0], x[1], x[2], x[3], x[10], x[11]
+    a1x, a1y = _pendulum_accel(px, py, vx, vy, g_over_l, ex, ey)
     h = 0.5 * dt_s
-    a2x, a2y = _pendulum_accel(px + h * vx, py + h * vy, vx + h * a1x, vy + h * a1y, g_over_l)
+    a2x, a2y = _pendulum_accel(px + h * vx, py + h * vy, vx + h * a1x, vy + h * a1y, g_over_l, ex, ey)
     a3x, a3y = _pendulum_accel(
-        px + h * (vx + h * a1x), py + h * (vy + h * a1y), vx + h * a2x, vy + h * a2y, g_over_l
+        px + h * (vx + h * a1x), py + h * (vy + h * a1y), vx + h * a2x, vy + h * a2y, g_over_l, ex, ey
     )
     a4x, a4y = _pendulum_accel(
-        px + dt_s * (vx + h * a2x), py + dt_s * (vy + h * a2y), vx + dt_s * a3x, vy + dt_s * a3y, g_over_l
+        px + dt_s * (vx + h * a2x), py + dt_s * (vy + h * a2y), vx + dt_s * a3x, vy + dt_s * a3y, g_over_l, ex, ey
     )
     out = x.copy()
     out[0] = px + dt_s / 6.0 * (vx + 2.0 * (vx + h * a1x) + 2.0 * (vx + h * a2x) + (vx + dt_s * a3x))
@@ -136,7 +142,7 @@ def process(x: FloatArray, dt_s: float, g_over_l: float) -> FloatArray:
 
 @njit
 def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
-    """Predicted `[gyr (3), acc_z (1), mag (3, zero unless params[8])]` (7,) for one state (10,).
+    """Predicted `[gyr (3), acc_z (1), mag (3, zero unless params[8])]` (7,) for one state (12,).
 
     acc_z is the tension `l |n'|² + g n_z` plus the lever-arm terms `[ω' × r + ω × (ω × r)]_z`, with `ω'` the
     body-rate derivative along the pendulum's own motion (central difference over ±1 ms, twist acceleration 0).
@@ -147,7 +153,7 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
     px, py, vx, vy = x[0], x[1], x[2], x[3]
     nz = np.sqrt(max(1.0 - px * px - py * py, 1e-6))
     vz = -(px * vx + py * vy) / nz
-    ax, ay = _pendulum_accel(px, py, vx, vy, g / l)
+    ax, ay = _pendulum_accel(px, py, vx, vy, g / l, x[10], x[11])
     h = 1e-3
     step = np.zeros(N_STATE)
     step[0], step[1], step[2], step[3], step[4] = vx, vy, ax, ay, x[5]
@@ -165,7 +171,7 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
 
 @njit
 def process_jacobian(x: FloatArray, dt_s: float, g_over_l: float) -> FloatArray:
-    """Forward-difference Jacobian (10, 10) of `process` at `x` (step 1e-7)."""
+    """Forward-difference Jacobian (12, 12) of `process` at `x` (step 1e-7)."""
     eps = 1e-7
     f0 = process(x, dt_s, g_over_l)
     f_jac = np.empty((N_STATE, N_STATE))
@@ -178,7 +184,7 @@ def process_jacobian(x: FloatArray, dt_s: float, g_over_l: float) -> FloatArray:
 
 @njit
 def measurement_jacobian(x: FloatArray, params: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """`(h(x), ∂h/∂x)` (7,), (7, 10) by forward differences; the magnetometer rows only see the heading α."""
+    """`(h(x), ∂h/∂x)` (7,), (7, 12) by forward differences; the magnetometer rows only see the heading α."""
     eps = 1e-7
     h0 = measurement(x, params)
     h_jac = np.empty((7, N_STATE))
@@ -263,7 +269,7 @@ def ekf_run(
 class HookFilter(AttitudeFilter):
     """Pendulum-aware EKF for the crane hook (see the module docstring). `update()` runs filterpy's
     ExtendedKalmanFilter on the numba model; `run()` the numba twin `ekf_run` (same operation order).
-    State: `self.ekf.x` (10,), `self.ekf.P` (10, 10)."""
+    State: `self.ekf.x` (12,), `self.ekf.P` (12, 12)."""
 
     name = "hook"
 
@@ -277,6 +283,7 @@ class HookFilter(AttitudeFilter):
             [0.0, 0.0, s.swing_accel_psd, s.swing_accel_psd, 0.0, s.torsion_accel_psd]
             + [s.gyro_bias_psd] * 3
             + [s.acc_bias_psd]
+            + [s.equilibrium_psd] * 2
         )
         self._initialised = False
         self._reset(heading_rad=0.0, heading_std_rad=s.init_heading_std_rad)
@@ -303,6 +310,7 @@ class HookFilter(AttitudeFilter):
             + [heading_std_rad, 0.05]
             + [s.init_bias_std_rad_s] * 3
             + [s.init_acc_offset_std_m_s2]
+            + [s.init_equilibrium_std] * 2
         )
         self.ekf.P = np.diag(std**2)
 
