@@ -69,6 +69,7 @@ def controller_settings_for(rod: RodSettings, theta2_load_fraction: float = 0.5)
         line_breaking_n=rod.breaking_strength_n,
         max_in_m_s=rod.max_reel_speed_m_s,
         max_out_m_s=rod.max_reel_speed_m_s,
+        cruise_in_m_s=rod.max_reel_speed_m_s,
         tension_curve=curve,
     )
 
@@ -96,6 +97,8 @@ class FightResult:
     time_s: float
     max_tension_frac: float
     mean_tension_frac: float
+    before_enable: bool = False
+    """The fight ended (line broke) before the policy was enabled: no policy could have acted."""
 
 
 def run_fights(
@@ -194,6 +197,7 @@ def run_fights(
             float(done_t[i]),
             float(broke_frac[i]),
             float(t_sum[i] / max(t_cnt[i], 1)),
+            bool(done_t[i] < detect_delay_s),
         )
         for i in range(n)
     ]
@@ -207,6 +211,7 @@ def summarise(results: list[FightResult]) -> dict[str, float]:
         "fights": len(results),
         "landed": len(landed),
         "escaped": sum(r.outcome == "escaped" for r in results),
+        "escaped_before_enable": sum(r.outcome == "escaped" and r.before_enable for r in results),
         "fighting": sum(r.outcome == "fighting" for r in results),
         "mean_tension_frac": float(np.mean([r.mean_tension_frac for r in results])),
         "max_tension_frac": float(np.max([r.max_tension_frac for r in results])),
@@ -263,12 +268,13 @@ def main(argv: list[str] | None = None) -> int:
         f"drag {args.drag if args.drag is not None else RodSettings().drag_n} N, "
         f"drag control {'off' if args.no_drag_control else 'on'}, horizon {args.horizon:g} s"
     )
-    print("| policy | landed | escaped (line broke) | still fighting | mean T/Tbreak | p95 max | max T/Tbreak "
-          "| land time mean (s) | median (s) | wall (s) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| policy | landed | escaped (line broke) | of which before enable | still fighting | mean T/Tbreak "
+          "| p95 max | max T/Tbreak | land time mean (s) | median (s) | wall (s) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for policy, s in summaries.items():
         print(
-            f"| {policy} | {s['landed']} | {s['escaped']} | {s['fighting']} | {s['mean_tension_frac']:.2f} "
+            f"| {policy} | {s['landed']} | {s['escaped']} | {s['escaped_before_enable']} | {s['fighting']} "
+            f"| {s['mean_tension_frac']:.2f} "
             f"| {s['p95_max_tension_frac']:.2f} | {s['max_tension_frac']:.2f} | {s['land_time_mean_s']:.1f} "
             f"| {s['land_time_median_s']:.1f} | {s['wall_s']:.1f} |"
         )

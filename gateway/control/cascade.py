@@ -45,10 +45,13 @@ class Cascade:
         self.inner.reset(output)
         self.rate_setpoint = 0.0
 
-    def update(self, angle_ref: float, angle: float, rate: float, dt_s: float) -> float:
-        """One step: angles in rad, `rate` = measured dθ/dt in rad/s; returns the saturated actuator command."""
+    def update(self, angle_ref: float, angle: float, rate: float, dt_s: float, feedforward: float = 0.0) -> float:
+        """One step: angles in rad, `rate` = measured dθ/dt in rad/s; returns the saturated actuator command.
+
+        `feedforward` is added to the inner loop's output before its saturation (so its anti-windup sees it).
+        """
         self.rate_setpoint = self.outer.update(angle_ref, angle, dt_s)
-        u = self.inner.update(self.rate_setpoint, rate, dt_s)
+        u = self.inner.update(self.rate_setpoint, rate, dt_s, feedforward)
         s = self.settings.rate
         if u in (s.output_min, s.output_max) and self.settings.angle.ki != 0.0:
             # Inner loop saturated: undo the outer integral's growth from this step (conditional integration

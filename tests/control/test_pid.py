@@ -150,3 +150,9 @@ def test_cascade_inner_saturation_freezes_outer_integral():
     for _ in range(100):
         assert c.update(1.0, 0.0, 0.0, DT) == pytest.approx(0.1)
     assert c.outer.state.integral == pytest.approx(0.0, abs=1e-12)
+
+
+def test_cascade_feedforward_is_added_and_saturated():
+    c = Cascade(CascadeSettings(PidSettings(1.0), PidSettings(1.0, output_min=-1.0, output_max=1.0)))
+    assert c.update(0.2, 0.2, 0.0, DT, feedforward=0.5) == pytest.approx(0.5)
+    assert c.update(0.2, 0.2, 0.0, DT, feedforward=3.0) == pytest.approx(1.0)
