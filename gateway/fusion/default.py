@@ -113,11 +113,15 @@ def attitude_from_rest(acc_m_s2: FloatArray, mag_uT: FloatArray | None) -> Float
     if n == 0.0:
         raise ValueError("accelerometer reading is zero; cannot find the vertical")
     ax, ay, az = a / n
-    # rotation by acos(az) about the horizontal axis (ay, -ax, 0); half-angle form stays exact near upside down
-    h = math.hypot(ax, ay)
-    ux, uy = (ay / h, -ax / h) if h > 0.0 else (1.0, 0.0)
-    c, s = math.sqrt(max(0.5 * (1.0 + az), 0.0)), math.sqrt(max(0.5 * (1.0 - az), 0.0))
-    q = np.array([c, s * ux, s * uy, 0.0])
+    # rotation by acos(az) about the horizontal axis (ay, -ax, 0), in the form that keeps precision: the
+    # half-vector form near level, sin/cos of the half angle (cos from sin θ = h) near upside down
+    if az >= 0.0:
+        q = np.array([1.0 + az, ay, -ax, 0.0])
+    else:
+        h = math.hypot(ax, ay)
+        s = math.sqrt(0.5 * (1.0 - az))
+        ux, uy = (ay / h, -ax / h) if h > 0.0 else (1.0, 0.0)
+        q = np.array([0.5 * h / s, s * ux, s * uy, 0.0])
     q /= np.linalg.norm(q)
     if mag_uT is None:
         return q
