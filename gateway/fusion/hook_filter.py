@@ -9,7 +9,8 @@ gyroscope (which measures the rope's swing rate) reveals where "down" is, and th
 State (12): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
 `n_z = sqrt(1 - |p|²)`); `v = p'`; the hook heading about the rope `α` (swing-twist split
 `q = q_swing(n) ⊗ q_z(α)`, see gateway.fusion.hook) and its rate `α'`; the gyroscope bias `b` (rad/s, body);
-the offset of the tension channel (m/s²); the equilibrium tilt `e` (steady horizontal force / g, e.g. wind).
+the offset of the tension channel (m/s²); the equilibrium `e` of `p` (`-f/g` for a steady horizontal force `f`
+per unit mass, e.g. wind).
 
 * Predict: RK4 of the pendulum `p'' = -(g/l)(n_z p - e + (p·e) p) - |n'|² p` (boom tip assumed still: trolley
   moves and gusts enter as process noise on `v`), `α` integrates `α'`; `α'`, `b`, offset and `e` random-walk.
@@ -58,7 +59,7 @@ class HookFilterSettings:
     torsion_accel_psd: float = 1.0  # (rad/s²)²/Hz: the hook's twist is driven by the rope's torsion spring
     gyro_bias_psd: float = 1e-8  # (rad/s)²/s: bias random walk
     acc_bias_psd: float = 1e-6  # (m/s²)²/s: drift of the tension channel's offset
-    equilibrium_psd: float = 1e-6  # rad²/s: drift of the equilibrium tilt (steady wind force / g)
+    equilibrium_psd: float = 1e-6  # rad²/s: drift of the equilibrium tilt (steady wind)
     surprise_gate: float = 16.0  # χ² (2 dof) gate on the swing-rate innovation for adaptive process noise
     init_swing_std: float = 0.02  # rad, per horizontal axis: hanging still at initialisation
     init_rate_std_rad_s: float = 0.02
@@ -111,7 +112,7 @@ def _pendulum_accel(
     px: float, py: float, vx: float, vy: float, g_over_l: float, ex: float, ey: float
 ) -> tuple[float, float]:
     """`p'' = -(g/l)(n_z p - e + (p·e) p) - |n'|² p`: horizontal part of `n''` for a pendulum whose equilibrium
-    is tilted by a steady horizontal force `g e` per unit mass (steady wind); `e = 0` is the free pendulum."""
+    is tilted to `p = e` by a steady horizontal force `-g e` per unit mass (wind); `e = 0` is the free pendulum."""
     nz = np.sqrt(max(1.0 - px * px - py * py, 1e-6))
     vz = -(px * vx + py * vy) / nz
     k = g_over_l * (nz + px * ex + py * ey) + vx * vx + vy * vy + vz * vz
