@@ -3,14 +3,15 @@
 The method follows the ideas of VQF (D. Laidig, T. Seel, "VQF: Highly accurate IMU orientation estimation with bias
 estimation and magnetic disturbance rejection", Information Fusion 91:187-204, 2023, doi:10.1016/j.inffus.2022.10.014):
 
-1. strapdown integration of the bias-corrected gyroscope into an almost-inertial frame I (eq. 3 of the paper);
-2. the accelerometer is rotated into I and low-pass filtered there, so body rotation does not smear it (sec. 3.2);
+1. strapdown integration of the bias- and scale-corrected gyroscope into an almost-inertial frame I;
+2. the accelerometer is rotated into I and low-pass filtered there, so body rotation does not smear it;
 3. the filtered specific force, rotated by the inclination correction, is turned fully vertical each sample, which
-   gives the 6D frame E6 (sec. 3.3);
+   gives the 6D frame E6;
 4. the inclination corrections are explained by a gyro bias seen through the (equally filtered) rotation matrix,
-   estimated by a 3-state Kalman filter in motion and directly from the low-passed gyro at rest (sec. 3.4, 3.5);
+   estimated by a Kalman filter in motion and directly from the low-passed gyro at rest. Our addition: per-axis
+   gyro scale errors seen through the filtered R·diag(rate) join the same filter (6 states, not the paper's 3);
 5. heading: one angle delta between E6 and ENU, pulled towards the magnetometer's horizontal direction with a first-
-   order gain, frozen while the field's norm or dip departs from a tracked reference (sec. 3.6).
+   order gain, frozen while the field's norm or dip departs from a tracked reference.
 
 All time constants are in seconds, so one set of defaults serves 50 Hz .. 1 kHz. Everything here is scalar code on
 flat float64 arrays: no allocation per sample, so `step_device` streams one device and `step_devices` loops it over N.
@@ -255,7 +256,7 @@ def _predict_bias(s: np.ndarray, c: np.ndarray) -> None:
 
 @njit(cache=True, error_model="numpy")
 def _bias_update(s: np.ndarray, prm: np.ndarray, c: np.ndarray, wk: np.ndarray) -> None:
-    """Kalman update of x = (bias rad/s, scale k) (paper sec. 3.4/3.5, extended by the scale states).
+    """Kalman update of x = (bias rad/s, scale k): the paper's bias filter, extended by the scale states.
 
     Innovation e = wk[0:3], measurement matrix H = wk[3:21] (3x6 row-major), noise variances wk[21:24].
     Scratch (no allocation per sample): P H^T at wk[24:42], S at wk[42:51], S^-1 at wk[51:60], K at wk[60:78].
@@ -385,7 +386,7 @@ def _step_sample(
         q = _qmul(0.0, 1.0, 0.0, 0.0, s[S_QI], s[S_QI + 1], s[S_QI + 2], s[S_QI + 3])
     s[S_QI], s[S_QI + 1], s[S_QI + 2], s[S_QI + 3] = q
     _normalise_q(s, S_QI)
-    # -- gyro bias (sec. 3.4/3.5)
+    # -- gyro bias and scale (measurement: the inclination correction just applied, or the gyro at rest)
     motion_on = prm[P_MOTION_BIAS_ON] != 0.0
     if motion_on or rest_on:
         qw, qx, qy, qz = _qmul(
@@ -458,7 +459,7 @@ def _step_sample(
 
 @njit(cache=True, error_model="numpy")
 def _mag_step(s: np.ndarray, prm: np.ndarray, c: np.ndarray, mx: float, my: float, mz: float, dt_s: float) -> None:
-    """Heading correction (sec. 3.6) with magnetic disturbance detection by field norm and dip."""
+    """Heading correction with magnetic disturbance detection by field norm and dip."""
     qw, qx, qy, qz = _qmul(
         s[S_QI], s[S_QI + 1], s[S_QI + 2], s[S_QI + 3], s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3]
     )
