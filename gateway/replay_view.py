@@ -113,26 +113,33 @@ def serve(data: ReplayData, host: str, port: int, plot_half_width_s: float = 10.
     server.scene.add_box("/reference/body", color=(170, 170, 170), dimensions=(0.32, 0.2, 0.02), opacity=0.35)
     t_end = float(data.t_s[-1])
     gui = server.gui
-    gui.add_markdown(f"**{data.name}** — blue: estimate, grey: reference · {t_end:.1f} s")
+    ghost = "grey: reference" if np.isfinite(data.q_ref).any() else "no reference in this recording"
+    gui.add_markdown(f"**{data.name}** — blue: estimate, {ghost} · {t_end:.1f} s")
     slider = gui.add_slider("time (s)", min=0.0, max=t_end, step=0.01, initial_value=0.0)
     playing = gui.add_checkbox("Play", initial_value=False)
     speed = gui.add_dropdown("Speed", options=("0.25x", "0.5x", "1x", "2x", "5x"), initial_value="1x")
     readout = gui.add_markdown("")
     names = ("roll", "pitch", "yaw")
     colors = ("#e53e3e", "#2f855a", "#2b6cb0")
+    has_ref = bool(np.isfinite(data.error_deg).any())  # an all-NaN series blanks the whole uPlot: leave it out
     series = [uplot.Series(label="t (s)")]
     for n, c in zip(names, colors, strict=True):
         series.append(uplot.Series(label=f"{n} est", stroke=c, width=1.5))
-        series.append(uplot.Series(label=f"{n} ref", stroke=c, width=1.0, dash=(4.0, 4.0)))
-    series.append(uplot.Series(label="error", stroke="#000", width=1.0))
+        if has_ref:
+            series.append(uplot.Series(label=f"{n} ref", stroke=c, width=1.0, dash=(4.0, 4.0)))
+    if has_ref:
+        series.append(uplot.Series(label="error", stroke="#000", width=1.0))
 
     def plot_data(t_s: float) -> tuple[FloatArray, ...]:
         w = data.window(t_s, plot_half_width_s)
         step = max(1, (w.stop - w.start) // 1500)  # keep the browser fast
         cols = [data.t_s[w][::step]]
         for k in range(3):
-            cols += [data.euler_est_deg[w, k][::step], data.euler_ref_deg[w, k][::step]]
-        cols.append(data.error_deg[w][::step])
+            cols.append(data.euler_est_deg[w, k][::step])
+            if has_ref:
+                cols.append(data.euler_ref_deg[w, k][::step])
+        if has_ref:
+            cols.append(data.error_deg[w][::step])
         return tuple(np.ascontiguousarray(c) for c in cols)
 
     plot = gui.add_uplot(plot_data(0.0), tuple(series), title="attitude (deg) around the slider time",
