@@ -69,6 +69,7 @@ class PipelineSettings:
     spots_interval_s: float = 1.0
     reel_max_age_s: float = 1.0  # reel tension older than this is not fed to the line guard
     warmup_s: float = 0.5  # samples averaged before a filter starts (design.md: initial rest window)
+    rule_block_s: float = 0.25  # longest block fed to the alarm rules at once (bursts are split at packet ends)
     rest_gyr_std_rad_s: float = 0.01  # warm-up counts as rest below this gyro std (then its mean seeds the bias)
     rest_acc_tol_m_s2: float = 0.5  # ... and with |acc| within this of g
 
@@ -122,6 +123,18 @@ def _thermocline_m(profile: list[schemas.ProfilePoint] | None) -> float | None:
     ]
     i = int(np.argmax(grads))
     return 0.5 * (pts[i].depth_m + pts[i + 1].depth_m)
+
+
+def _chunks(ends: list[tuple[int, int, int]], t_s: FloatArray, max_s: float) -> list[tuple[int, int]]:
+    """Split a device's block at packet ends into slices of at most `max_s` (at least one packet each), so a
+    burst of queued packets reaches the rules in packet-sized steps like a live stream does."""
+    out, start = [], 0
+    for k, (i, _, _) in enumerate(ends):
+        last = k == len(ends) - 1
+        if last or t_s[ends[k + 1][0]] - t_s[start] > max_s:
+            out.append((start, i + 1))
+            start = i + 1
+    return out
 
 
 def _unwrap(prev_wrapped: float, turns: int, yaw: FloatArray) -> tuple[FloatArray, int]:
@@ -331,9 +344,9 @@ class Pipeline:
             row = self._batch.row(dev.device_id)
             self._batch.states[row, K.S_BIAS : K.S_BIAS + 3] = np.clip(bias_rad_s, -clip, clip)
             return
-        ekf = getattr(dev.filt, "ekf", None)
-        if ekf is not None and getattr(ekf, "x", None) is not None and ekf.x.shape[0] >= 9:
-            ekf.x[6:9] = bias_rad_s  # HookFilter: bias is state 6..8
+        seed = getattr(dev.filt, "seed_gyro_bias", None)  # e.g. HookFilter
+        if seed is not None:
+            seed(bias_rad_s)
 
     def _gather(
         self, dev_id: str, pkts: list[schemas.ImuPacket]
@@ -442,7 +455,10 @@ class Pipeline:
             reel = self.reel.get(dev.device_id)
             if reel is not None and reel[0].tension_n is not None and now - reel[1] <= self.settings.reel_max_age_s:
                 tension = np.full(t_s.shape, reel[0].tension_n)
-            rod_block, new = dev.rod.update(t_s, eul[:, 1], eul[:, 0], eul[:, 2], acc_up, tension)
+            for a, b in _chunks(ends, t_s, self.settings.rule_block_s):  # streaming: one chunk; bursts: several
+                rod_block, c = dev.rod.update(t_s[a:b], eul[a:b, 1], eul[a:b, 0], eul[a:b, 2], acc_up[a:b],
+                                              None if tension is None else tension[a:b])  # fmt: skip
+                new += c
             dev.baseline_rad = rod_block.baseline_rad
             if dev.auto_reel is not None:
                 self._auto_reel(dev, float(t_s[-1]), float(eul[-1, 1]), reel[0] if reel else None, out)

@@ -136,3 +136,20 @@ def test_warm_up_leaves_no_state_behind() -> None:
     p.warm_up()
     assert p.devices == {} and p.kinds == {} and p._batch is None
     assert raised(run(p, rod_messages(6.0, [{"type": "bite", "t_s": 3.0, "depth_deg": 15.0}]))) != []
+
+
+@settings(max_examples=200, deadline=None)
+@given(sizes=st.lists(st.integers(1, 20), min_size=1, max_size=40), max_s=st.floats(0.01, 1.0))
+def test_rule_chunks_cover_the_block_at_packet_ends(sizes: list[int], max_s: float) -> None:
+    from gateway.pipeline import _chunks
+
+    idx = np.cumsum(sizes) - 1
+    ends = [(int(i), k, 0) for k, i in enumerate(idx)]
+    t_s = np.arange(int(idx[-1]) + 1) * 0.01
+    chunks = _chunks(ends, t_s, max_s)
+    assert chunks[0][0] == 0 and chunks[-1][1] == len(t_s)
+    assert all(b == c for (_, b), (c, _) in zip(chunks, chunks[1:], strict=False))  # contiguous
+    assert {b - 1 for _, b in chunks} <= set(idx.tolist())  # cut only at packet ends
+    for a, b in chunks:
+        one_packet = (b - 1) in idx and not any(a <= i < b - 1 for i in idx)
+        assert t_s[b - 1] - t_s[a] <= max_s + 1e-9 or one_packet

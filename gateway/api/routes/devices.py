@@ -25,7 +25,7 @@ def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dic
         "online": service.presence.online(device_id),
         "last_packet_age_s": None if stream is None or stream.last_arrival_s is None else mono - stream.last_arrival_s,
         "loss_fraction": 0.0 if stream is None else stream.loss_fraction(),
-        "filter": pl.effective(kind, device_id)[0],
+        "filter": pl.effective(kind, device_id)[0] if kind != "ball" else None,
         "active_alarms": [a.type for a in pl.engine.active(device_id)],
     }
     dev = pl.devices.get(device_id)
