@@ -14,9 +14,9 @@ The reference field m̃ is learnt from the initial rest window, so the local inc
 Beyond the paper (all off with `EkfSettings(paper=True)`):
 - three gyro-bias states (random walk): BROAD's raw gyros are biased by up to 0.5 °/s;
 - accelerometer noise inflated as |a| departs from the rest norm g₀ (linear acceleration, tapping);
-- magnetometer noise inflated as |m| departs from the rest norm and the dip angle ∠(a, m) from the rest dip
-  (nearby iron and magnets), and the magnetometer innovation restricted to heading: its component along the
-  measured gravity direction is removed, so a disturbed field cannot tilt the estimate.
+- magnetometer noise inflated as |m| departs from the rest norm and the dip angle (field vs predicted up) from the
+  rest dip (nearby iron and magnets), and the magnetometer innovation restricted to heading: its component along
+  the predicted up direction is removed, so a disturbed field cannot tilt the estimate.
 """
 
 from __future__ import annotations
@@ -39,9 +39,9 @@ class EkfSettings:
 
     gyr_noise_rad_s: float = 0.01
     """Gyro white noise per sample (rad/s); covers model error too."""
-    acc_noise: float = 0.03
+    acc_noise: float = 0.05
     """Accelerometer direction noise (unit-vector components, dimensionless)."""
-    mag_noise: float = 0.05
+    mag_noise: float = 0.03
     """Magnetometer direction noise (unit-vector components, dimensionless)."""
     paper: bool = False
     """True: the paper's filter only (no bias states, no gating, full magnetometer innovation)."""
@@ -49,7 +49,7 @@ class EkfSettings:
     """Prior standard deviation of each gyro-bias state (rad/s)."""
     bias_walk_rad_s_sqrt_s: float = 2e-4
     """Gyro-bias random walk (rad/s per √s)."""
-    acc_gate: float = 0.05
+    acc_gate: float = 0.03
     """Relative deviation ||a| - g₀|/g₀ at which the accelerometer noise has doubled (grows quadratically)."""
     mag_norm_gate: float = 0.05
     """Relative deviation ||m| - m₀|/m₀ at which the magnetometer noise has doubled."""
@@ -221,7 +221,7 @@ def measurement(
 
     Rows: accelerometer direction (3), magnetometer direction (3, if `use_mag`), zero-rate ω = b (3, if `at_rest`).
     `ref` = [g₀ (m/s²), m₀ (µT), dip₀ (rad), m̃_E, m̃_N, m̃_U]. With heading-only magnetometer, the mag rows of the
-    residual and Jacobian are projected onto the plane normal to the measured gravity direction.
+    residual and Jacobian are projected onto the plane normal to the predicted up direction.
     """
     q = x[:4]
     nz = 3 + (3 if use_mag else 0) + (3 if at_rest else 0)
@@ -251,17 +251,20 @@ def measurement(
         sig_m = params[2]
         if params[5] > 0.0:
             sig_m *= 1.0 + (abs(mag_norm - ref[1]) / ref[1] / params[5]) ** 2
+        # the predicted up direction, not the measured one: linear acceleration must not reject the magnetometer
+        up_b = hx[:3] / np.sqrt(np.sum(hx[:3] ** 2))
         if params[6] > 0.0:
-            dot = a_hat[0] * m_hat[0] + a_hat[1] * m_hat[1] + a_hat[2] * m_hat[2]
+            dot = up_b[0] * m_hat[0] + up_b[1] * m_hat[1] + up_b[2] * m_hat[2]
             dip = np.arcsin(min(1.0, max(-1.0, dot)))
             sig_m *= 1.0 + ((dip - ref[2]) / params[6]) ** 2
         for i in range(3, 6):
             rmat[i, i] = sig_m * sig_m
         if params[7] > 0.0:
-            # heading only: z_m and h_m lose their component along the measured up direction. R stays σ²I: in a
-            # basis along/normal to â its along-â part meets a zero residual and a zero Jacobian row, so it adds no
-            # information, exactly as the projected (singular) noise would.
-            proj = np.eye(3) - np.outer(a_hat, a_hat)
+            # heading only: z_m and h_m lose their component along the predicted up direction. R stays σ²I: in a
+            # basis along/normal to up its along-up part meets a zero residual and a zero Jacobian row, so it adds
+            # no information, exactly as the projected (singular) noise would. (The projection is taken as fixed
+            # at the predicted attitude: its own dependence on q is left out of the Jacobian.)
+            proj = np.eye(3) - np.outer(up_b, up_b)
             z[3:6] = proj @ z[3:6]
             hx[3:6] = proj @ hx[3:6]
             hjac[3:6, :4] = proj @ hjac[3:6, :4]

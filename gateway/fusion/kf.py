@@ -35,7 +35,7 @@ AUX_SIZE = 11
 class KfSettings:
     """Tuning of the angle Kalman filter, one set for every device and trial."""
 
-    gyr_noise_rad_s: float = 0.01
+    gyr_noise_rad_s: float = 0.005
     """Process noise: std of the gyro angle error growth per sample (rad/s); Q = (σ Δt)² I."""
     r_window_s: float = 2.0
     """Time constant of the running mean that estimates cov(f) (eq. 42-44), s."""
@@ -45,7 +45,7 @@ class KfSettings:
     """Floor on the estimated measurement-angle std (rad)."""
     paper: bool = False
     """True: the paper's filter only (no bias learning, no gates). Wrap and gimbal handling stay on."""
-    acc_gate: float = 0.05
+    acc_gate: float = 0.03
     """Relative deviation ||a| - g₀|/g₀ at which the roll/pitch noise std has doubled (grows quadratically)."""
     mag_norm_gate: float = 0.05
     """Relative deviation ||m| - m₀|/m₀ at which the yaw noise std has doubled."""
@@ -141,19 +141,22 @@ def measured_angles(acc_m_s2: FloatArray, mag_uT: FloatArray, use_mag: bool) -> 
     ax, ay, az = acc_m_s2[0], acc_m_s2[1], acc_m_s2[2]
     roll = np.arctan2(ay, az)
     pitch = np.arctan2(ax, np.sqrt(ay * ay + az * az))
-    yaw = 0.0
-    if use_mag:
-        cr, sr = np.cos(roll), np.sin(roll)
-        cp, sp = np.cos(pitch), np.sin(pitch)
-        mx, my, mz = mag_uT[0], mag_uT[1], mag_uT[2]
-        # level frame: m_l = Ry(−pitch) Rx(roll) m
-        my_r = cr * my - sr * mz
-        mz_r = sr * my + cr * mz
-        mx_l = cp * mx - sp * mz_r
-        my_l = my_r
-        # Rz(yaw) m_l must point North (+y): yaw + bearing(m_l) = π/2
-        yaw = wrap(0.5 * np.pi - np.arctan2(my_l, mx_l))
+    yaw = heading_angle(roll, pitch, mag_uT) if use_mag else 0.0
     return np.array([roll, pitch, yaw])
+
+
+@njit
+def heading_angle(roll_rad: float, pitch_rad: float, mag_uT: FloatArray) -> float:
+    """Yaw (rad) that turns the field, levelled with the given roll and pitch, to North (tilt compensation)."""
+    cr, sr = np.cos(roll_rad), np.sin(roll_rad)
+    cp, sp = np.cos(pitch_rad), np.sin(pitch_rad)
+    mx, my, mz = mag_uT[0], mag_uT[1], mag_uT[2]
+    # level frame: m_l = Ry(−pitch) Rx(roll) m
+    my_l = cr * my - sr * mz
+    mz_r = sr * my + cr * mz
+    mx_l = cp * mx - sp * mz_r
+    # Rz(yaw) m_l must point North (+y): yaw + bearing(m_l) = π/2
+    return wrap(0.5 * np.pi - np.arctan2(my_l, mx_l))
 
 
 @njit
