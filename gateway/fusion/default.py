@@ -27,12 +27,12 @@ class DefaultSettings:
     """
 
     tau_acc_s: float = 2.5  # specific force low-pass in the almost-inertial frame: rejects external acceleration
-    tau_mag_s: float = 20.0  # heading correction time constant
+    tau_mag_s: float = 15.0  # heading correction time constant
     rest_tau_s: float = 0.5  # low-pass of gyro/acc for rest detection
     rest_gyr_th_deg_s: float = 2.0  # a sample deviating more from the low-pass is motion
     rest_acc_th_m_s2: float = 0.5
     rest_min_s: float = 1.5  # rest is declared after this long below both thresholds
-    bias_clip_deg_s: float = 2.0  # largest bias the filter will believe (MEMS after factory calibration)
+    bias_clip_deg_s: float = 5.0  # largest bias the filter will believe (MPU-6050 class: ~1 °/s std after start-up)
     bias_sigma_init_deg_s: float = 0.5  # prior bias uncertainty; also the cap of the random walk
     bias_walk_deg_s: float = 0.1  # bias random walk: the standard deviation it gains per `bias_forget_s`
     bias_forget_s: float = 100.0
