@@ -54,7 +54,7 @@ class HookFilterSettings:
     lever_arm_m: tuple[float, float, float] = (0.1, 0.0, 0.0)  # IMU position from the rope axis, body frame
     gyro_noise_rad_s: float = 0.0015  # MPU-6050: 0.05 °/s rms at 100 Hz, plus quantisation and scale errors
     acc_noise_m_s2: float = 0.15  # tension channel: white noise plus unmodelled lever-arm and scale terms
-    mag_noise_uT: float = 3.0  # includes soft/hard-iron residuals
+    mag_noise_uT: float = 30.0  # weak on purpose: hard-iron-biased heading fixes would jolt the swing estimate
     swing_accel_psd: float = 1e-4  # (rad/s²)²/Hz: wind, trolley moves and other unmodelled rope accelerations
     torsion_accel_psd: float = 1.0  # (rad/s²)²/Hz: the hook's twist is driven by the rope's torsion spring
     gyro_bias_psd: float = 1e-8  # (rad/s)²/s: bias random walk
