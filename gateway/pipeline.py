@@ -29,6 +29,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from gateway import schemas
+from gateway.alarm.bite import tip_acc_up
 from gateway.alarm.engine import Alarm, AlarmChange, AlarmEngine, Condition
 from gateway.alarm.hook import HookAlarms
 from gateway.alarm.rules import RodAlarms
@@ -44,7 +45,7 @@ from gateway.config import (
 from gateway.errors import BadSettings
 from gateway.fusion import hook as hook_geo
 from gateway.fusion.base import AttitudeFilter, FloatArray
-from gateway.fusion.quaternion import rotate, to_euler
+from gateway.fusion.quaternion import to_euler
 from gateway.spots import SpotReading, rank_spots
 
 log = logging.getLogger("gateway.pipeline")
@@ -450,7 +451,7 @@ class Pipeline:
             ))  # fmt: skip
         new: list[Condition] = []
         if dev.rod is not None:
-            acc_up = rotate(q, acc)[:, 2] - G_M_S2
+            acc_up = tip_acc_up(q, acc)
             tension = None
             reel = self.reel.get(dev.device_id)
             if reel is not None and reel[0].tension_n is not None and now - reel[1] <= self.settings.reel_max_age_s:
