@@ -158,7 +158,7 @@ const Devices = new Map(); // id -> {card, panel, charts, att, acc, reel, thresh
 const PLOTS = {
   rod: [
     { title: "attitude", unit: "deg", src: "att", lines: [{ key: "pitch_deg", label: "pitch" }, { key: "roll_deg", label: "roll" }, { key: "yaw_deg", label: "yaw (unwrapped)" }] },
-    { title: "acceleration", unit: "m/s²", src: "acc", lines: [{ key: "norm", label: "|a|" }, { key: "ax", label: "ax" }, { key: "az", label: "az" }] },
+    { title: "acceleration", unit: "m/s²", src: "acc", lines: [{ key: "norm", label: "|a| peak" }, { key: "ax", label: "ax" }, { key: "az", label: "az" }] },
     { title: "line tension", unit: "N", src: "reel", lines: [{ key: "tension_n", label: "tension" }], limits: "tension" },
   ],
   hook: [
@@ -246,8 +246,7 @@ function updateCard(d, c) {
     ["last packet", c.last_packet_age_s == null ? "–" : `${fmt(c.last_packet_age_s, 2)} s ago`],
     ["packet loss", `${fmt(100 * (c.loss_fraction || 0), 2)} %`],
   ];
-  const link = c.link || d.link || {};
-  d.link = link;
+  const link = d.link || {};
   if (link.battery_v != null) rows.push(["battery", `${fmt(link.battery_v, 2)} V`]);
   if (link.rssi_dbm != null) rows.push(["link", `${fmt(link.rssi_dbm, 0)} dBm`]);
   if (c.attitude) rows.push(["pitch / roll", `${fmt(c.attitude.pitch_rad * 57.2958)}° / ${fmt(c.attitude.roll_rad * 57.2958)}°`],
@@ -268,6 +267,8 @@ function onTick(f) {
     const d = ensureDevice(c);
     d.att.addFrame(c.series, ["pitch_deg", "roll_deg", "yaw_deg", "swing_deg", "direction_deg", "torsion_deg"]);
     if (c.acc) d.acc.addFrame(c.acc, ["norm", "ax", "ay", "az"]);
+    if (c.link) d.link = c.link;
+    if (c.online === undefined) continue; // a samples-only tick; cards come with full ticks (2 Hz)
     if (c.reel) {
       if (c.reel.tension_n != null) d.reel.push(now, { tension_n: c.reel.tension_n });
       d.reelState.textContent = `${c.reel.mode} / ${c.reel.motor}${c.auto_reel ? " (auto)" : ""}`;
@@ -282,7 +283,7 @@ function onTick(f) {
     if (c.readings) d.env.push(now, { water_temp_c: c.readings.water_temp_c, oxygen_mg_l: c.readings.oxygen_mg_l, air_temp_c: c.readings.air_temp_c });
     updateCard(d, c);
   }
-  renderSpots(f.spots || []);
+  if (f.spots) renderSpots(f.spots);
   if (f.alarm_seq !== Alarms.seq) { Alarms.seq = f.alarm_seq; Alarms.refresh(); }
   $("#stream-stats").textContent = `${f.devices.length} devices, tick ${new Date(now * 1000).toLocaleTimeString()}` +
     (f.client_dropped ? `, ${f.client_dropped} frames dropped (slow client)` : "");

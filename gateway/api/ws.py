@@ -23,6 +23,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect
 
 from gateway import schemas
@@ -65,10 +66,12 @@ class ClientQueue:
 @dataclass(frozen=True)
 class LiveSettings:
     """Stream rates and bounds. `tick_s`: period of tick frames; `series_max`: samples kept per device between
-    ticks (older ones are dropped); `raw_packets`: raw packets kept per key between ticks."""
+    ticks (older ones are dropped); `raw_packets`: raw packets kept per key between ticks; `cards_every`: ticks between
+    full device cards (the other ticks carry only the new samples)."""
 
     queue_size: int = 256
     tick_s: float = 0.1
+    cards_every: int = 5  # full device cards and the spot ranking every this many ticks (2 Hz)
     series_max: int = 200
     raw_packets: int = 8
 
@@ -98,35 +101,42 @@ def _finite(x: Any) -> float | None:
 
 
 def raw_imu_summary(payloads: list[bytes], now_s: float) -> dict[str, Any]:
-    """Acceleration series (|a| and components, m/s²) and link fields from raw IMU packets (oldest first).
-    Sample i of a packet is at `wall_t0_us + i / rate_hz` (device clock when the wall time is absent: `now_s`)."""
+    """One acceleration point per raw IMU packet (oldest first) plus the link fields of the newest.
+
+    Point = mean of the packet's samples per axis (m/s²) and the PEAK |a| over its samples (so a short shock
+    stays visible at packet rate), at the time of the packet's last sample: `wall_t0_us + (n-1)/rate_hz`, or
+    `now_s - 1/rate_hz` when the packet carries no wall time. Non-finite or malformed rows are skipped."""
     t: list[float] = []
     ax: list[float] = []
     ay: list[float] = []
     az: list[float] = []
-    norm: list[float] = []
+    peak: list[float] = []
     link: dict[str, Any] = {}
     for raw in payloads:
         try:
             p = json.loads(raw)
-            acc = p["acc_m_s2"]
             rate = float(p["rate_hz"])
+            acc = np.asarray(p["acc_m_s2"], dtype=np.float64)
             t0 = p.get("wall_t0_us")
         except (ValueError, KeyError, TypeError):
             continue
-        base = t0 / 1e6 if isinstance(t0, int | float) else now_s - len(acc) / rate
-        for i, a in enumerate(acc):
-            if not (isinstance(a, list) and len(a) == 3 and all(_finite(c) is not None for c in a)):
-                continue
-            t.append(round(base + i / rate, 3))
-            ax.append(round(a[0], 4))
-            ay.append(round(a[1], 4))
-            az.append(round(a[2], 4))
-            norm.append(round(math.sqrt(a[0] ** 2 + a[1] ** 2 + a[2] ** 2), 4))
+        if acc.ndim != 2 or acc.shape[1] != 3 or rate <= 0:
+            continue
+        n = acc.shape[0]
+        acc = acc[np.all(np.isfinite(acc), axis=1)]
+        if not len(acc):
+            continue
+        end = t0 / 1e6 + (n - 1) / rate if isinstance(t0, int | float) else now_s - 1.0 / rate
+        mean = acc.mean(axis=0)
+        t.append(round(end, 3))
+        ax.append(round(float(mean[0]), 4))
+        ay.append(round(float(mean[1]), 4))
+        az.append(round(float(mean[2]), 4))
+        peak.append(round(float(np.sqrt((acc * acc).sum(axis=1)).max()), 4))
         for k in ("battery_v", "rssi_dbm", "temp_c"):
             if _finite(p.get(k)) is not None:
                 link[k] = p[k]
-    return {"acc": {"t_s": t, "ax": ax, "ay": ay, "az": az, "norm": norm}, "link": link}
+    return {"acc": {"t_s": t, "ax": ax, "ay": ay, "az": az, "norm": peak}, "link": link}
 
 
 class LiveStream:
@@ -199,30 +209,36 @@ class LiveStream:
         for c in self.clients:
             c.put(text)
 
-    def tick_frame(self, now_s: float) -> dict[str, Any]:
-        """Device cards with their new samples since the last tick, plus the spot ranking."""
+    def tick_frame(self, now_s: float, full: bool = True) -> dict[str, Any]:
+        """New samples of every device since the last tick; with `full`, also the device cards (presence, age,
+        loss, attitude, readings, reel, alarms: `device_view`) and the spot ranking."""
         svc = self.service
         devices = []
-        for device_id in sorted(svc.pipeline.kinds):
-            try:
-                card = device_view(svc, device_id, detail=False)
-            except Exception:  # a device half-registered mid-batch: skip it this tick
-                continue
+        for device_id, kind in sorted(svc.pipeline.kinds.items()):
+            entry: dict[str, Any] = {"device_id": device_id, "kind": kind}
+            if full:
+                try:
+                    entry = device_view(svc, device_id, detail=False)
+                except Exception:  # a device half-registered mid-batch: skip its card this tick
+                    pass
             s = self._series.get(device_id)
-            card["series"] = s.take() if s is not None else {"t_s": []}
-            kind = card["kind"]
+            entry["series"] = s.take() if s is not None else {"t_s": []}
             if kind in schemas.IMU_KINDS:
                 raw = raw_imu_summary(self._take_raw(schemas.imu_key(kind, device_id)), now_s)
-                card["acc"], card["link"] = raw["acc"], raw["link"]
-            elif kind == "ball":
+                entry["acc"] = raw["acc"]
+                if raw["link"]:
+                    entry["link"] = raw["link"]
+            elif kind == "ball" and full:
                 for raw_env in self._take_raw(schemas.env_key(device_id))[-1:]:
                     with contextlib.suppress(ValueError):
                         p = json.loads(raw_env)
-                        card["link"] = {k: p[k] for k in ("battery_v", "rssi_dbm") if _finite(p.get(k)) is not None}
-            devices.append(card)
-        ranking = svc.pipeline.rank_spots(now_s).model_dump()
-        return {"type": "tick", "wall_s": round(now_s, 3), "alarm_seq": self.alarm_seq, "devices": devices,
-                "spots": ranking["spots"]}  # fmt: skip
+                        entry["link"] = {k: p[k] for k in ("battery_v", "rssi_dbm") if _finite(p.get(k)) is not None}
+            devices.append(entry)
+        frame = {"type": "tick", "wall_s": round(now_s, 3), "alarm_seq": self.alarm_seq, "full": full,
+                 "devices": devices}  # fmt: skip
+        if full:
+            frame["spots"] = svc.pipeline.rank_spots(now_s).model_dump()["spots"]
+        return frame
 
     async def run(self) -> None:
         """Tick loop; work is skipped while nobody listens (buffers are still bounded)."""
@@ -231,7 +247,7 @@ class LiveStream:
             if not self.clients:
                 continue
             try:
-                frame = self.tick_frame(time.time())
+                frame = self.tick_frame(time.time(), full=self.ticks % self.settings.cards_every == 0)
                 self.ticks += 1
                 text = json.dumps(frame, separators=(",", ":"), default=str)
                 for c in self.clients:
