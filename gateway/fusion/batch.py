@@ -6,7 +6,13 @@ code path of `DefaultFilter.update_block` per device, so results equal the singl
 
 from __future__ import annotations
 
-import numpy as np
+import os
+
+# numba's OpenMP layer spins idle threads between steps by default; on a shared box (gateway, zenoh, web server)
+# that burns a core per step for nothing. Must be set before the layer loads, i.e. before the first batched step.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numpy as np  # noqa: E402
 from numpy.typing import NDArray
 
 from gateway.fusion import _default_kernels as K
