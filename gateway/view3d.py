@@ -38,6 +38,7 @@ router = APIRouter()
 FUSED_RGB = (30, 110, 220)
 RAW_RGB = (230, 140, 20)
 TRUTH_RGB = (160, 160, 160)
+HOOK_ROPE_M = 4.0  # drawn rope length (the real one is unknown to the gateway); fits the default camera
 
 
 # -- pure geometry ------------------------------------------------------------------------------------------------
@@ -205,7 +206,7 @@ class View3D:
             nodes[f"{layer}_line"].points = segments(pts)
             tip = pts[-1]
         else:
-            top, tip = hook_geometry(q)
+            top, tip = hook_geometry(q, HOOK_ROPE_M)
             nodes[f"{layer}_line"].points = np.stack([top, tip])[None, :, :]
         nodes[f"{layer}_frame"].position = tuple(tip)
         nodes[f"{layer}_frame"].wxyz = tuple(q)
