@@ -267,7 +267,7 @@ def measurement(
             proj = np.eye(3) - np.outer(up_b, up_b)
             z[3:6] = proj @ z[3:6]
             hx[3:6] = proj @ hx[3:6]
-            hjac[3:6, :4] = proj @ hjac[3:6, :4]
+            hjac[3:6, :4] = proj @ np.ascontiguousarray(hjac[3:6, :4])
         k = 6
     if at_rest:
         sig_r2 = params[11] ** 2
