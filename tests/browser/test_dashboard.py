@@ -44,6 +44,14 @@ def test_dashboard_shows_live_values(system: System, browser: Browser) -> None:
     assert page.get_by_test_id("card-rod-1").locator('[data-field="status"]').inner_text() == "online"
     assert age0.endswith("s ago")
     assert page.get_by_test_id("spots").locator("tbody tr").first.inner_text().startswith("1")
+    # the plot is really drawn: pixels of the pitch line colour (#e53e3e) on the attitude canvas
+    red = page.evaluate(
+        """() => { const c = document.querySelector('[data-testid="chart-rod-1-attitude"]');
+        const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data; let n = 0;
+        for (let i = 0; i < d.length; i += 4) if (d[i] > 200 && d[i + 1] < 110 && d[i + 2] < 110) n++;
+        return n; }"""
+    )
+    assert red > 100, f"pitch line not drawn ({red} red pixels)"
     page.get_by_test_id("pause").click()
     frozen = page.evaluate("View.pausedAt")
     assert page.get_by_test_id("pause").inner_text() == "Resume" and frozen > 0
