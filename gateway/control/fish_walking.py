@@ -21,12 +21,12 @@ Safety layers, applied around the cascade in this order (the first that applies 
 1. manual: the angler's command passes through untouched; auto stays off until `enable()` (which resets).
 2. data timeout: no attitude newer than `attitude_timeout_s` → stop the motor.
 3. landed: while line out ≤ `landed_line_m` the reel stops (the fish is at the tip; the angler nets it).
-4. tension guard: estimated tension T̂ = max(measured, T(β_pred)) with β_pred = β + max(β', 0)·lookahead and
-   T(β) the rod's calibration curve (default linear, T(θ3) = breaking load). T̂ ≥ payout_fraction·breaking →
-   pay out at full speed, latched until T̂ < hold_fraction·breaking (hysteresis); T̂ ≥ hold_fraction·breaking
-   → no reeling in.
-5. θ2 cap: never reel in while the filtered or the raw bend is ≥ θ2 (the paper's switch), and pay out at least
-   `min_payout_m_s` there.
+4. tension guard: tension T̂ = the load cell's reading when the reel reports one (`trust_load_cell`), else
+   T(β_pred) with β_pred = max(β + max(β', 0)·lookahead, raw β) and T(β) the rod's calibration curve (default
+   linear, T(θ3) = breaking load). T̂ ≥ payout_fraction·breaking → pay out at full speed, latched until
+   T̂ < hold_fraction·breaking (hysteresis); T̂ ≥ hold_fraction·breaking → no reeling in.
+5. θ2 cap: never reel in while the filtered or the raw bend is ≥ θ2 (the paper's switch); pay out at least
+   `min_payout_m_s` there (default 0: stop, and the drag, set below the breaking load, gives line).
 6. chatter: a direction hysteresis (separate on/off speed thresholds) and a minimum dwell before reversing.
 
 Two baselines share the interface: `DragOnly` (no control; the reel's drag alone) and `BangBang` (full speed
@@ -111,9 +111,11 @@ class FishWalkingSettings:
     cruise_in_m_s: float = 1.0
     """Feedforward reel-in speed added to the cascade while the bend is below its setpoint, m/s: the
     cascade then only trims around it, instead of winding its integral up from zero after every run."""
-    min_payout_m_s: float = 0.3
-    hold_fraction: float = 0.55
-    payout_fraction: float = 0.7
+    min_payout_m_s: float = 0.0
+    """Pay-out speed forced at or above θ2, m/s. 0: stop and let the drag give line (it is set to `drag_fraction`);
+    paying out 0.3 m/s there gave line away on every burst and landed 10 % slower (docs/control.md)."""
+    hold_fraction: float = 0.58
+    payout_fraction: float = 0.75
     lookahead_s: float = 0.3
     attitude_timeout_s: float = 0.3
     measurement_filter_s: float = 0.2
@@ -126,6 +128,10 @@ class FishWalkingSettings:
     """Drag set while auto is on, as a share of the breaking load: the spool then slips before the line can
     break even while the motor reverses. (Anglers set 25-33 %; 60 % lands fish faster in the fight bench.)
     None: leave the drag alone."""
+    trust_load_cell: bool = True
+    """Tension guard on the load cell alone when the reel reports one. The bend is a poor tension gauge near θ2:
+    under a tanh bend curve 50 % → 100 % of the breaking load is only a few degrees of bend, so tip ringing and
+    0.3° attitude noise trip a bend-based guard at loads the drag already caps (docs/control.md)."""
     tension_curve: tuple[tuple[float, float], ...] | None = None
     """Rod calibration: (bend rad, tension N) pairs, bend increasing (e.g. from hanging known weights);
     None: linear, with bend θ3 at the breaking load."""
@@ -251,7 +257,10 @@ class FishWalkingController:
         # Filtered bend extrapolated by the lookahead; the raw bend as it is (raw rates are mostly tip ringing
         # when a slack line snaps taut, and tripping on them paid out line for nothing).
         bend_pred = max(bend + max(bend_rate, 0.0) * s.lookahead_s, raw_bend)
-        tension = estimated_tension_n(s, bend_pred, last.tension_n)
+        if last.tension_n is not None and s.trust_load_cell:
+            tension = last.tension_n
+        else:
+            tension = estimated_tension_n(s, bend_pred, None)
         # Guard with hysteresis: trips at payout_fraction, releases only below hold_fraction.
         release = s.hold_fraction * s.line_breaking_n
         was_guarded = self._guard

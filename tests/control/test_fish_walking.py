@@ -72,12 +72,28 @@ def test_disable_stops():
 @settings(max_examples=80, deadline=None)
 @given(st.lists(st.tuples(st.floats(-0.2, 1.0), st.floats(-3.0, 3.0), st.booleans()), min_size=1, max_size=60))
 def test_never_reels_in_at_or_above_theta2(samples):
-    c = FishWalkingController()
+    c = FishWalkingController(FishWalkingSettings(min_payout_m_s=0.1))
     for k, (bend, rate, lost) in enumerate(samples):
         t = k * DT
         d = c.step(t, None if lost else obs(t, bend, rate))
         if not lost and bend >= S.theta2_rad:
-            assert d.speed_m_s < 0.0
+            assert d.speed_m_s <= -0.1
+    c = FishWalkingController()  # default: stop at θ2 and let the drag give line
+    for k, (bend, rate, lost) in enumerate(samples):
+        d = c.step(k * DT, None if lost else obs(k * DT, bend, rate))
+        if not lost and bend >= S.theta2_rad:
+            assert d.speed_m_s <= 0.0
+
+
+def test_tension_guard_uses_the_load_cell_when_there_is_one():
+    # 0.8·θ3 reads 80 N on the linear bend curve (guard at 75 N); a load cell says 30 N.
+    bend = 0.8 * S.theta3_rad
+    d = run_steady(FishWalkingController(), bend, tension=30.0)[-1]
+    assert d.reason != "tension_guard" and d.speed_m_s <= 0.0  # above θ2: not reeling in, not guard pay-out
+    d = run_steady(FishWalkingController(FishWalkingSettings(trust_load_cell=False)), bend, tension=30.0)[-1]
+    assert d.reason == "tension_guard"
+    d = run_steady(FishWalkingController(), 0.02, tension=S.payout_fraction * S.line_breaking_n + 1.0)[-1]
+    assert (d.reason, d.speed_m_s) == ("tension_guard", -S.max_out_m_s)  # the load cell alone trips it
 
 
 @pytest.mark.parametrize(
