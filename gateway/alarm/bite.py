@@ -6,7 +6,8 @@ Roll and yaw never alarm (seed 000 Table 2): pitch = elevation of the rod axis, 
 
 Per block, all work is vectorised with numpy; Python does O(1) work plus one loop turn per latch change.
 
-- Warm-up: the first WARMUP_S seconds only learn the rest pitch (their mean) and the vibration level.
+- Warm-up: the first WARMUP_S seconds only learn the rest pitch (their mean) and the vibration level. A block
+  that spans the end of the warm-up is split there: its head learns, its tail is already checked for bites.
 - Rest baseline: an exponential average (time constant `baseline_tau_s`) of block-mean pitch, updated only
   while both latches are armed and every sample of the block lies inside the re-arm band. Vibration (wind,
   waves) averages out; a holder drifting at r deg/s lags by only r * tau, far below theta1 for slow drifts.
@@ -26,7 +27,7 @@ Per block, all work is vectorised with numpy; Python does O(1) work plus one loo
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -251,12 +252,32 @@ class BiteDetector:
         about its own axis or turning it in the holder is not a bite (seed 000 Table 2).
         """
         del roll_rad, yaw_rad
+        s = self.state
+        if t_s.size == 0:
+            return RodBlock((), s.baseline_rad, 0.0, math.nan, 0.0)
+        if s.warmed:
+            return self._detect(t_s, pitch_rad, acc_up_m_s2)
+        # Warm-up ends inside this block: learn from its head, detect on the rest (a burst may hold both).
+        if math.isnan(s.warm_until_s):
+            s.warm_until_s = float(t_s[0]) + WARMUP_S
+        end = min(int(np.searchsorted(t_s, s.warm_until_s - _EPS_S)) + 1, t_s.size)
+        head = self._warm_up(t_s[:end], pitch_rad[:end], None if acc_up_m_s2 is None else acc_up_m_s2[:end])
+        if end == t_s.size:
+            return head
+        tail_acc = None if acc_up_m_s2 is None else acc_up_m_s2[end:]
+        if not s.warmed:  # no finite pitch yet: keep learning
+            return self._warm_up(t_s[end:], pitch_rad[end:], tail_acc)
+        rest = self._detect(t_s[end:], pitch_rad[end:], tail_acc)
+        head_dev = pitch_rad[:end] - rest.baseline_rad
+        if np.isfinite(head_dev).any() and float(np.nanmin(head_dev)) < rest.min_deviation_rad:
+            i = int(np.nanargmin(head_dev))
+            return replace(rest, min_deviation_rad=float(head_dev[i]), t_min_s=float(t_s[i]))
+        return rest
+
+    def _detect(self, t_s: FloatArray, pitch_rad: FloatArray, acc_up_m_s2: FloatArray | None) -> RodBlock:
+        """One non-empty block after the warm-up: latches, events, baseline tracking."""
         p, s = self.params, self.state
         n = t_s.size
-        if n == 0:
-            return RodBlock((), s.baseline_rad, 0.0, math.nan, 0.0)
-        if not s.warmed:
-            return self._warm_up(t_s, pitch_rad, acc_up_m_s2)
         dev = pitch_rad - s.baseline_rad
         i_min = int(dev.argmin())
         lo, hi = float(dev[i_min]), float(dev.max())
@@ -319,8 +340,6 @@ class BiteDetector:
     def _warm_up(self, t_s: FloatArray, pitch_rad: FloatArray, acc_up_m_s2: FloatArray | None) -> RodBlock:
         """Learn the rest pitch as the mean of the first WARMUP_S seconds (nan samples skipped); no alarms."""
         s = self.state
-        if math.isnan(s.warm_until_s):
-            s.warm_until_s = float(t_s[0]) + WARMUP_S
         ok = pitch_rad[np.isfinite(pitch_rad)]
         s.warm_sum_rad += float(np.add.reduce(ok))
         s.warm_n += ok.size

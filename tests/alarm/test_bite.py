@@ -292,3 +292,30 @@ def test_tip_acc_up_matches_scipy_rotation():
     np.testing.assert_allclose(acc_up(q_wxyz, acc_body), ref, atol=1e-9)
     level_at_rest = acc_up(np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.0, 0.0, 9.81]))
     assert abs(float(level_at_rest)) < 1e-12
+
+
+@pytest.mark.parametrize("with_acc", [False, True])
+def test_one_long_block_with_warm_up_then_a_bite_alarms_like_streaming(with_acc, rng):
+    """A burst holding the 2 s warm-up and a bite (at 3 s) must alarm: the warm-up ends inside the block."""
+    t = times(6.0)
+    rel = -pulse(t, 3.0, 0.15, 1.5, 15.0)
+    pitch = noisy(t, rel, NOISE_DEG, rng)
+    acc = tip_acc_up(t, rel, ACC_NOISE, rng) if with_acc else None
+    streamed = run_rod(t, pitch, acc, block=5).of("bite")
+    at_once = run_rod(t, pitch, acc, block=t.size).of("bite")
+    assert len(streamed) == len(at_once) == 1
+    assert abs(at_once[0].alarm.started_at - streamed[0].alarm.started_at) < 1e-9  # same triggering sample
+    assert 3.0 <= at_once[0].alarm.started_at <= 3.2
+
+
+def test_block_spanning_warm_up_end_reports_the_whole_block_minimum():
+    """The line guard reads the block's largest drop: a drop in the warm-up head still counts (vs the new rest)."""
+    t = times(3.0)
+    pitch = np.radians(np.full(t.size, REST_DEG))
+    pitch[t > 2.5] = np.radians(REST_DEG - 5.0)
+    pitch[10] = np.radians(REST_DEG - 20.0)  # head sample at 0.1 s, far below rest
+    det = BiteDetector()
+    blk = det.update(t, pitch)
+    assert det.state.warmed
+    assert math.degrees(blk.min_deviation_rad) == pytest.approx(-20.0 + 20.0 / 201, abs=1e-6)
+    assert blk.t_min_s == pytest.approx(t[10])

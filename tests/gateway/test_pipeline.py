@@ -153,3 +153,14 @@ def test_rule_chunks_cover_the_block_at_packet_ends(sizes: list[int], max_s: flo
     for a, b in chunks:
         one_packet = (b - 1) in idx and not any(a <= i < b - 1 for i in idx)
         assert t_s[b - 1] - t_s[a] <= max_s + 1e-9 or one_packet
+
+
+def test_a_big_first_batch_alarms_without_rule_chunking() -> None:
+    """The bite detector splits its own warm-up: one 6 s block (warm-up + bite at 3 s) alarms with no chunking."""
+    messages = rod_messages(6.0, [{"type": "bite", "t_s": 3.0, "depth_deg": 15.0, "duration_s": 1.5}])
+    start_wall_s = json.loads(messages[0][1])["wall_t0_us"] * 1e-6
+    streamed = raised(run(Pipeline(), messages, per_batch=1))
+    whole = raised(run(Pipeline(PipelineSettings(rule_block_s=math.inf)), messages, per_batch=len(messages)))
+    assert [a for a, _ in whole] == [a for a, _ in streamed] == ["bite"]
+    assert 3.0 <= whole[0][1] - start_wall_s <= 3.5
+    assert abs(whole[0][1] - streamed[0][1]) < 0.05
