@@ -1,5 +1,6 @@
 """A headless gateway for scoring replays: the real ingest + pipeline + hub, with one attitude per packet end
-(no 50 Hz decimation) and no gyro-bias seed from the warm-up window, so a 1-sample-per-packet replay gets the
+(no 50 Hz decimation), no gyro-bias seed from the warm-up window, and every output published with
+CongestionControl.BLOCK (the normal gateway DROPs attitude under bursts), so a 1-sample-per-packet replay gets the
 same attitude for every sample as the offline `gateway.fusion.evaluate` run. No REST, no dashboard.
 
     python -m gateway.recording.exact_gateway --filter default --listen tcp/127.0.0.1:7447
@@ -18,7 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from gateway.config import Settings
-from gateway.ingest.bus import ZenohBus
+from gateway.ingest.bus import PresenceCallback, QueryHandler, SampleCallback, ZenohBus
 from gateway.ingest.runner import GatewayService
 from gateway.pipeline import PipelineSettings
 from gateway.store import Store
@@ -31,10 +32,35 @@ def exact_pipeline_settings(filter_name: str) -> PipelineSettings:
     return PipelineSettings(default_filter=filter_name, attitude_interval_s=0.0, rest_gyr_std_rad_s=0.0)
 
 
+class BlockingBus:
+    """A Bus that publishes everything with CongestionControl.BLOCK: a scoring run must not lose outputs."""
+
+    def __init__(self, inner: ZenohBus) -> None:
+        self.inner = inner
+
+    def subscribe(self, selector: str, callback: SampleCallback) -> None:
+        self.inner.subscribe(selector, callback)
+
+    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None:
+        self.inner.put(key, payload, encoding=encoding, block=True)
+
+    def watch_liveliness(self, selector: str, callback: PresenceCallback) -> None:
+        self.inner.watch_liveliness(selector, callback)
+
+    def declare_token(self, key: str) -> None:
+        self.inner.declare_token(key)
+
+    def declare_queryable(self, selector: str, handler: QueryHandler, *, encoding: str) -> None:
+        self.inner.declare_queryable(selector, handler, encoding=encoding)
+
+    def close(self) -> None:
+        self.inner.close()
+
+
 async def serve(settings: Settings, filter_name: str, stop: asyncio.Event) -> None:
     """Run the gateway service until `stop` is set; the bus and store are always closed."""
     store = Store(settings.db_path)
-    bus = ZenohBus.open(settings)
+    bus = BlockingBus(ZenohBus.open(settings))
     service = GatewayService(settings, bus, store, exact_pipeline_settings(filter_name))
     try:
         await service.start()

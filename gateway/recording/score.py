@@ -19,7 +19,7 @@ import json
 import sys
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -168,6 +168,53 @@ class AttitudeCollector:
         with self.lock:
             return [schemas.Attitude.model_validate_json(p) for p in self.payloads]
 
+    def latest_wall_us(self) -> int | None:
+        """Wall time (device clock mapped by the gateway) of the newest attitude received."""
+        with self.lock:
+            last = self.payloads[-1] if self.payloads else None
+        return None if last is None else schemas.Attitude.model_validate_json(last).wall_t_us
+
+
+class LatestIngestStats:
+    """Keeps the gateway's newest `gw/diag/ingest` message (queue drops and per-device loss)."""
+
+    def __init__(self) -> None:
+        self.payload: bytes | None = None
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        self.payload = sample.payload.to_bytes()
+
+    def stats(self) -> schemas.IngestStats | None:
+        p = self.payload
+        return None if p is None else schemas.IngestStats.model_validate_json(p)
+
+
+def paced(put: Callable[[Record], None], col: AttitudeCollector, max_ahead_s: float,
+          stall_s: float = 10.0, warmup_s: float = 1.0) -> Callable[[Record], None]:  # fmt: skip
+    """Flow control for a fast replay: hold back a record while it is more than `max_ahead_s` (recorded time)
+    ahead of the newest attitude the gateway has published (before the first one, which needs the filter's 0.5 s
+    warm-up: `warmup_s` ahead of the first record), so the gateway's bounded ingest queue never overflows and its
+    output (CongestionControl.DROP) is not sent in bursts. Waiting ends anyway after `stall_s` without progress."""
+    limit_us = int(max_ahead_s * 1e6)
+    warmup_us = int(max(warmup_s, max_ahead_s) * 1e6)
+    first_us: int | None = None
+
+    def put_paced(rec: Record) -> None:
+        nonlocal first_us
+        if first_us is None:
+            first_us = rec.t_us
+        waiting_since = time.monotonic()
+        while True:
+            latest = col.latest_wall_us()
+            if (rec.t_us - latest <= limit_us) if latest is not None else (rec.t_us - first_us <= warmup_us):
+                break
+            if time.monotonic() - max(col.last_s, waiting_since) > stall_s:
+                break
+            time.sleep(0.002)
+        put(rec)
+
+    return put_paced
+
 
 def wait_for_gateway(session: zenoh.Session, timeout_s: float) -> bool:
     """True once the gateway's liveliness token `gw/alive` is visible (a replay before that would be lost)."""
@@ -181,11 +228,14 @@ def wait_for_gateway(session: zenoh.Session, timeout_s: float) -> bool:
 
 def collect_live(
     session: zenoh.Session, rt: RecordedTrial, recording: Path | None, speed: float | None, idle_s: float,
-    timeout_s: float, progress: bool = True,
-) -> list[schemas.Attitude]:  # fmt: skip
-    """Subscribe to the device's attitude key; replay `recording` if given; stop `idle_s` after the last one."""
+    timeout_s: float, progress: bool = True, max_ahead_s: float = 0.3,
+) -> tuple[list[schemas.Attitude], schemas.IngestStats | None]:  # fmt: skip
+    """Subscribe to the device's attitude key; replay `recording` if given (paced, see `paced`); stop `idle_s`
+    after the last attitude. Returns the attitudes and the gateway's last ingest counters."""
     col = AttitudeCollector()
+    diag = LatestIngestStats()
     sub = session.declare_subscriber(schemas.attitude_key(rt.kind, rt.device_id), col)
+    sub_diag = session.declare_subscriber(schemas.DIAG_INGEST_KEY, diag)
     deadline = time.monotonic() + timeout_s
     if not wait_for_gateway(session, min(timeout_s, 60.0)):
         raise TimeoutError(f"no gateway ({schemas.GW_ALIVE_KEY} liveliness token) within {min(timeout_s, 60.0)} s")
@@ -194,14 +244,16 @@ def collect_live(
         recs = list(select(read_recording(recording), DEVICE_KEYS))
         pub = Publisher(session)
         with tqdm(total=len(recs), desc="replay", unit="sample", file=sys.stderr, disable=not progress) as bar:
-            replay(pub.put, recs, speed, progress=bar)
+            replay(paced(pub.put, col, max_ahead_s) if max_ahead_s > 0 else pub.put, recs, speed, progress=bar)
         col.last_s = max(col.last_s, time.monotonic())
     while time.monotonic() < deadline and time.monotonic() - col.last_s < idle_s:
         time.sleep(0.05)
-    sub.undeclare()  # type: ignore[no-untyped-call]
+    time.sleep(1.1)  # one more ingest report (about 1 Hz) covering everything
+    for s in (sub, sub_diag):
+        s.undeclare()  # type: ignore[no-untyped-call]
     if recording is not None:
         pub.close()
-    return col.attitudes()
+    return col.attitudes(), diag.stats()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -213,6 +265,8 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--live", action="store_true", help="subscribe to the gateway's attitude key now")
     p.add_argument("--replay", action="store_true", help="with --live: replay RECORDING to the gateway as well")
     p.add_argument("--speed", type=float, default=10.0, help="replay speed (default: 10× real time; 0 = fast)")
+    p.add_argument("--max-ahead-s", type=float, default=0.3,
+                   help="--replay: stay at most this far (recorded s) ahead of the gateway's output (0 = no pacing)")
     p.add_argument("--idle-s", type=float, default=3.0, help="--live: stop this long after the last attitude")
     p.add_argument("--timeout-s", type=float, default=600.0, help="--live: give up after this long")
     p.add_argument("--filter", help="filter for the offline row (default: the one named in the attitude messages)")
@@ -227,10 +281,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     meta = read_meta(args.recording)
     rt = recorded_trial(read_recording(args.recording), str(meta.get("trial", args.recording.stem)))
+    ingest: schemas.IngestStats | None = None
     if args.live:
         with zenoh.open(zenoh_config(args)) as session:
-            atts = collect_live(session, rt, args.recording if args.replay else None, args.speed or None,
-                                args.idle_s, args.timeout_s, not args.no_progress)  # fmt: skip
+            atts, ingest = collect_live(session, rt, args.recording if args.replay else None, args.speed or None,
+                                        args.idle_s, args.timeout_s, not args.no_progress, args.max_ahead_s)
     else:
         atts = attitudes_from_records(read_recording(args.attitudes), rt.kind, rt.device_id)
     if not atts:
@@ -239,12 +294,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     name = args.filter or atts[-1].filter or "default"
     mode: broad.Mode = "9D" if bool(np.all(np.isfinite(rt.trial.mag_uT))) else "6D"
     c = compare(rt, attitude_array(rt, atts), name, mode)
+    dev = next((d for d in ingest.devices if d.device_id == rt.device_id), None) if ingest else None
+    diag = {"queue_drops": ingest.queue_drops, "device": dev.model_dump() if dev else None} if ingest else None
     if args.json:
         print(json.dumps({"filter": name, "mode": mode, "covered": c.covered, "samples": c.samples,
                           "gateway": c.gateway.as_dict(), "offline": c.offline.as_dict(),
-                          "offline_all": c.offline_full.as_dict(), "max_diff_deg": c.max_diff_deg}, indent=1))
+                          "offline_all": c.offline_full.as_dict(), "max_diff_deg": c.max_diff_deg,
+                          "gateway_ingest": diag}, indent=1))  # fmt: skip
     else:
         print(format_comparison(c))
+        if ingest is not None:
+            print(f"gateway ingest: {ingest.queue_drops} queue drops since its start; this device: "
+                  + (f"ok {dev.ok}, lost {dev.lost}, duplicates {dev.duplicates}, reordered {dev.reordered}"
+                     if dev else "not reported"))  # fmt: skip
     return 1 if args.check is not None and not c.max_diff_deg <= args.check else 0
 
 

@@ -69,14 +69,15 @@ def test_broad_trial_through_zenoh_and_the_gateway_scores_like_evaluate(tmp_path
     port = free_port()
     gw = subprocess.Popen([sys.executable, "-m", "gateway.recording.exact_gateway", "--filter", "default", "--listen",
                            f"tcp/127.0.0.1:{port}", "--data-dir", str(tmp_path / "gw")], cwd=REPO,
-                          stdout=subprocess.PIPE, text=True, env=os.environ | {"PYTHONUNBUFFERED": "1"})  # fmt: skip
+                          stdout=subprocess.PIPE, stderr=open(tmp_path / "gw.err", "w"), text=True,  # noqa: SIM115
+                          env=os.environ | {"PYTHONUNBUFFERED": "1"})  # fmt: skip
     try:
         assert gw.stdout is not None
-        assert "ready" in gw.stdout.readline()
+        assert "ready" in gw.stdout.readline(), (tmp_path / "gw.err").read_text()[-3000:]
         out_json = tmp_path / "score.json"
         with open(out_json, "w") as f:
             rc = subprocess.run([sys.executable, "-m", "gateway.recording.score", str(rec), "--live", "--replay",
-                                 "--speed", "20", "--idle-s", "2", "--check", "0.01", "--json", "--no-progress",
+                                 "--speed", "0", "--idle-s", "2", "--check", "0.01", "--json", "--no-progress",
                                  "--connect", f"tcp/127.0.0.1:{port}"], cwd=REPO, stdout=f, timeout=150).returncode
     finally:
         gw.terminate()
@@ -86,9 +87,13 @@ def test_broad_trial_through_zenoh_and_the_gateway_scores_like_evaluate(tmp_path
             gw.kill()
             gw.wait()
     res = json.loads(out_json.read_text())
-    assert res["covered"] == res["samples"] == trial.n  # one attitude per sample, none lost
+    ingest = res["gateway_ingest"]
+    assert ingest["queue_drops"] == 0
+    assert ingest["device"]["ok"] == trial.n and ingest["device"]["lost"] == 0  # every packet reached the filter
+    assert res["covered"] == res["samples"] == trial.n  # one attitude per sample, none lost (BLOCK on the way out)
     assert res["filter"] == "default" and res["mode"] == "9D"
     for k in ("total", "heading", "inclination"):
+        assert res["gateway"][k] == pytest.approx(res["offline"][k], abs=1e-9)  # the same samples: identical
         assert res["gateway"][k] == pytest.approx(res["offline_all"][k], abs=0.01)
     assert res["gateway"]["total"] > 0.1
     assert res["max_diff_deg"] <= 0.01 and rc == 0
