@@ -10,9 +10,9 @@ import time
 from collections.abc import Callable
 
 from gateway import schemas
-from gateway.alarm.engine import Alarm, AlarmChange, Severity
+from gateway.alarm.engine import Alarm, AlarmChange
 from gateway.ingest.bus import Bus
-from gateway.pipeline import Output
+from gateway.pipeline import AlarmOut, Output
 from gateway.store import Store
 
 log = logging.getLogger("gateway.hub")
@@ -20,28 +20,16 @@ log = logging.getLogger("gateway.hub")
 Listener = Callable[[str, schemas.WireModel], None]
 """(topic, model): topic is `attitude`, `swing`, `alarm`, `spots` or `reel_cmd`."""
 
-# The engine has ThingsBoard's five severities, the wire three (see docs/gateway.md).
-WIRE_SEVERITY: dict[Severity, schemas.Severity] = {
-    Severity.CRITICAL: "critical", Severity.MAJOR: "warning", Severity.MINOR: "warning",
-    Severity.WARNING: "warning", Severity.INDETERMINATE: "info",
-}  # fmt: skip
+def alarm_event(out: AlarmOut, now_us: int) -> schemas.AlarmEvent:
+    """Wire event of an engine change: raised/updated -> `raised` (with the current severity), cleared -> `cleared`.
 
-
-def wire_alarm_id(alarm_id: str) -> int:
-    """The wire's uint32 alarm id: the first 32 bits of the store's hex id (REST uses the full id)."""
-    try:
-        return int(alarm_id[:8], 16)
-    except ValueError:
-        return hash(alarm_id) % schemas.UINT32
-
-
-def alarm_event(kind: str, change: AlarmChange, source_wall_us: int | None, now_us: int) -> schemas.AlarmEvent:
-    """Wire event of an engine change: raised/updated -> `raised` (with the current severity), cleared -> `cleared`."""
-    a: Alarm = change.alarm
+    `alarm_id` and `severity` are the engine's (= the store's) own; `t_us` is device time, `wall_t_us` = `now_us`.
+    """
+    a: Alarm = out.change.alarm
     return schemas.AlarmEvent(
-        alarm_id=wire_alarm_id(a.id), device_id=a.device_id, kind=kind, alarm=a.type,  # type: ignore[arg-type]
-        state="cleared" if change.kind == "cleared" else "raised", severity=WIRE_SEVERITY[a.severity],
-        t_us=int(a.updated_at * 1e6), wall_t_us=now_us, source_wall_us=source_wall_us,
+        alarm_id=a.id, device_id=a.device_id, kind=out.kind, alarm=a.type,  # type: ignore[arg-type]
+        state="cleared" if out.change.kind == "cleared" else "raised", severity=a.severity.value,
+        t_us=out.t_us, wall_t_us=now_us, source_wall_us=out.source_wall_us,
         value=a.value, threshold=a.threshold, message=a.message[:500],
     )  # fmt: skip
 
@@ -69,13 +57,12 @@ class Hub:
     def emit(self, out: Output) -> None:
         """Alarms first (they matter most and are rare), then reel commands, attitude, swing, spots."""
         now_us = int(self.clock() * 1e6)
-        for kind, change, src_us in out.alarms:
-            stored = self.store.upsert_alarm(change.alarm)
-            change = AlarmChange(change.kind, stored)
-            if change.kind == "acknowledged":
+        for al in out.alarms:
+            stored = self.store.upsert_alarm(al.change.alarm)  # may keep an older active row's id: publish that one
+            if al.change.kind == "acknowledged":
                 continue
-            self._put(schemas.alarm_key(kind, stored.device_id), "alarm", alarm_event(kind, change, src_us, now_us),
-                      block=True)  # fmt: skip
+            al = al._replace(change=AlarmChange(al.change.kind, stored))
+            self._put(schemas.alarm_key(al.kind, stored.device_id), "alarm", alarm_event(al, now_us), block=True)
         for device_id, fields in out.reel_commands:
             self.send_reel(device_id, sender="auto", **fields)
         for a in out.attitudes:

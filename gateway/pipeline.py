@@ -23,7 +23,7 @@ import math
 import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from pydantic import ValidationError
@@ -99,11 +99,25 @@ class ImuDevice:
     t_us: int = 0
     seq: int = 0
     wall_offset_us: int = 0  # wall clock minus device clock
+    wall_from_device: bool = False  # wall_offset_us from the device's own wall_t0_us (else from arrival time)
     last_attitude_t_s: float = -math.inf
     swing: schemas.Swing | None = None
     baseline_rad: float = math.nan
     auto_reel: Any = None  # FishWalkingController when auto mode is on
     last_reel: dict[str, Any] | None = None  # last auto command sent
+
+
+class AlarmOut(NamedTuple):
+    """One engine change for the hub: `t_us` is the device time of the sample behind it, `source_wall_us` that
+    sample on the device's realtime clock (None when the device sends no `wall_t0_us`)."""
+
+    kind: str  # wire device kind
+    change: AlarmChange
+    t_us: int
+    source_wall_us: int | None
+
+
+_Timed = tuple[str, int, int | None, Condition]  # (kind, device t_us, device wall µs or None, wall-time condition)
 
 
 @dataclass
@@ -112,7 +126,7 @@ class Output:
 
     attitudes: list[schemas.Attitude] = field(default_factory=list)
     swings: list[schemas.Swing] = field(default_factory=list)
-    alarms: list[tuple[str, AlarmChange, int | None]] = field(default_factory=list)  # (device kind, change, src us)
+    alarms: list[AlarmOut] = field(default_factory=list)
     spots: schemas.SpotRanking | None = None
     reel_commands: list[tuple[str, dict[str, Any]]] = field(default_factory=list)  # (device id, ReelCommand fields)
 
@@ -291,12 +305,11 @@ class Pipeline:
             elif isinstance(p, schemas.ReelStatus):
                 self.kinds.setdefault(p.device_id, "rod")
                 self.reel[p.device_id] = (p, now)
-        conditions: list[tuple[str, Condition]] = []
+        conditions: list[_Timed] = []
         if imu:
             self._fuse(imu, now, out, conditions)
-        for kind, c in conditions:
-            for change in self.engine.evaluate([c]):
-                out.alarms.append((kind, change, int(round(c.t_s * 1e6))))
+        for kind, t_us, src_us, c in conditions:
+            out.alarms += [AlarmOut(kind, change, t_us, src_us) for change in self.engine.evaluate([c])]
         if self._spots_dirty and now - self._last_spots_s >= self.settings.spots_interval_s:
             out.spots = self.rank_spots(now)
             self._last_spots_s, self._spots_dirty = now, False
@@ -364,7 +377,7 @@ class Pipeline:
         return gyr, acc, mag, t_s
 
     def _fuse(
-        self, imu: dict[str, list[schemas.ImuPacket]], now: float, out: Output, conds: list[tuple[str, Condition]]
+        self, imu: dict[str, list[schemas.ImuPacket]], now: float, out: Output, conds: list[_Timed]
     ) -> None:
         blocks: dict[str, tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]] = {}
         ends: dict[str, list[tuple[int, int, int]]] = {}  # per device: (last sample index, seq, t_us) per packet
@@ -387,6 +400,7 @@ class Pipeline:
                     self._batch.set_dt(dev_id, dev.dt_s)
             last = pkts[-1]
             dev.t_us, dev.seq = last.t0_us + int(round((last.n - 1) * 1e6 / last.rate_hz)), last.seq
+            dev.wall_from_device = last.wall_t0_us is not None
             dev.wall_offset_us = (last.wall_t0_us - last.t0_us) if last.wall_t0_us is not None else (
                 int(now * 1e6) - dev.t_us)  # fmt: skip
             blocks[dev_id] = (gyr, acc, mag if dev.use_mag else None, t_s)
@@ -434,9 +448,10 @@ class Pipeline:
         ends: list[tuple[int, int, int]],
         now: float,
         out: Output,
-        conds: list[tuple[str, Condition]],
+        conds: list[_Timed],
     ) -> None:
-        """Euler, outputs at packet ends (decimated), device rules; conditions get wall times."""
+        """Euler, outputs at packet ends (decimated), device rules; conditions get wall times (the engine and store
+        work in wall time), their device times go along for the wire."""
         _, acc, _, t_s = block
         eul = to_euler(q)
         yaw_u, dev.yaw_turns = _unwrap(dev.yaw_last, dev.yaw_turns, eul[:, 2])
@@ -480,7 +495,10 @@ class Pipeline:
                     torsion_rad=float(tors[i]),
                 )  # fmt: skip
                 out.swings.append(dev.swing)
-        conds.extend((dev.kind, replace(c, t_s=c.t_s + offset_s)) for c in new)
+        for cond in new:
+            t_us = int(round(cond.t_s * 1e6))
+            src = t_us + dev.wall_offset_us if dev.wall_from_device else None
+            conds.append((dev.kind, t_us, src, replace(cond, t_s=cond.t_s + offset_s)))
 
     # -- auto reel ------------------------------------------------------------------------------------------
 

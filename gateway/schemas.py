@@ -28,6 +28,7 @@ Key layout (`{kind}` in `rod`, `hook`, `ball`; `{device_id}` matches `DEVICE_ID_
 
 from __future__ import annotations
 
+import inspect
 import json
 import math
 import re
@@ -503,14 +504,22 @@ class Swing(WireModel):
 
 
 AlarmState: TypeAlias = Literal["raised", "cleared"]
-Severity: TypeAlias = Literal["info", "warning", "critical"]
+Severity: TypeAlias = Literal["critical", "major", "minor", "warning", "indeterminate"]
+SEVERITIES: Final[tuple[str, ...]] = ("critical", "major", "minor", "warning", "indeterminate")  # most severe first
+AlarmId = Annotated[str, Field(pattern=DEVICE_ID_PATTERN)]
 
 
 class AlarmEvent(WireModel):
-    """An alarm raised or cleared. `source_wall_us` is the device wall clock of the triggering sample (latency)."""
+    """An alarm raised (or updated: `raised` again, e.g. with a new severity) or cleared.
+
+    `alarm_id` is the gateway's alarm id, the same string as REST `/api/alarms` `id` (acknowledge it with
+    `POST /api/alarms/{alarm_id}/ack`). Times: `t_us` is the device clock of the sample that raised, updated or
+    cleared the alarm; `source_wall_us` that sample's time on the device's realtime clock (from the packet's
+    `wall_t0_us`; absent when the device sends none); `wall_t_us` the gateway's clock when it published the event.
+    """
 
     v: Version = 1
-    alarm_id: Uint32
+    alarm_id: AlarmId
     device_id: DeviceId
     kind: DeviceKind
     alarm: Name
@@ -579,7 +588,8 @@ class RejectedPacket(WireModel):
 
 
 class DeviceConfig(WireModel):
-    """Reply of the `gw/config/{kind}/{id}` queryable: current thresholds, names carry units (`bite_pitch_rad`)."""
+    """Reply of the `gw/config/{kind}/{id}` queryable: the numeric thresholds in effect (RodThresholds / HookThresholds
+    fields of `gateway.config`, units in the names: `bite_deviation_deg`)."""
 
     v: Version = 1
     device_id: DeviceId
@@ -813,9 +823,9 @@ def examples() -> dict[str, tuple[str, WireModel]]:
     swing = Swing(device_id="hook-1", seq=7, t_us=80_000, wall_t_us=wall + 86_000, swing_angle_rad=0.087,
                   swing_direction_rad=1.2, torsion_rad=0.15)
     alarm = AlarmEvent(
-        alarm_id=58, device_id="rod-1", kind="rod", alarm="bite", state="raised", severity="warning",
-        t_us=10_430_000, wall_t_us=wall + 10_436_000, source_wall_us=wall + 10_430_000, value=0.21,
-        threshold=0.1745, message="pitch dropped 12.0° (threshold 10.0°)",
+        alarm_id="3f2b9c0d5e8a4b7c9d1e2f3a4b5c6d7e", device_id="rod-1", kind="rod", alarm="bite", state="raised",
+        severity="major", t_us=10_425_000, wall_t_us=wall + 10_436_000, source_wall_us=wall + 10_425_000, value=-12.0,
+        threshold=-10.0, message="bite: pitch 12.0 deg below rest (threshold 10.0 deg, by pitch)",
     )
     spots = SpotRanking(wall_t_us=wall + 12_100_000, spots=[
         SpotScore(spot="inlet", rank=1, score=0.82, device_id="ball-2", last_seen_wall_us=wall + 12_000_000,
@@ -830,7 +840,8 @@ def examples() -> dict[str, tuple[str, WireModel]]:
     )
     rejected = RejectedPacket(wall_t_us=wall + 12_000_000, key="rig/rod/rod-1/imu", reason="schema",
                               detail="acc_m_s2: acc_m_s2 has 9 samples, expected 10", size_bytes=612)
-    config = DeviceConfig(device_id="rod-1", kind="rod", thresholds={"bite_pitch_rad": 0.1745, "bite_hold_s": 0.1})
+    config = DeviceConfig(device_id="rod-1", kind="rod", thresholds={"bite_deviation_deg": 10.0, "sensitivity": 3.0,
+                                                                   "line_switch_deg": 20.0})
     return {
         "imu_rod": (imu_key("rod", "rod-1"), imu),
         "imu_hook_minimal": (imu_key("hook", "hook-1"), hook_imu),
@@ -873,9 +884,17 @@ FIELD_NOTES: Final[dict[str, str]] = {
     "cmd_speed_m_s": "motor line-in speed currently commanded",
     "speed_m_s": "in/out: magnitude (absent = reel default); speed: signed, > 0 reels in",
     "last_cmd_id": "cmd_id of the last ReelCommand applied (acknowledgement)",
-    "source_wall_us": "wall clock of the device sample that triggered the alarm (for latency)",
+    "source_wall_us": "device realtime clock (unix µs) of the sample that triggered the alarm; absent without one",
+    "alarm_id": "the gateway's alarm id (REST `/api/alarms` `id`, ack with `POST /api/alarms/{alarm_id}/ack`)",
+    "severity": "most severe first: critical, major, minor, warning, indeterminate (alarm engine levels)",
     "yaw_unwrapped_rad": "yaw without the ±π jumps",
     "swing_direction_rad": "bearing of the swing plane, counter-clockwise from East",
+}
+
+# Notes that differ from FIELD_NOTES for one model: (model name, field) -> note.
+MODEL_FIELD_NOTES: Final[dict[tuple[str, str], str]] = {
+    ("AlarmEvent", "t_us"): "device monotonic clock (µs) of the sample that raised, updated or cleared the alarm",
+    ("AlarmEvent", "wall_t_us"): "gateway realtime clock (unix µs) when the event was published",
 }
 
 
@@ -915,7 +934,8 @@ def fields_markdown(model: type[WireModel]) -> str:
     rows = ["| field | JSON type (range) | required | notes |", "|---|---|---|---|"]
     for name, prop in schema["properties"].items():
         req = "yes" if name in required else f"no (default {json.dumps(prop.get('default'))})"
-        rows.append(f"| `{name}` | {_type_of(prop, defs)} | {req} | {FIELD_NOTES.get(name, '')} |")
+        note = MODEL_FIELD_NOTES.get((model.__name__, name), FIELD_NOTES.get(name, ""))
+        rows.append(f"| `{name}` | {_type_of(prop, defs)} | {req} | {note} |")
     return "\n".join(rows)
 
 
@@ -930,7 +950,7 @@ DOC_MODELS: Final[tuple[type[WireModel], ...]] = (
 
 def all_fields_markdown() -> str:
     """Field tables of every wire model."""
-    return "\n\n".join(f"#### {m.__name__}\n\n{(m.__doc__ or '').strip()}\n\n{fields_markdown(m)}"
+    return "\n\n".join(f"#### {m.__name__}\n\n{inspect.cleandoc(m.__doc__ or '')}\n\n{fields_markdown(m)}"
                          for m in DOC_MODELS)
 
 

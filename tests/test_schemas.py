@@ -5,11 +5,13 @@ from __future__ import annotations
 import json
 import math
 import re
+import typing
 from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from pydantic import ValidationError
 
 from gateway import schemas
 from gateway.schemas import DecodeError, SequenceTracker, decode
@@ -244,3 +246,27 @@ def test_protocol_doc_is_current() -> None:
     for key, model in schemas.examples().values():
         assert f"Key: `{key}`" in text
         assert schemas.example_json(model) in text, key
+
+
+def test_alarm_event_carries_the_engines_severities_and_string_ids() -> None:
+    from gateway.alarm.engine import Severity
+
+    assert schemas.SEVERITIES == tuple(s.value for s in Severity)  # same levels, most severe first
+    assert set(typing.get_args(schemas.Severity)) == set(schemas.SEVERITIES)
+    _, alarm = schemas.examples()["alarm"]
+    assert isinstance(alarm, schemas.AlarmEvent)
+    for sev in schemas.SEVERITIES:
+        assert schemas.AlarmEvent.model_validate({**alarm.model_dump(), "severity": sev}).severity == sev
+    for bad in ({"severity": "info"}, {"alarm_id": 58}, {"alarm_id": "a/b"}, {"alarm_id": ""}):
+        with pytest.raises(ValidationError):
+            schemas.AlarmEvent.model_validate({**alarm.model_dump(), **bad})
+    uuid_hex = "0123456789abcdef0123456789abcdef"
+    assert schemas.AlarmEvent.model_validate({**alarm.model_dump(), "alarm_id": uuid_hex}).alarm_id == uuid_hex
+
+
+def test_device_config_example_uses_real_threshold_names() -> None:
+    from gateway.config import RodThresholds
+
+    _, cfg = schemas.examples()["config"]
+    assert isinstance(cfg, schemas.DeviceConfig)
+    assert set(cfg.thresholds) <= set(RodThresholds.model_fields)

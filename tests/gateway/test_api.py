@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import stat
+import time
 from collections.abc import Callable
 
 import pytest
@@ -108,9 +109,16 @@ def test_bite_alarm_is_published_with_block_and_listed(running: Callable[[], Run
     assert [(k, a["alarm"], a["state"]) for k, a, _ in published] == [("gw/rod/rod-1/alarm", "bite", "raised")]
     assert all(block for _, _, block in published)
     event = schemas.AlarmEvent.model_validate_json(json.dumps(published[0][1]))
-    start_wall_us = json.loads(messages[0][1])["wall_t0_us"]
-    assert event.source_wall_us is not None
-    assert 3.0 <= (event.source_wall_us - start_wall_us) * 1e-6 <= 3.5, "device wall time of the triggering sample"
+    first = json.loads(messages[0][1])
+    assert 3.0 <= (event.t_us - first["t0_us"]) * 1e-6 <= 3.5, "t_us: device clock of the triggering sample"
+    assert event.source_wall_us == event.t_us + first["wall_t0_us"] - first["t0_us"], "the same sample, device wall"
+    assert time.time() - 60 <= event.wall_t_us * 1e-6 <= time.time(), "wall_t_us: the gateway's clock"
+    assert event.severity == "major", "the engine's severity of a bite, not squeezed into three levels"
+    listed = app.client.get("/api/alarms", params={"type": "bite"}).json()["items"]
+    assert [a["id"] for a in listed] == [event.alarm_id], "the wire id is the REST id"
+    assert listed[0]["severity"] == event.severity
+    ack = app.client.post(f"/api/alarms/{event.alarm_id}/ack", headers=app.auth)
+    assert ack.status_code == 200 and ack.json()["acknowledged"] is True
     dev = app.client.get("/api/devices/rod-1").json()
     assert dev["kind"] == "rod" and dev["active_alarms"] == ["bite"]
     assert dev["stream"]["ok"] == 120 and dev["stream"]["lost"] == 0

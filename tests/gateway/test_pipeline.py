@@ -22,7 +22,7 @@ def run(p: Pipeline, messages: list[tuple[str, bytes]], per_batch: int = 1) -> l
 
 
 def raised(outs: list[Output]) -> list[tuple[str, float]]:
-    return [(c.alarm.type, c.alarm.started_at) for o in outs for _, c, _ in o.alarms if c.kind == "raised"]
+    return [(c.alarm.type, c.alarm.started_at) for o in outs for _, c, _, _ in o.alarms if c.kind == "raised"]
 
 
 def test_a_bite_alarms_once_near_its_start_and_handling_or_wind_do_not() -> None:
@@ -164,3 +164,25 @@ def test_a_big_first_batch_alarms_without_rule_chunking() -> None:
     assert [a for a, _ in whole] == [a for a, _ in streamed] == ["bite"]
     assert 3.0 <= whole[0][1] - start_wall_s <= 3.5
     assert abs(whole[0][1] - streamed[0][1]) < 0.05
+
+
+def test_alarm_times_are_device_time_and_device_wall_only_when_the_device_sends_one() -> None:
+    messages = rod_messages(6.0, [{"type": "bite", "t_s": 3.0, "depth_deg": 15.0, "duration_s": 1.5}])
+    first = json.loads(messages[0][1])
+    outs = run(Pipeline(), messages)
+    (bite,) = [a for o in outs for a in o.alarms if a.change.kind == "raised"]
+    assert 3.0 <= (bite.t_us - first["t0_us"]) * 1e-6 <= 3.5  # device clock, not wall
+    assert bite.source_wall_us == bite.t_us + first["wall_t0_us"] - first["t0_us"]
+    assert abs(bite.change.alarm.started_at - bite.source_wall_us * 1e-6) < 1e-6  # the store keeps wall time
+
+    def no_wall(payload: bytes) -> bytes:
+        d = json.loads(payload)
+        d.pop("wall_t0_us", None)
+        d.pop("wall_t_us", None)
+        return json.dumps(d).encode()
+
+    bare = [(k, no_wall(v)) for k, v in messages]
+    outs = run(Pipeline(), bare)  # arrival times 1e9 + 0.05 i stand in for the wall clock
+    (bite2,) = [a for o in outs for a in o.alarms if a.change.kind == "raised"]
+    assert bite2.t_us == bite.t_us and bite2.source_wall_us is None
+    assert 1e9 < bite2.change.alarm.started_at < 1e9 + 7.0

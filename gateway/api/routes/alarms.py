@@ -1,4 +1,4 @@
-"""Alarm history (filtered, paged) and acknowledgement."""
+"""Alarm history (filtered, paged) and acknowledgement. `id` is the `alarm_id` of the wire AlarmEvent."""
 
 from __future__ import annotations
 
@@ -9,14 +9,13 @@ from fastapi import APIRouter, HTTPException, Query
 
 from gateway.alarm.engine import Alarm, AlarmStatus, Severity
 from gateway.api.deps import ServiceDep, WriterDep
-from gateway.hub import wire_alarm_id
 
 router = APIRouter(prefix="/alarms", tags=["alarms"])
 
 
 def alarm_json(a: Alarm) -> dict[str, Any]:
     return {
-        "id": a.id, "wire_id": wire_alarm_id(a.id), "device_id": a.device_id, "type": a.type,
+        "id": a.id, "device_id": a.device_id, "type": a.type,
         "severity": a.severity.value, "status": a.status.value, "acknowledged": a.acknowledged,
         "started_at": a.started_at, "updated_at": a.updated_at, "cleared_at": a.cleared_at,
         "acknowledged_at": a.acknowledged_at, "acknowledged_by": a.acknowledged_by, "value": a.value,
