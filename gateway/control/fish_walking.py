@@ -22,9 +22,9 @@ Safety layers, applied around the cascade in this order (the first that applies 
 2. data timeout: no attitude newer than `attitude_timeout_s` → stop the motor.
 3. landed: while line out ≤ `landed_line_m` the reel stops (the fish is at the tip; the angler nets it).
 4. tension guard: tension T̂ = the load cell's reading when the reel reports one (`trust_load_cell`), else
-   T(β_pred) with β_pred = max(β + max(β', 0)·lookahead, raw β) and T(β) the rod's calibration curve (default
-   linear, T(θ3) = breaking load). T̂ ≥ payout_fraction·breaking → pay out at full speed, latched until
-   T̂ < hold_fraction·breaking (hysteresis); T̂ ≥ hold_fraction·breaking → no reeling in.
+   T(β_pred) with β_pred = β + max(β', 0)·lookahead (and ≥ the raw β if `guard_on_raw_bend`), T(β) the rod's
+   calibration curve (default linear, T(θ3) = breaking load). T̂ ≥ payout_fraction·breaking → pay out at full
+   speed, latched until T̂ < hold_fraction·breaking (hysteresis); T̂ ≥ hold_fraction·breaking → no reeling in.
 5. θ2 cap: never reel in while the filtered or the raw bend is ≥ θ2 (the paper's switch); pay out at least
    `min_payout_m_s` there (default 0: stop, and the drag, set below the breaking load, gives line).
 6. chatter: a direction hysteresis (separate on/off speed thresholds) and a minimum dwell before reversing.
@@ -116,7 +116,10 @@ class FishWalkingSettings:
     paying out 0.3 m/s there gave line away on every burst and landed 10 % slower (docs/control.md)."""
     hold_fraction: float = 0.58
     payout_fraction: float = 0.75
-    lookahead_s: float = 0.3
+    lookahead_s: float = 0.0
+    """Bend-rate lookahead of the bend-based guard, s. 0 by default: 0.3 s made the guard pay out on every burst
+    (the flat top of the bend curve maps a small predicted overshoot to a large tension) and landed 50 % slower
+    without a load cell, while the drag already caps the tension (docs/control.md)."""
     attitude_timeout_s: float = 0.3
     measurement_filter_s: float = 0.2
     """First-order low-pass on bend and bend rate, s: keeps the rod's tip mode (≈ 2.5 Hz) out of the loops."""
@@ -132,6 +135,9 @@ class FishWalkingSettings:
     """Tension guard on the load cell alone when the reel reports one. The bend is a poor tension gauge near θ2:
     under a tanh bend curve 50 % → 100 % of the breaking load is only a few degrees of bend, so tip ringing and
     0.3° attitude noise trip a bend-based guard at loads the drag already caps (docs/control.md)."""
+    guard_on_raw_bend: bool = False
+    """Without a load cell, let the raw (unfiltered) bend trip the tension guard too, not only the filtered one.
+    Off by default: on a tanh bend curve tip ringing alone reaches the guard level (see `trust_load_cell`)."""
     tension_curve: tuple[tuple[float, float], ...] | None = None
     """Rod calibration: (bend rad, tension N) pairs, bend increasing (e.g. from hanging known weights);
     None: linear, with bend θ3 at the breaking load."""
@@ -256,7 +262,8 @@ class FishWalkingController:
 
         # Filtered bend extrapolated by the lookahead; the raw bend as it is (raw rates are mostly tip ringing
         # when a slack line snaps taut, and tripping on them paid out line for nothing).
-        bend_pred = max(bend + max(bend_rate, 0.0) * s.lookahead_s, raw_bend)
+        bend_pred = bend + max(bend_rate, 0.0) * s.lookahead_s
+        bend_pred = max(bend_pred, raw_bend) if s.guard_on_raw_bend else bend_pred
         if last.tension_n is not None and s.trust_load_cell:
             tension = last.tension_n
         else:
