@@ -67,6 +67,9 @@ class HookFilterSettings:
     init_bias_std_rad_s: float = 0.03  # MPU-6050 residual start-up bias is about 1 °/s
     init_acc_offset_std_m_s2: float = 0.1  # left after the rest calibration (scale error × g, bias drift)
     init_equilibrium_std: float = 0.002  # rad: steady wind tilt at start
+    moving_swing_std: float = 0.3  # rad, per axis: priors after `assume_moving()` (started while swinging)
+    moving_rate_std_rad_s: float = 0.3
+    moving_acc_offset_std_m_s2: float = 0.5  # the window's mean tension is not g when swinging
 
 
 # --- model kernels (numba, scalar code per sample) ---------------------------------------------------------------
@@ -379,12 +382,27 @@ class HookFilter(AttitudeFilter):
     def quaternion(self) -> FloatArray:
         return attitude_and_rate(self.ekf.x)[0]
 
-    def seed_gyro_bias(self, bias_rad_s: FloatArray, std_rad_s: float = 0.002) -> None:
-        """Start the bias estimate from a rest window's mean gyro (and trust it to `std_rad_s`)."""
-        self.ekf.x[_BIAS] = np.asarray(bias_rad_s, dtype=np.float64)
-        self.ekf.P[_BIAS, :] = 0.0
-        self.ekf.P[:, _BIAS] = 0.0
-        self.ekf.P[_BIAS, _BIAS] = std_rad_s**2
+    def seed_gyro_bias(self, bias_rad_s: FloatArray, std_rad_s: float = 0.002, axes: tuple[int, ...] = (0, 1, 2)
+                       ) -> None:  # fmt: skip
+        """Start the bias estimate of body `axes` from a rest window's mean gyro (and trust it to `std_rad_s`).
+
+        A hook that hangs still but twists (gusts turn it about the rope) still gives the x/y bias: seed (0, 1)."""
+        idx = [_BIAS.start + a for a in axes]
+        self.ekf.x[idx] = np.asarray(bias_rad_s, dtype=np.float64)[list(axes)]
+        self.ekf.P[idx, :] = 0.0
+        self.ekf.P[:, idx] = 0.0
+        self.ekf.P[idx, idx] = std_rad_s**2
+
+    def assume_moving(self) -> None:
+        """The initialisation window was not at rest (the hook was already swinging): widen the swing, rope-rate and
+        tension-offset priors to `settings.moving_*`, so the pendulum dynamics find the swing instead of a tight
+        "hanging still" prior holding it near plumb for many periods."""
+        s = self.settings
+        for i, std in ((0, s.moving_swing_std), (1, s.moving_swing_std), (2, s.moving_rate_std_rad_s),
+                       (3, s.moving_rate_std_rad_s), (_ACC_BIAS, s.moving_acc_offset_std_m_s2)):  # fmt: skip
+            self.ekf.P[i, :] = 0.0
+            self.ekf.P[:, i] = 0.0
+            self.ekf.P[i, i] = std**2
 
     @property
     def gyro_bias_rad_s(self) -> FloatArray:
