@@ -169,3 +169,14 @@ def test_short_closed_loop_fight_lands_without_breaking_the_line():
     assert res[1].outcome == "landed" and np.isfinite(res[1].time_s)
     baseline = fights.run_fights("drag_only", 0, progress=False, **kw)
     assert baseline[0].outcome == "escaped"  # what the controller prevented
+
+
+def test_fish_walking_lands_faster_than_bang_bang_and_breaks_nothing():
+    # 5 seeded fights (seed 7, the tuning seed; held-out figures in docs/control.md), rod defaults, load cell on.
+    fights = pytest.importorskip("bench.fights")
+    res = {p: fights.run_fights(p, 5, 7, horizon_s=90.0, progress=False) for p in ("bang_bang", "cascade")}
+    times = {p: [r.time_s if r.outcome == "landed" else 90.0 for r in rs] for p, rs in res.items()}  # unlanded: 90
+    assert not any(r.outcome == "escaped" for rs in res.values() for r in rs), times
+    assert all(r.outcome == "landed" for r in res["cascade"]), times
+    assert np.mean(times["cascade"]) < 0.9 * np.mean(times["bang_bang"]), times
+    assert np.median(times["cascade"]) < np.median(times["bang_bang"]), times
