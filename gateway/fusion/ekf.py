@@ -65,6 +65,8 @@ class EkfSettings:
     """... for this long (s). At rest the bias is learnt (zero-rate update); while moving it is held."""
     zero_rate_noise_rad_s: float = 0.005
     """Noise of the zero-rate pseudo-measurement ω = b at rest (rad/s)."""
+    acc_gate_max: float = 2.0
+    """Cap on the accelerometer noise multiplier (0: no cap), so long fast motion still sees some correction."""
 
     def as_array(self) -> FloatArray:
         """Pack for the numba kernels: the paper flag zeroes every extension."""
@@ -83,6 +85,7 @@ class EkfSettings:
                 self.rest_acc,
                 self.rest_time_s,
                 self.zero_rate_noise_rad_s,
+                self.acc_gate_max,
             ]
         )
 
@@ -237,7 +240,8 @@ def measurement(
     hjac[:3, :4] = observation_jacobian(q, up)
     sig_a = params[1]
     if params[4] > 0.0:
-        sig_a *= 1.0 + (abs(acc_norm - ref[0]) / ref[0] / params[4]) ** 2
+        infl = 1.0 + (abs(acc_norm - ref[0]) / ref[0] / params[4]) ** 2
+        sig_a *= min(infl, params[12]) if params[12] > 0.0 else infl
     for i in range(3):
         rmat[i, i] = sig_a * sig_a
     k = 3

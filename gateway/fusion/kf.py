@@ -59,6 +59,8 @@ class KfSettings:
     """... for this long (s); at rest the gyro bias follows the measured rate."""
     bias_tau_s: float = 1.0
     """Time constant of the at-rest bias average (s)."""
+    acc_gate_max: float = 5.0
+    """Cap on the roll/pitch noise std multiplier (0: no cap), so long fast motion still sees some correction."""
 
     def as_array(self) -> FloatArray:
         """Pack for the numba kernels: the paper flag zeroes every extension."""
@@ -76,6 +78,7 @@ class KfSettings:
                 self.rest_acc,
                 self.rest_time_s,
                 self.bias_tau_s,
+                self.acc_gate_max,
             ]
         )
 
@@ -216,7 +219,8 @@ def prepare(
     r_diag[2] /= cos2
     # gates (beyond the paper)
     if params[4] > 0.0:
-        infl = (1.0 + (acc_dev / params[4]) ** 2) ** 2
+        infl = 1.0 + (acc_dev / params[4]) ** 2
+        infl = (min(infl, params[11]) if params[11] > 0.0 else infl) ** 2
         r_diag[0] *= infl
         r_diag[1] *= infl
     if use_mag and (params[5] > 0.0 or params[6] > 0.0):

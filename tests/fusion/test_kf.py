@@ -39,7 +39,11 @@ def wrapped_diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 @given(q=unit_quats())
 def test_euler_matches_quaternion_module(q):
-    np.testing.assert_allclose(wrapped_diff(euler_from_quat(q), quat.to_euler(q)), 0.0, atol=1e-9)
+    ang = euler_from_quat(q)
+    # at pitch ±90° roll and yaw are not separable (both atan2 of rounding noise): skip the gimbal-lock region
+    if abs(ang[1]) < np.deg2rad(89.0):
+        assert_quat_close(quat_from_euler(ang), q, atol=1e-9)
+        np.testing.assert_allclose(wrapped_diff(ang, quat.to_euler(q)), 0.0, atol=1e-9)
 
 
 @given(a=angles)
