@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 ZenohMode = Literal["peer", "client", "router"]
-DeviceKind = Literal["rod", "hook", "env"]
+DeviceKind = Literal["rod", "hook", "ball"]  # the wire kinds of gateway.schemas
 
 
 class Settings(BaseSettings):
@@ -161,17 +161,19 @@ T = TypeVar("T", bound=BaseModel)
 THRESHOLD_MODELS: dict[str, type[ThresholdModel]] = {
     "rod": RodThresholds,
     "hook": HookThresholds,
-    "env": SpotPreferences,
+    "ball": SpotPreferences,
 }
 
 
 class DeviceSettings(BaseModel):
-    """Per-device settings: filter (None = `Settings.default_filter`) and a partial thresholds override."""
+    """Per-device settings: filter (None = `Settings.default_filter`), a partial thresholds override, and for a rod
+    whether the reel is in auto (fish-walking) mode, so the mode survives a restart."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     filter_name: str | None = None
     thresholds: dict[str, Any] = Field(default_factory=dict)
+    auto_reel: bool = False
 
 
 def merge_thresholds(defaults: T, override: Mapping[str, Any]) -> T:
@@ -180,7 +182,7 @@ def merge_thresholds(defaults: T, override: Mapping[str, Any]) -> T:
 
 
 def default_thresholds(kind: str) -> ThresholdModel:
-    """Model defaults for a device kind ("rod", "hook", "env"); KeyError for an unknown kind."""
+    """Model defaults for a device kind ("rod", "hook", "ball"); KeyError for an unknown kind."""
     return THRESHOLD_MODELS[kind]()
 
 

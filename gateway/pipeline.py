@@ -55,11 +55,6 @@ DEFAULT_FILTER = "default"
 HOOK_FILTER = "hook"
 
 
-def config_kind(kind: str) -> str:
-    """Device kind on the wire (`rod`, `hook`, `ball`) -> threshold-model kind in `gateway.config` (`ball` -> `env`)."""
-    return "env" if kind == "ball" else kind
-
-
 @dataclass(frozen=True)
 class PipelineSettings:
     """Output rates and fallbacks; times in seconds."""
@@ -177,7 +172,7 @@ class Pipeline:
         active_alarms: Iterable[Alarm] = (),
     ) -> None:
         self.settings = settings or PipelineSettings()
-        self.defaults: dict[str, ThresholdModel] = {k: default_thresholds(k) for k in ("rod", "hook", "env")}
+        self.defaults: dict[str, ThresholdModel] = {k: default_thresholds(k) for k in ("rod", "hook", "ball")}
         self.defaults.update(defaults or {})
         self.device_settings: dict[str, tuple[str, DeviceSettings]] = dict(device_settings or {})
         self.engine = AlarmEngine(active_alarms)
@@ -186,7 +181,7 @@ class Pipeline:
         self.kinds.update({d: k for d, (k, _) in self.device_settings.items()})
         self.env: dict[str, schemas.EnvPacket] = {}  # device id -> latest reading
         self.reel: dict[str, tuple[schemas.ReelStatus, float]] = {}  # rod id -> (latest status, arrival wall s)
-        self.auto_reel: dict[str, bool] = {}
+        self.auto_reel: dict[str, bool] = {d: True for d, (_, ds) in self.device_settings.items() if ds.auto_reel}
         self._batch: Any = None
         self._warmup: dict[str, list[schemas.ImuPacket]] = {}
         self._last_spots_s = -math.inf
@@ -196,8 +191,7 @@ class Pipeline:
 
     def effective(self, kind: str, device_id: str | None = None) -> tuple[str, ThresholdModel]:
         """(filter name, thresholds) of a device: kind defaults with its override merged on top."""
-        ck = config_kind(kind)
-        base = self.defaults[ck]
+        base = self.defaults[kind]
         default_filter = self.settings.hook_filter if kind == "hook" else self.settings.default_filter
         entry = self.device_settings.get(device_id) if device_id is not None else None
         if entry is None:
@@ -206,16 +200,15 @@ class Pipeline:
 
     def set_defaults(self, kind: str, thresholds: ThresholdModel) -> None:
         """New kind defaults; applied to every live device of the kind (re-merged with its override)."""
-        ck = config_kind(kind)
         for dev, k in self.kinds.items():  # validate every device's merge first: all or nothing
-            if config_kind(k) == ck and dev in self.device_settings:
+            if k == kind and dev in self.device_settings:
                 try:
                     merge_thresholds(thresholds, self.device_settings[dev][1].thresholds)
                 except ValidationError as exc:
                     raise BadSettings([f"device {dev}: {e['msg']}" for e in exc.errors()]) from exc
-        self.defaults[ck] = thresholds
+        self.defaults[kind] = thresholds
         for live in list(self.devices.values()):
-            if config_kind(live.kind) == ck:
+            if live.kind == kind:
                 self._apply(live)
 
     def validate_device_settings(self, kind: str, ds: DeviceSettings) -> ThresholdModel:
@@ -227,19 +220,24 @@ class Pipeline:
         if ds.filter_name is not None and ds.filter_name not in known:
             errors.append(f"filter_name: unknown filter {ds.filter_name!r}; known: {', '.join(sorted(known))}")
         try:
-            th = merge_thresholds(self.defaults[config_kind(kind)], ds.thresholds)
+            th = merge_thresholds(self.defaults[kind], ds.thresholds)
         except ValidationError as exc:
             errors += [f"thresholds.{'.'.join(str(p) for p in e['loc']) or '(model)'}: {e['msg']}"
                        for e in exc.errors()]  # fmt: skip
+        if ds.auto_reel and kind != "rod":
+            errors.append(f"auto_reel: only a rod has a reel, not a {kind}")
         if errors:
             raise BadSettings(errors)
         return th
 
     def set_device_settings(self, device_id: str, kind: str, ds: DeviceSettings) -> None:
-        """Validate and apply one device's settings; a changed filter restarts its fusion on the next packet."""
+        """Validate and apply one device's settings (auto reel included); a changed filter restarts its fusion on the
+        next packet."""
         self.validate_device_settings(kind, ds)
         self.device_settings[device_id] = (kind, ds)
         self.kinds[device_id] = kind
+        if ds.auto_reel != self.auto_reel.get(device_id, False):
+            self._switch_auto_reel(device_id, ds.auto_reel)
         dev = self.devices.get(device_id)
         if dev is not None:
             if self.effective(kind, device_id)[0] != dev.filter_name:
@@ -248,12 +246,24 @@ class Pipeline:
                 self._apply(dev)
 
     def set_auto_reel(self, device_id: str, on: bool) -> bool:
-        """Turn auto reel (fish walking) on or off for a rod; False when the controller is not available."""
-        self.auto_reel[device_id] = on
+        """Turn auto reel (fish walking) on or off for a rod, recorded in its DeviceSettings (`auto_reel`) so the
+        caller can persist them; False when the controller is not available. Idempotent: the same mode again
+        keeps the running controller."""
+        if on != self.auto_reel.get(device_id, False):
+            kind, ds = self.device_settings.get(device_id, ("rod", DeviceSettings()))
+            self.device_settings[device_id] = (kind, ds.model_copy(update={"auto_reel": on}))
+            self.kinds.setdefault(device_id, kind)
+            self._switch_auto_reel(device_id, on)
+        return not on or _controller_class() is not None
+
+    def _switch_auto_reel(self, device_id: str, on: bool) -> None:
+        if on:
+            self.auto_reel[device_id] = True
+        else:
+            self.auto_reel.pop(device_id, None)
         dev = self.devices.get(device_id)
         if dev is not None:
             dev.auto_reel = self._make_controller(dev) if on else None
-        return not on or _controller_class() is not None
 
     def _apply(self, dev: ImuDevice) -> None:
         _, th = self.effective(dev.kind, dev.device_id)
@@ -540,7 +550,7 @@ class Pipeline:
             SpotReading(spot, p.water_temp_c, p.oxygen_mg_l, p.light_lux, p.probe_depth_m, _thermocline_m(p.profile))
             for spot, p in latest.items()
         ]
-        prefs = self.defaults["env"]
+        prefs = self.defaults["ball"]
         assert isinstance(prefs, SpotPreferences)
         lt = time.localtime(now)
         ranked = rank_spots(readings, prefs, lt.tm_hour + lt.tm_min / 60.0)

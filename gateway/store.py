@@ -74,6 +74,13 @@ MIGRATIONS: tuple[str, ...] = (
     );
     CREATE INDEX events_t ON events (t);
     """,
+    # 2: the environment ball's kind is `ball` everywhere (it was `env` in config and these keys).
+    """
+    DELETE FROM defaults WHERE kind = 'env' AND EXISTS (SELECT 1 FROM defaults WHERE kind = 'ball');
+    UPDATE defaults SET kind = 'ball' WHERE kind = 'env';
+    UPDATE device_settings SET kind = 'ball' WHERE kind = 'env';
+    UPDATE alarms SET kind = 'ball' WHERE kind = 'env';
+    """,
 )
 
 _ALARM_COLUMNS = (

@@ -95,3 +95,18 @@ def test_merge_and_effective_settings():
     name, th = effective_settings("rod", DeviceSettings(filter_name="ekf", thresholds={"sensitivity": 1}), s, base)
     assert name == "ekf" and th == RodThresholds(bite_deviation_deg=8.0, sensitivity=1)
     assert effective_settings("hook", DeviceSettings(), s)[0] == "default"
+
+
+def test_threshold_kinds_are_the_wire_kinds():
+    from gateway import schemas
+    from gateway.config import THRESHOLD_MODELS, default_thresholds
+
+    assert tuple(THRESHOLD_MODELS) == schemas.KINDS  # `ball`, never a second name for the same device
+    assert isinstance(default_thresholds("ball"), SpotPreferences)
+    with pytest.raises(KeyError):
+        default_thresholds("env")
+
+
+def test_device_settings_carry_auto_reel():
+    assert DeviceSettings().auto_reel is False
+    assert DeviceSettings.model_validate_json('{"auto_reel": true}').auto_reel is True

@@ -42,13 +42,13 @@ def test_defaults_and_device_settings_round_trip(store):
     store.save_defaults("hook", HookThresholds(swing_warn_deg=3.0), t=1.0)
     store.save_defaults("rod", replace_rod := rod.model_copy(update={"rearm_quiet_s": 9.0}), t=2.0)
     loaded = store.load_defaults()
-    assert loaded["rod"] == replace_rod and loaded["hook"].swing_warn_deg == 3.0 and "env" not in loaded
+    assert loaded["rod"] == replace_rod and loaded["hook"].swing_warn_deg == 3.0 and "ball" not in loaded
     ds = DeviceSettings(filter_name="ekf", thresholds={"sensitivity": 5})
     store.save_device_settings("rod-7", "rod", ds)
-    store.save_device_settings("ball-1", "env", DeviceSettings(thresholds={"species": ["pike"]}))
+    store.save_device_settings("ball-1", "ball", DeviceSettings(thresholds={"species": ["pike"]}, auto_reel=False))
     assert store.load_device_settings() == {
         "rod-7": ("rod", ds),
-        "ball-1": ("env", DeviceSettings(thresholds={"species": ["pike"]})),
+        "ball-1": ("ball", DeviceSettings(thresholds={"species": ["pike"]})),
     }
     assert store.delete_device_settings("rod-7") and not store.delete_device_settings("rod-7")
     assert SpotPreferences(species=("pike",)).species == ("pike",)
@@ -153,3 +153,31 @@ def test_token_created_once_with_owner_only_permissions(tmp_path):
     assert not auth.verify_token(token[:-1] + ("A" if token[-1] != "A" else "B"))
     assert not auth.verify_token("") and not auth.verify_token(None)
     assert token not in repr(auth)
+
+
+def test_migration_renames_the_env_kind_to_ball_and_keeps_the_rows(tmp_path):
+    """A database written before migration 2 (ball kind stored as `env`) opens with `ball` keys, values intact."""
+    import sqlite3
+
+    path = tmp_path / "old.sqlite3"
+    conn = sqlite3.connect(path, isolation_level=None)
+    v1 = "CREATE TABLE schema_version (version INTEGER NOT NULL);" + MIGRATIONS[0]
+    conn.executescript(v1 + "INSERT INTO schema_version VALUES (1);")
+    prefs = SpotPreferences(species=("pike", "perch"))
+    conn.execute("INSERT INTO defaults VALUES ('env', ?, 1.0)", (prefs.model_dump_json(),))
+    conn.execute("INSERT INTO device_settings VALUES ('ball-1', 'env', ?, 1.0)",
+                 (DeviceSettings(thresholds={"species": ["trout"]}).model_dump_json(),))
+    conn.execute("INSERT INTO device_settings VALUES ('rod-1', 'rod', ?, 1.0)",
+                 ('{"filter_name": "ekf", "thresholds": {}}',))  # written before DeviceSettings had auto_reel
+    conn.close()
+    with Store(path) as s:
+        assert s.schema_version == len(MIGRATIONS) >= 2
+        assert s.load_defaults() == {"ball": prefs}
+        loaded = s.load_device_settings()
+        assert loaded["ball-1"] == ("ball", DeviceSettings(thresholds={"species": ["trout"]}))
+        assert loaded["rod-1"] == ("rod", DeviceSettings(filter_name="ekf", auto_reel=False))
+
+
+def test_auto_reel_round_trips(store):
+    store.save_device_settings("rod-2", "rod", DeviceSettings(auto_reel=True))
+    assert store.load_device_settings()["rod-2"][1].auto_reel is True

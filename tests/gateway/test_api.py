@@ -161,3 +161,43 @@ def test_unknown_things_are_404(running: Callable[[], Running]) -> None:
     app = running()
     assert app.client.get("/api/devices/nobody").status_code == 404
     assert app.client.post("/api/alarms/nope/ack", headers=app.auth).status_code == 404
+
+
+def test_auto_reel_survives_a_restart_and_settings_edits(running: Callable[[], Running]) -> None:
+    app = running()
+    r = app.client.post("/api/rods/rod-1/reel", json={"action": "auto"}, headers=app.auth)
+    assert r.status_code == 200 and r.json()["auto"] is True
+    # editing thresholds (no auto_reel in the body) and deleting the overrides keep the mode
+    ok = app.client.put("/api/devices/rod-1/settings", json={"kind": "rod", "thresholds": {"sensitivity": 4}},
+                        headers=app.auth)  # fmt: skip
+    assert ok.status_code == 200 and ok.json()["settings"]["auto_reel"] is True
+    assert app.client.delete("/api/devices/rod-1/settings", headers=app.auth).json()["settings"]["auto_reel"] is True
+
+    app = running()  # restart on the same data dir
+    assert app.client.get("/api/devices/rod-1/settings").json()["settings"]["auto_reel"] is True
+    app.feed(rod_messages(3.0, [{"type": "bite", "t_s": 1.5, "depth_deg": 15.0, "duration_s": 1.0}]))
+    assert app.client.get("/api/devices/rod-1").json()["auto_reel"] is True
+    auto = [schemas.decode(k, p) for k, p, _ in app.bus.sent if k == "rig/rod/rod-1/reel/cmd"]
+    assert auto and all(isinstance(c, schemas.ReelCommand) and c.sender == "auto" for c in auto)
+
+    r = app.client.post("/api/rods/rod-1/reel", json={"action": "stop"}, headers=app.auth)
+    assert r.json()["auto"] is False
+    app = running()
+    assert app.client.get("/api/devices/rod-1/settings").json()["settings"]["auto_reel"] is False
+
+
+def test_auto_reel_is_refused_for_a_hook(running: Callable[[], Running]) -> None:
+    app = running()
+    r = app.client.put("/api/devices/hook-1/settings", json={"kind": "hook", "auto_reel": True}, headers=app.auth)
+    assert r.status_code == 422 and any("only a rod has a reel" in m for m in r.json()["detail"])
+
+
+def test_ball_thresholds_are_stored_under_ball(running: Callable[[], Running], settings) -> None:  # type: ignore[no-untyped-def]
+    from gateway.store import Store
+
+    app = running()
+    assert app.client.put("/api/thresholds/ball", json={"species": ["pike"]}, headers=app.auth).status_code == 200
+    app = running()
+    assert app.client.get("/api/thresholds/ball").json()["species"] == ["pike"]
+    with Store(settings.db_path) as store:
+        assert set(store.load_defaults()) == {"ball"}

@@ -14,7 +14,6 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from gateway.api.deps import ServiceDep, WriterDep
 from gateway.config import THRESHOLD_MODELS, DeviceSettings
-from gateway.pipeline import config_kind
 
 router = APIRouter(tags=["config"])
 Kind = Literal["rod", "hook", "ball"]
@@ -25,19 +24,21 @@ def _messages(exc: ValidationError) -> list[str]:
 
 
 class DeviceSettingsIn(BaseModel):
-    """Settings of one device; `kind` is required the first time a device is configured before it was seen."""
+    """Settings of one device; `kind` is required the first time a device is configured before it was seen.
+    `auto_reel` (rods): None keeps the current mode (also switched by `POST /api/rods/{id}/reel`)."""
 
     model_config = ConfigDict(extra="forbid")
 
     kind: Kind | None = None
     filter_name: str | None = None
     thresholds: dict[str, Any] = Field(default_factory=dict)
+    auto_reel: bool | None = None
 
 
 @router.get("/thresholds/{kind}")
 def get_defaults(kind: Kind, service: ServiceDep) -> dict[str, Any]:
     """Default thresholds of a device kind."""
-    return service.pipeline.defaults[config_kind(kind)].model_dump()
+    return service.pipeline.defaults[kind].model_dump()
 
 
 @router.put("/thresholds/{kind}")
@@ -46,11 +47,11 @@ def put_defaults(
 ) -> dict[str, Any]:
     """Replace a kind's defaults (fields left out take the built-in default); applied live and stored."""
     try:
-        model = THRESHOLD_MODELS[config_kind(kind)].model_validate(body)
+        model = THRESHOLD_MODELS[kind].model_validate(body)
     except ValidationError as exc:
         raise HTTPException(422, _messages(exc)) from exc
     service.pipeline.set_defaults(kind, model)  # BadSettings -> 422 (a device override would become invalid)
-    service.store.save_defaults(config_kind(kind), model)
+    service.store.save_defaults(kind, model)
     service.store.log_event(time.time(), "defaults_changed", None, {"kind": kind})
     return model.model_dump()
 
@@ -83,7 +84,8 @@ def get_settings(device_id: str, service: ServiceDep) -> dict[str, Any]:
 def put_settings(device_id: str, body: DeviceSettingsIn, service: ServiceDep, _: WriterDep) -> dict[str, Any]:
     """Replace a device's settings (validated against its kind's defaults), applied live and stored."""
     kind = _kind_of(service, device_id, body.kind)
-    ds = DeviceSettings(filter_name=body.filter_name, thresholds=body.thresholds)
+    auto = service.pipeline.auto_reel.get(device_id, False) if body.auto_reel is None else body.auto_reel
+    ds = DeviceSettings(filter_name=body.filter_name, thresholds=body.thresholds, auto_reel=auto)
     service.pipeline.set_device_settings(device_id, kind, ds)
     service.store.save_device_settings(device_id, kind, ds)
     service.store.log_event(time.time(), "settings_changed", device_id, ds.model_dump())
@@ -92,10 +94,14 @@ def put_settings(device_id: str, body: DeviceSettingsIn, service: ServiceDep, _:
 
 @router.delete("/devices/{device_id}/settings")
 def delete_settings(device_id: str, service: ServiceDep, _: WriterDep) -> dict[str, Any]:
-    """Forget a device's overrides: it follows its kind's defaults again."""
+    """Forget a device's filter and threshold overrides: it follows its kind's defaults again (auto reel stays)."""
     kind = _kind_of(service, device_id, None)
-    service.pipeline.set_device_settings(device_id, kind, DeviceSettings())
-    service.pipeline.device_settings.pop(device_id, None)
-    service.store.delete_device_settings(device_id)
+    kept = DeviceSettings(auto_reel=service.pipeline.auto_reel.get(device_id, False))
+    service.pipeline.set_device_settings(device_id, kind, kept)
+    if kept.auto_reel:
+        service.store.save_device_settings(device_id, kind, kept)
+    else:
+        service.pipeline.device_settings.pop(device_id, None)
+        service.store.delete_device_settings(device_id)
     return get_settings(device_id, service)
 

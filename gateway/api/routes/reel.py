@@ -28,10 +28,15 @@ def reel(device_id: str, body: ReelRequest, service: ServiceDep, who: WriterDep)
     """Send a ReelCommand to `rig/rod/{id}/reel/cmd` (CongestionControl.BLOCK), or switch auto mode on."""
     if service.pipeline.kinds.get(device_id) not in (None, "rod"):
         raise HTTPException(422, [f"device {device_id!r} is not a rod"])
-    if body.action == "auto":
-        available = service.pipeline.set_auto_reel(device_id, True)
-        service.store.log_event(time.time(), "reel_auto", device_id, {"on": True, "by": who})
+    pl = service.pipeline
+    on = body.action == "auto"
+    was = pl.auto_reel.get(device_id, False)
+    available = pl.set_auto_reel(device_id, on)
+    if was != on:  # the mode is stored in the rod's settings, so a restart keeps it
+        kind, ds = pl.device_settings[device_id]
+        service.store.save_device_settings(device_id, kind, ds)
+        service.store.log_event(time.time(), "reel_auto", device_id, {"on": on, "by": who})
+    if on:
         return {"device_id": device_id, "auto": True, "controller_available": available}
-    service.pipeline.set_auto_reel(device_id, False)
     cmd = service.hub.send_reel(device_id, body.action, body.speed_m_s, body.drag_n, sender=who)
     return {"device_id": device_id, "auto": False, "command": cmd.model_dump()}
