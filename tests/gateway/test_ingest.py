@@ -124,3 +124,27 @@ def test_inbox_drains_in_batches_in_order() -> None:
         return [[k for k, _, _ in await asyncio.wait_for(inbox.drain(3), 1.0)] for _ in range(3)]
 
     assert asyncio.run(run()) == [["k0", "k1", "k2"], ["k3", "k4", "k5"], ["k6"]]
+
+
+def test_rejected_packets_are_published_at_most_20_a_second_but_all_counted(tmp_path: Path) -> None:
+    """docs/protocol.md: gw/diag/rejected is rate-limited (REJECTED_PER_S per second of the gateway clock)."""
+    from gateway.ingest.bus import MemoryBus
+    from gateway.ingest.runner import REJECTED_PER_S, GatewayService
+    from gateway.store import Store
+
+    bus = MemoryBus()
+    with Store(tmp_path / "gw.sqlite3") as store:
+        service = GatewayService(Settings(data_dir=tmp_path, zenoh_listen=[]), bus, store)
+        bad = [("rig/rod/rod-1/imu", b"{not json", time.monotonic())] * 50
+
+        def published() -> list[dict[str, object]]:
+            return [json.loads(p) for k, p, _ in bus.sent if k == schemas.DIAG_REJECTED_KEY]
+
+        service.handle(bad[:30], now_wall_s=1000.1)
+        service.handle(bad[30:], now_wall_s=1000.9)  # same second: nothing more goes out
+        assert REJECTED_PER_S == 20 and len(published()) == REJECTED_PER_S
+        assert service.counters.rejected["bad_json"] == 50, "every rejection is still counted"
+        service.handle(bad[:5], now_wall_s=1001.0)  # a new second opens a new allowance
+        assert len(published()) == REJECTED_PER_S + 5
+        assert {p["reason"] for p in published()} == {"bad_json"}
+        assert [p["wall_t_us"] for p in published()][-1] == 1_001_000_000
