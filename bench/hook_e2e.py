@@ -1,14 +1,32 @@
-"""Crane-hook swing end to end over zenoh: hook device process -> gateway process -> `gw/hook/*/swing`, compared with
-ground truth: RMSE of swing angle Θ, swing direction (displacement bearing, where Θ > 0.5°) and torsion φ.
+"""Crane-hook swing end to end over zenoh: hook device process -> gateway process -> `gw/hook/*/swing`, compared
+with ground truth: RMSE of swing angle Θ, swing direction (displacement bearing, where Θ > 0.5°) and torsion φ.
 
-The device process simulates `devices.hook_physics` (spherical pendulum + torsion, exact IMU truth) through the
-shared IMU error model (`devices.common.SensorModel`, MPU-6050/HMC5883L class) and publishes `rig/hook/{id}/imu`
-(5 samples per packet at 100 Hz) and `rig/hook/{id}/truth` with the shared fleet runtime. Scenario: hanging still
-for `--still` s, then a trolley traverse that starts the swing, with gusty torque on the rope twisting the hook.
-Each swing message (last sample of packet `seq`) is matched with the truth of the same `seq`. Target:
-swing-angle RMSE <= 0.1°.
+The device process simulates `devices.hook_physics` with the simulator's own physics (`devices.sim_hook`
+defaults: l = 10 m, g = 9.80665 m/s², air damping 0.002 1/s) through the shared IMU error model
+(`devices.common.SensorModel`, MPU-6050/HMC5883L class: ~1 °/s gyro bias, 1 % scale, 0.5 % misalignment,
+5 µT hard iron) and publishes `rig/hook/{id}/imu` (5 samples per packet at 100 Hz) and `rig/hook/{id}/truth`.
+Each swing message (last sample of packet `seq`) is matched with the truth of the same `seq`.
+
+Scenarios (the hook hangs still for `--still` s first; the gateway warms up on the first 0.5 s):
+
+- `free` (default): a 2 s trolley jerk (1.6 m/s² for 1 s towards 40°, then back) sets a ~5° swing that then
+  swings freely, with gusty torque about the rope (`--twist-torque`, default 2 N·m std as `devices.sim_hook`).
+  This is the target case: swing-angle RMSE <= 0.1° in the *free-swing window*.
+- `traverse`: a 4 m start-cruise-stop trolley move at 0.4 m/s² and strong torque gusts (10 N·m std, the hook
+  twists by ±100° at up to 100 °/s). The boom tip's acceleration is unobservable from the hook (see
+  gateway.fusion.hook_filter), so Θ during the move is not scored in the free-swing window.
+
+Windows, in scenario time (device time since its first sample): *free swing* from the end of the excitation plus
+`--settle` s (default 12 s, as bench.hook_accuracy) to the end; *all* from 1 s after the first swing message.
+Torsion is compared as the gateway reports it: relative to the hook's heading at the first fused sample (unless a
+rest heading is configured), against the truth's twist relative to its value at that sample.
+
+With `--compare` the received IMU packets are also run through VQF (offline, same samples, same geometry
+functions, same windows) for comparison. `--in-process` skips zenoh and both processes (same packets straight
+into `gateway.pipeline.Pipeline`), and prints the pipeline's cost per hook packet.
 
     python -m bench.hook_e2e --duration 40
+    python -m bench.hook_e2e --scenario traverse --duration 40 --compare
 """
 
 from __future__ import annotations
@@ -18,17 +36,59 @@ import math
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import zenoh
+from tqdm import tqdm
 
 from bench.bite_latency import REPO, Recorder, free_port, observer_config, start_gateway, wait_http
 from devices import common
 from devices.common import FleetSettings, ImuErrorModel, Message, SensorModel
-from devices.hook_physics import HookPhysicsSettings, HookScenario, simulate, trolley_traverse
+from devices.hook_physics import HookPhysicsSettings, HookScenario, TrolleyMove, simulate, trolley_traverse
 from gateway import schemas
+from gateway.fusion import hook as hook_geo
+
+RATE_HZ = 100.0
+SAMPLES_PER_PACKET = 5
+SCENARIOS = ("free", "traverse")
+
+
+@dataclass(frozen=True)
+class Case:
+    """A scenario and the scenario time (s) at which its scripted excitation ends."""
+
+    scenario: HookScenario
+    excitation_end_s: float
+
+
+def physics() -> HookPhysicsSettings:
+    """The simulator's physics (as `python -m devices.sim_hook` builds it with its defaults)."""
+    return HookPhysicsSettings(rope_length_m=10.0, gravity_m_s2=common.G_M_S2, earth_field_uT=common.EARTH_FIELD_ENU_UT,
+                               swing_damping_1_s=0.002)  # fmt: skip
+
+
+def make_case(name: str, duration_s: float, still_s: float, seed: int, twist_torque_n_m: float | None) -> Case:
+    """The scenario `name` (see the module docstring); `twist_torque_n_m` overrides its gust torque."""
+    if name == "free":
+        a, b = 1.6, math.radians(40.0)
+        moves: tuple[TrolleyMove, ...] = (
+            TrolleyMove(still_s, 1.0, (a * math.cos(b), a * math.sin(b))),
+            TrolleyMove(still_s + 1.0, 1.0, (-a * math.cos(b), -a * math.sin(b))),
+        )
+        torque = 2.0
+    elif name == "traverse":
+        moves, torque = trolley_traverse(still_s, 4.0, math.radians(30.0), acc_m_s2=0.4), 10.0
+    else:
+        raise ValueError(f"unknown scenario {name!r}; known: {', '.join(SCENARIOS)}")
+    scenario = HookScenario(
+        duration_s=duration_s + 1.0, output_rate_hz=RATE_HZ, trolley_moves=moves,
+        wind_torque_std_n_m=torque if twist_torque_n_m is None else twist_torque_n_m, wind_tau_s=2.0, seed=seed,
+    )  # fmt: skip
+    end = max(m.start_s + m.duration_s for m in moves)
+    return Case(scenario, end)
 
 
 class HookFleet:
@@ -37,15 +97,11 @@ class HookFleet:
     kind = "hook"
     command_selectors: tuple[str, ...] = ()
 
-    def __init__(self, fleet: FleetSettings, duration_s: float, still_s: float, seed: int) -> None:
+    def __init__(self, fleet: FleetSettings, case: Case, seed: int) -> None:
         self.fleet = fleet
         self.ids = fleet.ids
-        scenario = HookScenario(
-            duration_s=duration_s + 1.0, output_rate_hz=fleet.rate_hz,
-            trolley_moves=trolley_traverse(still_s, 4.0, math.radians(30.0), acc_m_s2=0.4),
-            wind_torque_std_n_m=10.0, wind_tau_s=2.0, seed=seed,
-        )  # fmt: skip
-        self.truth = simulate(HookPhysicsSettings(), scenario)
+        self.physics = physics()
+        self.truth = simulate(self.physics, case.scenario)
         rng = np.random.default_rng(seed)
         self.sensor = SensorModel(ImuErrorModel(), 1, rng)
         self.clock = common.DeviceClock.start(rng)
@@ -70,63 +126,148 @@ class HookFleet:
             wall_t0_us=wall, quat_wxyz=[tuple(map(float, q)) for q in tr.quat[sl]],  # type: ignore[misc]
             swing_angle_rad=[float(x) for x in tr.swing_rad[sl]],
             swing_direction_rad=[float(x) for x in tr.swing_bearing_rad[sl]],
-            torsion_rad=[float(math.remainder(x, 2 * math.pi)) for x in tr.torsion_rad[sl]], rope_length_m=10.0,
+            torsion_rad=[float(math.remainder(x, 2 * math.pi)) for x in tr.torsion_rad[sl]],
+            rope_length_m=self.physics.rope_length_m,
         )  # fmt: skip
         return [[Message(schemas.imu_key("hook", dev), imu, schemas.ENCODING_IMU)]], [
             Message(schemas.truth_key("hook", dev), truth.to_json(), schemas.ENCODING_TRUTH)]
 
 
-def run_device(port: int, duration_s: float, still_s: float, seed: int) -> None:
-    fleet = FleetSettings(count=1, seed=seed, rate_hz=100.0, samples_per_packet=5, duration_s=duration_s,
-                          id_prefix="hook", progress=False)  # fmt: skip
-    hooks = HookFleet(fleet, duration_s, still_s, seed)
+def fleet_settings(duration_s: float, seed: int) -> FleetSettings:
+    return FleetSettings(count=1, seed=seed, rate_hz=RATE_HZ, samples_per_packet=SAMPLES_PER_PACKET,
+                         duration_s=duration_s, id_prefix="hook", progress=False)  # fmt: skip
+
+
+def run_device(port: int, case: Case, duration_s: float, seed: int) -> None:
+    fleet = fleet_settings(duration_s, seed)
     with zenoh.open(common.zenoh_config("peer", [f"tcp/127.0.0.1:{port}"])) as session:
-        common.run_fleet(session, hooks, fleet)
+        common.run_fleet(session, HookFleet(fleet, case, seed), fleet)
 
 
 def wrap(x: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
     return np.angle(np.exp(1j * x))
 
 
-def analyse(rec: Recorder, skip_s: float = 1.0) -> dict[str, float]:
-    """RMSEs in degrees over matched (seq) swing / truth pairs, after the first `skip_s` of swing output."""
-    truth = {p.seq: p for _, p in rec.decoded("/truth") if isinstance(p, schemas.HookTruth)}
-    swings = [s for _, s in rec.decoded("/swing")]
-    pairs = [(s, truth[s["seq"]]) for s in swings if s["seq"] in truth]
-    if not pairs:
-        return {"n": 0}
-    t_first = pairs[0][0]["t_us"]
-    pairs = [(s, t) for s, t in pairs if s["t_us"] - t_first >= skip_s * 1e6]
-    est = np.array([[s["swing_angle_rad"], s["swing_direction_rad"], s["torsion_rad"]] for s, _ in pairs])
-    ref = np.array([[t.swing_angle_rad[-1], t.swing_direction_rad[-1], t.torsion_rad[-1]] for _, t in pairs])
+def _scenario_t_s(t: schemas.HookTruth) -> float:
+    """Scenario time of a truth packet's last sample (packet `seq` k starts at sample k·n)."""
+    n = len(t.swing_angle_rad)
+    return (t.seq * n + n - 1) / t.rate_hz
+
+
+def score(est: np.ndarray[Any, Any], ref: np.ndarray[Any, Any], t_s: np.ndarray[Any, Any], start_s: float,
+          ref_torsion0_rad: float, heading_offset_rad: float = math.nan) -> dict[str, float]:  # fmt: skip
+    """RMSEs in degrees of rows `[Θ, bearing, φ]` (est vs ref) with `t_s >= start_s`; truth torsion taken relative to
+    `ref_torsion0_rad` (its value where the estimate's reference heading was taken). `heading_offset_rad`: the
+    estimate's reference heading minus the true one; the bearing error after removing it is `direction_rel`."""
+    keep = t_s >= start_s
+    est, ref = est[keep], ref[keep]
+    if not len(est):
+        return {"n": 0.0}
     swinging = ref[:, 0] > math.radians(0.5)
     deg = 180.0 / math.pi
+    tors_err = wrap(est[:, 2] - (ref[:, 2] - ref_torsion0_rad))
+    rel_err = wrap(est[swinging, 1] - ref[swinging, 1] - heading_offset_rad)
     return {
-        "n": float(len(pairs)),
+        "n": float(len(est)),
         "swing_angle_rmse_deg": float(np.sqrt(np.mean((est[:, 0] - ref[:, 0]) ** 2)) * deg),
+        "swing_angle_maxerr_deg": float(np.max(np.abs(est[:, 0] - ref[:, 0])) * deg),
         "swing_angle_max_deg": float(np.max(ref[:, 0]) * deg),
         "direction_rmse_deg": float(np.sqrt(np.mean(wrap(est[swinging, 1] - ref[swinging, 1]) ** 2)) * deg)
         if swinging.any() else math.nan,
-        "torsion_rmse_deg": float(np.sqrt(np.mean(wrap(est[:, 2] - ref[:, 2]) ** 2)) * deg),
-        "torsion_max_deg": float(np.max(np.abs(ref[:, 2])) * deg),
+        "direction_rel_rmse_deg": float(np.sqrt(np.mean(rel_err**2)) * deg) if swinging.any() else math.nan,
+        "heading_offset_deg": heading_offset_rad * deg,
+        "torsion_rmse_deg": float(np.sqrt(np.mean(tors_err**2)) * deg),
+        "torsion_max_deg": float(np.max(np.abs(ref[:, 2] - ref_torsion0_rad)) * deg),
     }  # fmt: skip
 
 
-def run_session(duration_s: float, still_s: float, seed: int, work: Path) -> tuple[Recorder, int]:
+def analyse(rec: Recorder, excitation_end_s: float, settle_s: float = 12.0) -> dict[str, dict[str, float]]:
+    """`{"free": ..., "all": ...}` RMSEs (see `score`) over matched (seq) swing / truth pairs; `free` from
+    `excitation_end_s + settle_s`, `all` from 1 s after the first swing message; plus `"vqf_free"`/`"vqf_all"`
+    when the recorder also holds the IMU packets."""
+    truth = {p.seq: p for _, p in rec.decoded("/truth") if isinstance(p, schemas.HookTruth)}
+    swings = [s for _, s in rec.decoded("/swing")]
+    pairs = [(s, truth[s["seq"]]) for s in swings if s["seq"] in truth]
+    if not pairs or 0 not in truth:
+        return {"free": {"n": 0.0}, "all": {"n": 0.0}}
+    est = np.array([[s["swing_angle_rad"], s["swing_direction_rad"], s["torsion_rad"]] for s, _ in pairs])
+    ref = np.array([[t.swing_angle_rad[-1], t.swing_direction_rad[-1], t.torsion_rad[-1]] for _, t in pairs])
+    t_s = np.array([_scenario_t_s(t) for _, t in pairs])
+    tors0 = truth[0].torsion_rad[0]  # the gateway's torsion reference: the first fused sample (seq 0, sample 0)
+    # The gateway's reference heading (twist heading minus torsion, from the attitude of the same packet) against the
+    # true heading at the first sample: an absolute heading error (e.g. magnetometer hard iron) shifts every bearing.
+    att = {a["seq"]: a for _, a in rec.decoded("/attitude")}
+    swing_by_seq = {s["seq"]: s for s, _ in pairs}
+    refs = [float(hook_geo.twist_heading(np.array(att[k]["quat_wxyz"])) - swing_by_seq[k]["torsion_rad"])
+            for k in att if k in swing_by_seq]  # fmt: skip
+    true_ref = float(hook_geo.twist_heading(np.array(truth[0].quat_wxyz[0])))
+    offset = float(np.angle(np.mean(np.exp(1j * np.array(refs))))) - true_ref if refs else math.nan
+    start_free, start_all = excitation_end_s + settle_s, t_s[0] + 1.0
+    out = {"free": score(est, ref, t_s, start_free, tors0, offset),
+           "all": score(est, ref, t_s, start_all, tors0, offset)}
+    imu = {p.seq: p for _, p in rec.decoded("/imu") if isinstance(p, schemas.ImuPacket)}
+    if imu and _vqf_available():
+        seqs = sorted(imu)
+        if seqs == list(range(len(seqs))):  # VQF offline needs the whole stream
+            q = _vqf([imu[k] for k in seqs])
+            n = SAMPLES_PER_PACKET
+            rows = [(k, q[k * n + n - 1]) for k in seqs if k in truth]
+            qe = np.array([r[1] for r in rows])
+            heading0 = float(hook_geo.twist_heading(q[0]))
+            off_v = heading0 - true_ref
+            est_v = np.stack([hook_geo.swing_angle(qe), hook_geo.displacement_bearing(qe),
+                              hook_geo.torsion(qe, heading0)], axis=1)  # fmt: skip
+            ref_v = np.array([[truth[k].swing_angle_rad[-1], truth[k].swing_direction_rad[-1],
+                               truth[k].torsion_rad[-1]] for k, _ in rows])  # fmt: skip
+            tv = np.array([_scenario_t_s(truth[k]) for k, _ in rows])
+            out["vqf_free"] = score(est_v, ref_v, tv, start_free, tors0, off_v)
+            out["vqf_all"] = score(est_v, ref_v, tv, start_all, tors0, off_v)
+    return out
+
+
+def _vqf_available() -> bool:
+    try:
+        import vqf  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _vqf(packets: list[schemas.ImuPacket]) -> np.ndarray[Any, Any]:
+    """VQF (9D when the packets carry a magnetometer) over the packets' samples: quaternions (N, 4)."""
+    from vqf import offlineVQF
+
+    gyr = np.ascontiguousarray([s for p in packets for s in p.gyr_rad_s], dtype=np.float64)
+    acc = np.ascontiguousarray([s for p in packets for s in p.acc_m_s2], dtype=np.float64)
+    mags = [p.mag_uT for p in packets]
+    mag = np.ascontiguousarray([s for m in mags for s in m or ()], dtype=np.float64) if all(mags) else None
+    out = offlineVQF(gyr, acc, mag, 1.0 / packets[0].rate_hz)
+    return np.asarray(out["quat6D" if mag is None else "quat9D"])
+
+
+def device_args(case_name: str, duration_s: float, still_s: float, seed: int, twist: float | None) -> list[str]:
+    args = ["--scenario", case_name, "--duration", str(duration_s), "--still", str(still_s), "--seed", str(seed)]
+    return args + ([] if twist is None else ["--twist-torque", str(twist)])
+
+
+def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenario: str = "free",
+                twist_torque_n_m: float | None = None, record_imu: bool = False) -> tuple[Recorder, int]:  # fmt: skip
     """Gateway + hook processes with an observer session; returns what it saw and the device's exit code."""
     import subprocess
 
     zport, hport = free_port(), free_port()
     gw = start_gateway(work / "data", zport, hport, work / "gateway.log")
     rec = Recorder()
+    selectors = ["gw/hook/*/swing", "gw/hook/*/attitude", "rig/hook/*/truth"]
+    selectors += ["rig/hook/*/imu"] if record_imu else []
     try:
         wait_http(hport)
         with zenoh.open(observer_config(zport)) as session:
-            subs = [session.declare_subscriber(sel, rec) for sel in ("gw/hook/*/swing", "rig/hook/*/truth")]
+            subs = [session.declare_subscriber(sel, rec) for sel in selectors]
             time.sleep(0.5)
             dev = subprocess.run(
-                [sys.executable, "-m", "bench.hook_e2e", "--device", "--port", str(zport), "--duration",
-                 str(duration_s), "--still", str(still_s), "--seed", str(seed)],
+                [sys.executable, "-m", "bench.hook_e2e", "--device", "--port", str(zport),
+                 *device_args(scenario, duration_s, still_s, seed, twist_torque_n_m)],
                 cwd=REPO, capture_output=True, timeout=duration_s + 120,
             )  # fmt: skip
             time.sleep(1.0)
@@ -143,28 +284,84 @@ def run_session(duration_s: float, still_s: float, seed: int, work: Path) -> tup
     return rec, dev.returncode
 
 
+def run_in_process(case: Case, duration_s: float, seed: int) -> tuple[Recorder, float, int]:
+    """The same packets straight into a `Pipeline` (no zenoh, no processes): recorder, pipeline seconds, packets."""
+    from gateway.pipeline import Pipeline
+
+    fleet = fleet_settings(duration_s, seed)
+    hooks = HookFleet(fleet, case, seed)
+    pipe = Pipeline()
+    pipe.warm_up()
+    rec = Recorder()
+    busy_s, n_packets = 0.0, int(round(duration_s * RATE_HZ / SAMPLES_PER_PACKET))
+    for k in tqdm(range(n_packets), desc="packets", unit="pkt", file=sys.stderr):
+        data, extra = hooks.tick(k)
+        for m in [m for ms in data for m in ms] + extra:
+            rec.samples.append((0.0, m.key, m.payload))
+        packet = schemas.decode(data[0][0].key, data[0][0].payload)
+        t0 = time.perf_counter()
+        out = pipe.process([packet], now_wall_s=1.0e9)
+        busy_s += time.perf_counter() - t0
+        for s in out.swings:
+            rec.samples.append((0.0, schemas.swing_key(s.device_id), s.model_dump_json().encode()))
+        for a in out.attitudes:
+            rec.samples.append((0.0, schemas.attitude_key("hook", a.device_id), a.model_dump_json().encode()))
+    return rec, busy_s, n_packets
+
+
+def _print(label: str, r: dict[str, float]) -> None:
+    if not r.get("n"):
+        print(f"{label}: no matched samples")
+        return
+    print(f"{label:<34} n {r['n']:>5.0f}  swing RMSE {r['swing_angle_rmse_deg']:6.3f}° (max err "
+          f"{r['swing_angle_maxerr_deg']:.2f}°, max swing {r['swing_angle_max_deg']:.1f}°)  direction RMSE "
+          f"{r['direction_rmse_deg']:6.2f}° (rel. to start heading {r['direction_rel_rmse_deg']:5.2f}°, heading off "
+          f"by {r['heading_offset_deg']:.1f}°)  torsion RMSE {r['torsion_rmse_deg']:6.2f}° (max "
+          f"{r['torsion_max_deg']:.0f}°)")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.hook_e2e", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    p.add_argument("--scenario", choices=SCENARIOS, default="free", help="what the hook does (default: free)")
     p.add_argument("--duration", type=float, default=40.0, help="seconds of hook data (default: 40)")
     p.add_argument("--still", type=float, default=3.0, help="seconds hanging still before the trolley moves")
+    p.add_argument("--settle", type=float, default=12.0, help="free-swing window starts this long after the "
+                   "excitation, s (default: 12)")  # fmt: skip
+    p.add_argument("--twist-torque", type=float, default=None, help="gust torque about the rope, std, N·m "
+                   "(default: 2 for free, 10 for traverse)")  # fmt: skip
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--compare", action="store_true", help="also score VQF on the same received IMU samples")
+    p.add_argument("--in-process", action="store_true", help="no zenoh: packets straight into a Pipeline; "
+                   "prints the pipeline's cost per packet")  # fmt: skip
     p.add_argument("--device", action="store_true", help="(internal) run the hook device process")
     p.add_argument("--port", type=int, default=7447, help="(with --device) gateway zenoh port")
     args = p.parse_args(argv)
+    case = make_case(args.scenario, args.duration, args.still, args.seed, args.twist_torque)
     if args.device:
-        run_device(args.port, args.duration, args.still, args.seed)
+        run_device(args.port, case, args.duration, args.seed)
         return 0
-    with tempfile.TemporaryDirectory() as tmp:
-        print(f"running {args.duration:g} s of hook data through zenoh and the gateway ...", file=sys.stderr)
-        rec, code = run_session(args.duration, args.still, args.seed, Path(tmp))
-    r = analyse(rec)
-    print(f"matched swing messages: {r['n']:.0f} (device exit code {code})")
-    if r["n"]:
-        print(f"swing angle RMSE {r['swing_angle_rmse_deg']:.3f} deg "
-              f"(max true swing {r['swing_angle_max_deg']:.2f} deg)")
-        print(f"swing direction RMSE {r['direction_rmse_deg']:.2f} deg (where swing > 0.5 deg)")
-        print(f"torsion RMSE {r['torsion_rmse_deg']:.2f} deg (max true torsion {r['torsion_max_deg']:.1f} deg)")
+    if args.in_process:
+        rec, busy_s, n_packets = run_in_process(case, args.duration, args.seed)
+        code = 0
+        print(f"pipeline cost: {busy_s / n_packets * 1e3:.3f} ms per hook packet of {SAMPLES_PER_PACKET} samples "
+              f"({n_packets * SAMPLES_PER_PACKET / busy_s:,.0f} samples/s, one hook, after warm_up())")
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            print(f"running {args.duration:g} s of hook data through zenoh and the gateway ...", file=sys.stderr)
+            rec, code = run_session(args.duration, args.still, args.seed, Path(tmp), args.scenario,
+                                    args.twist_torque, record_imu=args.compare)  # fmt: skip
+    if not args.compare:
+        rec.samples = [s for s in rec.samples if not s[1].endswith("/imu")]
+    r = analyse(rec, case.excitation_end_s, args.settle)
+    start = case.excitation_end_s + args.settle
+    print(f"scenario {args.scenario}, seed {args.seed}, {args.duration:g} s, device exit code {code}; excitation ends "
+          f"at {case.excitation_end_s:g} s; free-swing window {start:g}-{args.duration:g} s")
+    _print(f"gateway ({'in process' if args.in_process else 'zenoh'}), free swing", r["free"])
+    _print("gateway, all after 1 s", r["all"])
+    if "vqf_free" in r:
+        _print("VQF on the same samples, free swing", r["vqf_free"])
+        _print("VQF on the same samples, all", r["vqf_all"])
     return 0
 
 

@@ -85,7 +85,8 @@ class ImuDevice:
     filt: AttitudeFilter | None  # None: a row of the default-filter batch
     rod: RodAlarms | None = None
     hook: HookAlarms | None = None
-    rest_heading_rad: float | None = None
+    rest_heading_rad: float | None = None  # hook: heading at the first fused sample (torsion reference)
+    rest_heading_set_rad: float | None = None  # hook: configured rest heading (HookThresholds), wins when set
     yaw_last: float = math.nan
     yaw_turns: int = 0
     quat: FloatArray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0, 0.0]))
@@ -270,7 +271,12 @@ class Pipeline:
         if dev.rod is not None and isinstance(th, RodThresholds):
             dev.rod.set_thresholds(th)
         if dev.hook is not None and isinstance(th, HookThresholds):
+            rope = getattr(getattr(dev.filt, "settings", None), "rope_length_m", None)
+            if rope is not None and rope != th.rope_length_m:  # the pendulum model changed: restart fusion
+                self._drop(dev.device_id)
+                return
             dev.hook.set_thresholds(th)
+            dev.rest_heading_set_rad = None if th.rest_heading_deg is None else math.radians(th.rest_heading_deg)
 
     def _drop(self, device_id: str) -> None:
         dev = self.devices.pop(device_id)
@@ -337,7 +343,7 @@ class Pipeline:
         filt: AttitudeFilter | None = None
         if name != DEFAULT_FILTER:
             try:
-                filt = _make_filter(name, use_mag)
+                filt = _make_filter(name, use_mag, th.rope_length_m if isinstance(th, HookThresholds) else None)
             except KeyError:
                 log.warning("device %s: filter %r not available, using %r", p.device_id, name, DEFAULT_FILTER)
                 name = DEFAULT_FILTER
@@ -350,9 +356,17 @@ class Pipeline:
                 self._batch = DefaultFilterBatch()
             self._batch.add(p.device_id, dt_s=1.0 / p.rate_hz, use_mag=use_mag, acc_m_s2=acc0, mag_uT=mag0)
         dev = ImuDevice(p.kind, p.device_id, name, 1.0 / p.rate_hz, use_mag, filt)
-        g_std = float(gyr.std(axis=0).max()) if gyr.shape[0] > 1 else math.inf
-        if g_std < self.settings.rest_gyr_std_rad_s and abs(float(np.linalg.norm(acc0)) - G_M_S2) < (
-                self.settings.rest_acc_tol_m_s2):  # fmt: skip
+        g_std = gyr.std(axis=0) if gyr.shape[0] > 1 else np.full(3, math.inf)
+        quiet = g_std < self.settings.rest_gyr_std_rad_s
+        level = abs(float(np.linalg.norm(acc0)) - G_M_S2) < self.settings.rest_acc_tol_m_s2
+        if p.kind == "hook" and hasattr(filt, "assume_moving"):
+            # A hook can hang still yet twist in gusts: x/y quiet is rest for the swing (seed the x/y bias), z too
+            # seeds the z bias. Swinging at start: the filter must not assume plumb.
+            if level and quiet[0] and quiet[1]:
+                filt.seed_gyro_bias(gyr.mean(axis=0), axes=(0, 1, 2) if quiet[2] else (0, 1))  # type: ignore[union-attr]
+            else:
+                filt.assume_moving()  # type: ignore[union-attr]
+        elif level and quiet.all():
             self._seed_bias(dev, gyr.mean(axis=0))
         if p.kind == "rod":
             dev.rod = RodAlarms(p.device_id, th if isinstance(th, RodThresholds) else None)
@@ -360,6 +374,8 @@ class Pipeline:
                 dev.auto_reel = self._make_controller(dev)
         else:
             dev.hook = HookAlarms(p.device_id, th if isinstance(th, HookThresholds) else None)
+            if isinstance(th, HookThresholds) and th.rest_heading_deg is not None:
+                dev.rest_heading_set_rad = math.radians(th.rest_heading_deg)
         self.devices[p.device_id] = dev
         return dev
 
@@ -496,7 +512,8 @@ class Pipeline:
             if dev.rest_heading_rad is None:
                 dev.rest_heading_rad = float(hook_geo.twist_heading(q[0]))
             swing = hook_geo.swing_angle(q)
-            tors = hook_geo.torsion(q, dev.rest_heading_rad)
+            ref = dev.rest_heading_rad if dev.rest_heading_set_rad is None else dev.rest_heading_set_rad
+            tors = hook_geo.torsion(q, ref)
             new = dev.hook.update(t_s, swing, tors)
             for i, seq, t_us in ends:
                 dev.swing = schemas.Swing(
@@ -580,16 +597,18 @@ class Pipeline:
         return None
 
 
-def _make_filter(name: str, use_mag: bool) -> AttitudeFilter:
-    """A filter by name: the hook EKF, else the registry (KeyError when unknown)."""
+def _make_filter(name: str, use_mag: bool, rope_length_m: float | None = None) -> AttitudeFilter:
+    """A filter by name: the hook EKF (on a rope of `rope_length_m`, else its default), else the registry
+    (KeyError when unknown)."""
     from gateway.fusion import registry
 
+    if name == HOOK_FILTER:
+        from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
+
+        settings = HookFilterSettings() if rope_length_m is None else HookFilterSettings(rope_length_m=rope_length_m)
+        return HookFilter(settings, use_mag=use_mag)
     if name in registry.FILTERS:
         return registry.make_filter(name, use_mag=use_mag)
-    if name == HOOK_FILTER:
-        from gateway.fusion.hook_filter import HookFilter
-
-        return HookFilter(use_mag=use_mag)
     raise KeyError(name)
 
 

@@ -1,0 +1,85 @@
+"""The hook through `gateway.pipeline.Pipeline` in process (the packets bench.hook_e2e sends, no zenoh): free-swing
+accuracy, a hook already swinging at start, and the per-device rope length / rest heading settings."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from bench.hook_e2e import Case, HookFleet, analyse, fleet_settings, make_case, run_in_process
+from gateway import schemas
+from gateway.config import DeviceSettings
+from gateway.fusion import hook as hook_geo
+from gateway.pipeline import Pipeline
+
+
+def test_free_swing_through_the_pipeline_meets_the_target() -> None:
+    """Target 0.1° swing RMSE in free swing, window from 12 s after the jerk (measured 0.043° on seed 2; seeds 1 and 3
+    give 0.072° and 0.085°); bearing relative to the start heading and torsion within 12° (measured 5.9° and 6.4°;
+    the absolute bearing also carries the magnetometer's hard-iron heading error, 11° on this seed)."""
+    case = make_case("free", 30.0, 1.0, 2, None)
+    rec, _, _ = run_in_process(case, 30.0, 2)
+    r = analyse(rec, case.excitation_end_s, 12.0)["free"]
+    assert r["n"] > 250
+    assert r["swing_angle_max_deg"] > 3.0
+    assert r["swing_angle_rmse_deg"] < 0.1, r
+    assert r["direction_rel_rmse_deg"] < 12.0, r
+    assert r["torsion_rmse_deg"] < 12.0, r
+
+
+def test_hook_swinging_at_start_converges() -> None:
+    """5° swing from the first sample (python -m devices.sim_hook's default start): the warm-up is not at rest, so
+    the filter must not assume plumb; Θ within 0.15° RMSE from 10 s on (measured 0.05°; with the rest prior it
+    was 0.09° and 0.12° over 5-40 s)."""
+    base = make_case("free", 22.0, 1.0, 4, None)
+    sc = dataclasses.replace(base.scenario, trolley_moves=(), initial_swing_rad=math.radians(5.0),
+                             initial_swing_bearing_rad=math.radians(30.0))  # fmt: skip
+    rec, _, _ = run_in_process(Case(sc, 0.0), 22.0, 4)
+    r = analyse(rec, 0.0, 10.0)["free"]
+    assert r["swing_angle_max_deg"] > 4.0
+    assert r["swing_angle_rmse_deg"] < 0.15, r
+
+
+def _packets(n: int, seed: int = 5) -> list[schemas.ImuPacket]:
+    fleet = HookFleet(fleet_settings(n * 0.05, seed), make_case("free", n * 0.05, 100.0, seed, 0.0), seed)
+    out = []
+    for k in range(n):
+        data, _ = fleet.tick(k)
+        p = schemas.decode(data[0][0].key, data[0][0].payload)
+        assert isinstance(p, schemas.ImuPacket)
+        out.append(p)
+    return out
+
+
+def test_rope_length_setting_reaches_the_filter_and_a_change_restarts_fusion() -> None:
+    pipe = Pipeline()
+    pkts = _packets(40)
+    dev_id = pkts[0].device_id
+    pipe.set_device_settings(dev_id, "hook", DeviceSettings(thresholds={"rope_length_m": 25.0}))
+    pipe.process(pkts[:20], now_wall_s=1e9)
+    filt = pipe.devices[dev_id].filt
+    assert filt is not None and filt.settings.rope_length_m == 25.0  # type: ignore[attr-defined]
+    pipe.set_device_settings(dev_id, "hook", DeviceSettings(thresholds={"rope_length_m": 12.0}))
+    assert dev_id not in pipe.devices, "a new rope length restarts the device's fusion"
+    pipe.process(pkts[20:], now_wall_s=1e9)
+    filt = pipe.devices[dev_id].filt
+    assert filt is not None and filt.settings.rope_length_m == 12.0  # type: ignore[attr-defined]
+    assert Pipeline().defaults["hook"].rope_length_m == 10.0, "the default agrees with devices.sim_hook (10 m)"  # type: ignore[union-attr]
+
+
+def test_torsion_is_measured_from_the_configured_rest_heading() -> None:
+    """Hanging still (no torque): torsion ≈ 0 (< 2°) from the first fused heading; with rest_heading_deg set, torsion is the
+    twist heading minus that setting."""
+    pkts = _packets(30)
+    dev_id = pkts[0].device_id
+    pipe = Pipeline()
+    out = pipe.process(pkts[:20], now_wall_s=1e9)
+    assert abs(out.swings[-1].torsion_rad) < math.radians(2.0)  # the mag-weighted heading settles by ~1°
+    pipe.set_device_settings(dev_id, "hook", DeviceSettings(thresholds={"rest_heading_deg": 40.0}))
+    out = pipe.process(pkts[20:], now_wall_s=1e9)
+    alpha = hook_geo.twist_heading(np.array(out.attitudes[-1].quat_wxyz))
+    expected = math.remainder(float(alpha) - math.radians(40.0), 2 * math.pi)
+    assert out.swings[-1].seq == out.attitudes[-1].seq
+    assert abs(math.remainder(out.swings[-1].torsion_rad - expected, 2 * math.pi)) < 1e-9
