@@ -13,7 +13,8 @@ The reference field m̃ is learnt from the initial rest window, so the local inc
 
 Beyond the paper (all off with `EkfSettings(paper=True)`):
 - three gyro-bias states (random walk): BROAD's raw gyros are biased by up to 0.5 °/s;
-- accelerometer noise inflated as |a| departs from the rest norm g₀ (linear acceleration, tapping);
+- accelerometer noise inflated as |a| departs from the rest norm g₀ (linear acceleration, tapping), capped so
+  long fast motion still gets some tilt correction;
 - magnetometer noise inflated as |m| departs from the rest norm and the dip angle (field vs predicted up) from the
   rest dip (nearby iron and magnets), and the magnetometer innovation restricted to heading: its component along
   the predicted up direction is removed, so a disturbed field cannot tilt the estimate.

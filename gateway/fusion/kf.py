@@ -14,7 +14,7 @@ yaw cross ±π); near gimbal lock roll and yaw are ill-defined, so their R is di
 them to the gyro there. 6D mode: roll and pitch are measured, yaw comes from the gyro alone.
 
 Beyond the paper (off with `KfSettings(paper=True)`): gyro bias learnt as the mean rate while at rest; roll/pitch R
-inflated as |a| departs from its rest norm, yaw R as |m| and the dip angle depart from theirs.
+inflated (with a cap) as |a| departs from its rest norm, yaw R as |m| and the dip angle depart from theirs.
 """
 
 from __future__ import annotations
