@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import sys
+import time
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -45,8 +46,11 @@ def create_app(
         service = GatewayService(settings, bus, store)
         app.state.service = service
         try:
-            if warm_up:
-                await asyncio.to_thread(service.pipeline.warm_up)  # compile before the first packet, not on it
+            if warm_up:  # compile before the first packet, not on it; cached in __pycache__ after the first start
+                log.info("preparing fusion kernels (the first start after install compiles them: up to a minute)")
+                t0 = time.perf_counter()
+                await asyncio.to_thread(service.pipeline.warm_up)
+                log.info("fusion kernels ready in %.1f s", time.perf_counter() - t0)
             await service.start()
             ws.start_live(app, service)
             yield

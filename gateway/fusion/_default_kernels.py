@@ -124,7 +124,7 @@ def new_state(settings: np.ndarray) -> np.ndarray:
     return s
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _qmul(
     aw: float, ax: float, ay: float, az: float, bw: float, bx: float, by: float, bz: float
 ) -> tuple[float, float, float, float]:
@@ -137,7 +137,7 @@ def _qmul(
     )
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _rotate(
     w: float, x: float, y: float, z: float, vx: float, vy: float, vz: float
 ) -> tuple[float, float, float]:
@@ -149,7 +149,7 @@ def _rotate(
     )
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _normalise_q(s: np.ndarray, k: int) -> None:
     n = math.sqrt(s[k] ** 2 + s[k + 1] ** 2 + s[k + 2] ** 2 + s[k + 3] ** 2)
     s[k] /= n
@@ -177,7 +177,7 @@ def _butter2(tau_s: float, dt_s: float, c: np.ndarray, k: int) -> None:
     c[k + 4] = (w * w - math.sqrt(2.0) * w + 1.0) / d
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _lowpass(x: float, c: np.ndarray, kc: int, s: np.ndarray, ks: int) -> float:
     """One step of the biquad (transposed direct form II) whose memory is s[ks], s[ks+1].
 
@@ -193,7 +193,7 @@ def _lowpass(x: float, c: np.ndarray, kc: int, s: np.ndarray, ks: int) -> float:
     return y
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _lowpass_vec(x: np.ndarray, n: int, c: np.ndarray, kc: int, s: np.ndarray, base: int) -> None:
     """Filter x[:n] in place with the n-channel filter stored at s[base:base+3n] (outputs, then 2 memories each)."""
     for i in range(n):
@@ -235,7 +235,7 @@ def coefficients(prm: np.ndarray, dt_s: float, c: np.ndarray) -> None:
     c[C_SCALE_P0] = prm[P_SCALE_SIGMA_INIT] ** 2 if on else 0.0
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _wrap(a: float) -> float:
     if a > math.pi:
         return a - 2.0 * math.pi
@@ -524,7 +524,7 @@ def _mag_step(s: np.ndarray, prm: np.ndarray, c: np.ndarray, mx: float, my: floa
     s[S_DELTA] = _wrap(s[S_DELTA] + k * err)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _output(s: np.ndarray, use_mag: bool, out: np.ndarray, i: int) -> None:
     qw, qx, qy, qz = _qmul(
         s[S_QI], s[S_QI + 1], s[S_QI + 2], s[S_QI + 3], s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3]
