@@ -62,9 +62,14 @@ def _stop(p: subprocess.Popen[bytes]) -> None:
 
 @pytest.fixture(scope="session")
 def chromium_path() -> Path:
+    # CI sets RIG_REQUIRE_BROWSER=1 after installing Chromium: there a missing browser is a failure, not a skip.
+    missing = pytest.fail if os.environ.get("RIG_REQUIRE_BROWSER") == "1" else pytest.skip
     if not CHROMIUM.exists():
-        pytest.skip(f"{CHROMIUM} not found: run scripts/ci-apt.sh (apt-get install chromium) for the browser tests")
-    pytest.importorskip("playwright", reason="pip install playwright (never `playwright install`)")
+        missing(f"{CHROMIUM} not found: run scripts/ci-apt.sh (apt-get install chromium) for the browser tests")
+    try:
+        import playwright  # noqa: F401
+    except ImportError:
+        missing("pip install playwright (never `playwright install`)")
     return CHROMIUM
 
 
