@@ -20,6 +20,7 @@ log = logging.getLogger("gateway.hub")
 Listener = Callable[[str, schemas.WireModel], None]
 """(topic, model): topic is `attitude`, `swing`, `alarm`, `spots` or `reel_cmd`."""
 
+
 def alarm_event(out: AlarmOut, now_us: int) -> schemas.AlarmEvent:
     """Wire event of an engine change: raised/updated -> `raised` (with the current severity), cleared -> `cleared`.
 
