@@ -77,37 +77,32 @@ class HookFilterSettings:
 
 
 @njit
-def _qmul(a: FloatArray, b: FloatArray) -> FloatArray:
-    out = np.empty(4)
-    out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
-    out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2]
-    out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1]
-    out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]
-    return out
+def _attitude_rate(
+    px: float, py: float, vx: float, vy: float, alpha: float, alpha_rate: float
+) -> tuple[float, float, float, float, float, float, float]:
+    """Scalar core of `attitude_and_rate`: `(q_w, q_x, q_y, q_z, ω_x, ω_y, ω_z)`.
 
-
-@njit
-def _cross3(a: FloatArray, b: FloatArray) -> FloatArray:
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+    With `q_swing = (a, b, c, 0)` and its rate `(a', b', c', 0)`, the swing part of the body rate is
+    `2 vec(q_swing* ⊗ q_swing') = 2 (a b' - b a', a c' - c a', c b' - b c')`; the twist `q_z(α)` turns it by `-α`
+    about z and adds `α'` on z."""
+    nz = math.sqrt(max(1.0 - px * px - py * py, 1e-6))
+    vz = -(px * vx + py * vy) / nz
+    s = math.sqrt(2.0 * (1.0 + nz))
+    sd = vz / s
+    a, b, c = 0.5 * s, -py / s, px / s
+    ad, bd, cd = 0.5 * sd, -vy / s + py * sd / (s * s), vx / s - px * sd / (s * s)
+    wx, wy, wz = 2.0 * (a * bd - b * ad), 2.0 * (a * cd - c * ad), 2.0 * (c * bd - b * cd)
+    ct, st = math.cos(0.5 * alpha), math.sin(0.5 * alpha)
+    ca, sa = math.cos(alpha), math.sin(alpha)
+    return (a * ct, b * ct + c * st, c * ct - b * st, a * st,
+            ca * wx + sa * wy, -sa * wx + ca * wy, wz + alpha_rate)  # fmt: skip
 
 
 @njit
 def attitude_and_rate(x: FloatArray) -> tuple[FloatArray, FloatArray]:
     """`q = q_swing(n) ⊗ q_z(α)` and the body rate `2 vec(q* ⊗ q')` in rad/s for one state (12,)."""
-    px, py, vx, vy, alpha, alpha_rate = x[0], x[1], x[2], x[3], x[4], x[5]
-    nz = np.sqrt(max(1.0 - px * px - py * py, 1e-6))
-    vz = -(px * vx + py * vy) / nz
-    s = np.sqrt(2.0 * (1.0 + nz))
-    sd = vz / s
-    sw = np.array([0.5 * s, -py / s, px / s, 0.0])
-    sw_dot = np.array([0.5 * sd, -vy / s + py * sd / (s * s), vx / s - px * sd / (s * s), 0.0])
-    c, si = np.cos(0.5 * alpha), np.sin(0.5 * alpha)
-    tw = np.array([c, 0.0, 0.0, si])
-    tw_dot = np.array([-si, 0.0, 0.0, c]) * (0.5 * alpha_rate)
-    q = _qmul(sw, tw)
-    q_dot = _qmul(sw_dot, tw) + _qmul(sw, tw_dot)
-    q_conj = np.array([q[0], -q[1], -q[2], -q[3]])
-    return q, 2.0 * _qmul(q_conj, q_dot)[1:]
+    qw, qx, qy, qz, wx, wy, wz = _attitude_rate(x[0], x[1], x[2], x[3], x[4], x[5])
+    return np.array([qw, qx, qy, qz]), np.array([wx, wy, wz])
 
 
 @njit
@@ -150,52 +145,66 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
 
     acc_z is the tension `l |n'|² + g n_z` plus the lever-arm terms `[ω' × r + ω × (ω × r)]_z`, with `ω'` the
     body-rate derivative along the pendulum's own motion (central difference over ±1 ms, twist acceleration 0).
+    Scalar code (no temporary arrays): it runs ~10 times per sample inside the Jacobian.
     """
     g, l = params[0], params[1]
-    r = params[2:5]
-    q, rate = attitude_and_rate(x)
-    px, py, vx, vy = x[0], x[1], x[2], x[3]
-    nz = np.sqrt(max(1.0 - px * px - py * py, 1e-6))
+    rx, ry, rz = params[2], params[3], params[4]
+    px, py, vx, vy, alpha, alpha_rate = x[0], x[1], x[2], x[3], x[4], x[5]
+    qw, qx, qy, qz, wx, wy, wz = _attitude_rate(px, py, vx, vy, alpha, alpha_rate)
+    nz = math.sqrt(max(1.0 - px * px - py * py, 1e-6))
     vz = -(px * vx + py * vy) / nz
     ax, ay = _pendulum_accel(px, py, vx, vy, g / l, x[10], x[11])
     h = 1e-3
-    step = np.zeros(N_STATE)
-    step[0], step[1], step[2], step[3], step[4] = vx, vy, ax, ay, x[5]
-    rate_dot = (attitude_and_rate(x + h * step)[1] - attitude_and_rate(x - h * step)[1]) / (2.0 * h)
-    lever = _cross3(rate_dot, r) + _cross3(rate, _cross3(rate, r))
+    _, _, _, _, px_, py_, pz_ = _attitude_rate(px + h * vx, py + h * vy, vx + h * ax, vy + h * ay,
+                                               alpha + h * alpha_rate, alpha_rate)  # fmt: skip
+    _, _, _, _, mx_, my_, mz_ = _attitude_rate(px - h * vx, py - h * vy, vx - h * ax, vy - h * ay,
+                                               alpha - h * alpha_rate, alpha_rate)  # fmt: skip
+    dwx, dwy = (px_ - mx_) / (2.0 * h), (py_ - my_) / (2.0 * h)
+    lever_z = dwx * ry - dwy * rx + wz * (wx * rx + wy * ry + wz * rz) - rz * (wx * wx + wy * wy + wz * wz)
     out = np.zeros(7)
-    out[:3] = rate + x[6:9]
-    out[3] = l * (vx * vx + vy * vy + vz * vz) + g * nz + lever[2] + x[9]
+    out[0], out[1], out[2] = wx + x[6], wy + x[7], wz + x[8]
+    out[3] = l * (vx * vx + vy * vy + vz * vz) + g * nz + lever_z + x[9]
     if params[8] > 0.0:  # Rᵀ m_ref
-        m = np.array([0.0, params[5], params[6], params[7]])
-        q_conj = np.array([q[0], -q[1], -q[2], -q[3]])
-        out[4:] = _qmul(_qmul(q_conj, m), q)[1:]
+        mx, my, mz = params[5], params[6], params[7]
+        xx, yy, zz, xy, xz, yz = qx * qx, qy * qy, qz * qz, qx * qy, qx * qz, qy * qz
+        wx_, wy_, wz_ = qw * qx, qw * qy, qw * qz
+        out[4] = (1.0 - 2.0 * (yy + zz)) * mx + 2.0 * (xy + wz_) * my + 2.0 * (xz - wy_) * mz
+        out[5] = 2.0 * (xy - wz_) * mx + (1.0 - 2.0 * (xx + zz)) * my + 2.0 * (yz + wx_) * mz
+        out[6] = 2.0 * (xz + wy_) * mx + 2.0 * (yz - wx_) * my + (1.0 - 2.0 * (xx + yy)) * mz
     return out
 
 
 @njit
 def process_jacobian(x: FloatArray, dt_s: float, g_over_l: float) -> FloatArray:
-    """Forward-difference Jacobian (12, 12) of `process` at `x` (step 1e-7)."""
+    """Jacobian (12, 12) of `process` at `x`: forward differences (step 1e-7) in the pendulum columns `p, v, e`;
+    the rest is exact (α integrates α'; α', bias, offset and `e` random-walk)."""
     eps = 1e-7
     f0 = process(x, dt_s, g_over_l)
-    f_jac = np.empty((N_STATE, N_STATE))
-    for j in range(N_STATE):
-        xp = x.copy()
+    f_jac = np.eye(N_STATE)
+    f_jac[4, 5] = dt_s
+    xp = x.copy()
+    for j in (0, 1, 2, 3, 10, 11):
         xp[j] += eps
         f_jac[:, j] = (process(xp, dt_s, g_over_l) - f0) / eps
+        xp[j] = x[j]
     return f_jac
 
 
 @njit
 def measurement_jacobian(x: FloatArray, params: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """`(h(x), ∂h/∂x)` (7,), (7, 12) by forward differences; the magnetometer rows only see the heading α."""
+    """`(h(x), ∂h/∂x)` (7,), (7, 12) by forward differences (exact in the linear bias and offset columns); the
+    magnetometer rows only see the heading α."""
     eps = 1e-7
     h0 = measurement(x, params)
-    h_jac = np.empty((7, N_STATE))
-    for j in range(N_STATE):
-        xp = x.copy()
+    h_jac = np.zeros((7, N_STATE))
+    xp = x.copy()
+    for j in (0, 1, 2, 3, 4, 5, 10, 11):
         xp[j] += eps
         h_jac[:, j] = (measurement(xp, params) - h0) / eps
+        xp[j] = x[j]
+    for j in range(3):  # the gyroscope bias and the tension offset enter linearly
+        h_jac[j, 6 + j] = 1.0
+    h_jac[3, 9] = 1.0
     for j in range(N_STATE):
         if j != 4:  # heading-only magnetometer: hard iron must not tilt the rope estimate
             h_jac[4:, j] = 0.0
