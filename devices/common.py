@@ -3,14 +3,15 @@
 Public API (the hook simulator builds on it; keep it stable):
 
 - `G_M_S2`, `EARTH_FIELD_ENU_UT`: physical constants (ENU; field ≈ mid-latitude northern hemisphere).
-- `ImuErrorModel` (frozen settings) + `SensorModel(error_model, n_devices, rng)`: `.measure(gyr, acc, mag, dt_s)`
+- `ImuErrorModel` (frozen settings; presets `calibrated()`, `uncalibrated()`, `ideal()`, `preset(name)`) +
+  `SensorModel(error_model, n_devices, rng)`: `.measure(gyr, acc, mag, dt_s)`
   turns TRUE body rate (rad/s), specific force (m/s²) and field (µT), shapes (N, 3) or (D, N, 3), into readings.
 - `specific_force_body(q_wxyz, acc_earth_m_s2)`, `field_body(q_wxyz, field_enu_uT)`: true sensor inputs from a
   trajectory.
 - `LinkModel` (frozen) + `LinkSim`: packet loss (optionally bursty, Gilbert-Elliott) and publish jitter.
 - `add_zenoh_args(parser)`, `zenoh_config(args)`: `--mode/--connect/--listen/--multicast`.
 - `add_fleet_args(parser, ...)`, `FleetSettings.from_args(args)`: `--count --seed --rate --samples-per-packet
-  --truth/--no-truth --loss --burst --jitter-ms --duration --id-prefix`.
+  --truth/--no-truth --loss --burst --jitter-ms --duration --id-prefix`; `add_imu_args(parser)`: `--imu PRESET`.
 - `Fleet` (protocol your simulator implements) and `run_fleet(session, fleet, settings)`: liveliness tokens,
   publishers, paced loop, command hand-off, loss; `run_main(fleet_factory, argv, ...)` wires it all for a `main()`.
 - `imu_payload(...)`: JSON bytes of one `rig.imu.v1` packet (fast path, same bytes pydantic would accept).
@@ -69,6 +70,12 @@ _DEG = math.pi / 180.0
 class ImuErrorModel:
     """Sensor errors, defaults from the MPU-6050 (PS-MPU-6000A rev 3.4) and HMC5883L datasheets.
 
+    Three presets (docs/calibration.md): `calibrated()` is a board calibrated once with `python -m gateway.calibrate`
+    (what the simulators publish by default); `uncalibrated()` the raw board (hard iron tens of µT: ~25° of heading
+    error, accel offset tens of mg: ~2° of tilt); `ideal()` none. The bare defaults sit in between (20 mg accel
+    offset, 5 µT hard iron: a factory-trimmed accel, an uncalibrated compass) and are kept for the fusion tests and
+    benches tuned on them.
+
     White noise per sample has std `density * sqrt(rate_hz)` (one-sided density over the Nyquist band ×2,
     the usual IMU-simulator convention); at 100 Hz the gyro gives 0.05 °/s rms, the datasheet's "total RMS
     noise 0.05 °/s at 100 Hz". Biases, scale factors and misalignment are drawn once per instance; biases then
@@ -92,6 +99,35 @@ class ImuErrorModel:
     mag_soft_iron_std: float = 0.03  # symmetric soft-iron matrix I + S, S entries of this std
     mag_lsb_uT: float = 100.0 / 1090.0  # gain 1090 LSB/Gauss (±1.3 Ga range)
     mag_bits: int = 12  # ADC output -2048..2047
+
+    @staticmethod
+    def calibrated() -> ImuErrorModel:
+        """A board calibrated once (`gateway.calibrate`: six-pose accel offset/scale fit, magnetometer ellipsoid fit).
+
+        What is left is the fit's own residual (measured in tests/test_calibrate.py on the `uncalibrated()` board:
+        hard iron ≤ 0.1 µT, soft iron ≤ 0.3 %, accel offset ≤ 1.7 mg, scale ≤ 0.1 %) plus what drifts after it:
+        zero-g offset 0.3 mg/°C (MPU-6050: ±35 mg over 125 °C) over ±10 °C, hard iron from battery and motor
+        currents and nearby steel. Cross-axis terms and the gyro are not calibrated offline (the filter estimates
+        the gyro bias).
+        """
+        return ImuErrorModel(acc_bias_std_m_s2=0.003 * G_M_S2, acc_scale_std=0.002, mag_hard_iron_std_uT=0.5,
+                             mag_soft_iron_std=0.005)
+
+    @staticmethod
+    def uncalibrated() -> ImuErrorModel:
+        """The raw board: accel zero-g offset ±50 mg X/Y, ±80 mg Z (≈ 30 mg std), scale ±3 %, hard iron of tens of
+        µT (reel motor, battery, steel screws), soft iron a few %."""
+        return ImuErrorModel(acc_bias_std_m_s2=0.03 * G_M_S2, acc_scale_std=0.01, mag_hard_iron_std_uT=15.0,
+                             mag_soft_iron_std=0.03)
+
+    @staticmethod
+    def preset(name: str) -> ImuErrorModel:
+        """`calibrated`, `uncalibrated`, `legacy` (the bare defaults) or `ideal` (the simulators' --imu option)."""
+        presets = {"calibrated": ImuErrorModel.calibrated, "uncalibrated": ImuErrorModel.uncalibrated,
+                   "legacy": ImuErrorModel, "ideal": ImuErrorModel.ideal}
+        if name not in presets:
+            raise ValueError(f"unknown IMU error preset {name!r}; known: {', '.join(presets)}")
+        return presets[name]()
 
     @staticmethod
     def ideal() -> ImuErrorModel:
@@ -430,6 +466,18 @@ def add_fleet_args(
     g.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: run on)")
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     g.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+
+
+IMU_PRESETS: tuple[str, ...] = ("calibrated", "uncalibrated", "legacy", "ideal")
+
+
+def add_imu_args(parser: argparse.ArgumentParser) -> None:
+    """`--imu PRESET`: which `ImuErrorModel` preset the simulated IMU has (default: calibrated)."""
+    parser.add_argument(
+        "--imu", choices=IMU_PRESETS, default="calibrated",
+        help="IMU errors: calibrated = board calibrated once with gateway.calibrate (default); uncalibrated = raw "
+             "board (hard iron tens of µT, accel offset tens of mg); legacy = the old defaults; ideal = none",
+    )
 
 
 @dataclass(frozen=True, slots=True)

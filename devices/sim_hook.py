@@ -56,7 +56,7 @@ class HookFleet:
                 initial_swing_bearing_rad=scenario.initial_swing_bearing_rad + turn,
             )  # fmt: skip
             self.streams.append(HookStream(physics, sc))
-        self.sensor = SensorModel(error_model or ImuErrorModel(), fleet.count, rng)
+        self.sensor = SensorModel(error_model or ImuErrorModel.calibrated(), fleet.count, rng)
         self.clocks = [common.DeviceClock.start(rng) for _ in self.ids]
         self.boot_ids = [common.new_boot_id(rng) for _ in self.ids]
         self.seq = [0] * fleet.count
@@ -137,6 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     common.add_zenoh_args(p)
     common.add_fleet_args(p, id_prefix="hook", samples_per_packet=10)
+    common.add_imu_args(p)
     g = p.add_argument_group("hook")
     g.add_argument("--rope-length", type=float, default=10.0, help="rope length boom tip -> hook, m (default: 10)")
     g.add_argument("--swing-deg", type=float, default=5.0, help="initial swing angle, degrees (default: 5)")
@@ -175,7 +176,8 @@ def make_fleet(args: argparse.Namespace, fleet: FleetSettings) -> HookFleet:
         initial_torsion_rad=math.radians(args.twist_deg), trolley_moves=moves, wind_mean_m_s2=tuple(args.wind_mean),
         wind_std_m_s2=args.wind, wind_tau_s=args.wind_tau, wind_torque_std_n_m=args.twist_torque,
     )  # fmt: skip
-    return HookFleet(fleet, physics, scenario, with_mag=not args.no_mag, load_kg=args.load_kg)
+    return HookFleet(fleet, physics, scenario, with_mag=not args.no_mag, load_kg=args.load_kg,
+                     error_model=ImuErrorModel.preset(args.imu))
 
 
 def main(argv: list[str] | None = None) -> int:

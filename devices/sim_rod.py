@@ -58,7 +58,7 @@ class RodFleet:
         seed = fleet.seed
         self.rng = np.random.default_rng(seed)
         self.bank = RodBank(self.rod, fleet.count, None if seed is None else seed + 1, rates)
-        self.sensor = SensorModel(error_model or ImuErrorModel(), fleet.count, np.random.default_rng(
+        self.sensor = SensorModel(error_model or ImuErrorModel.calibrated(), fleet.count, np.random.default_rng(
             None if seed is None else seed + 2))
         self.with_mag = with_mag
         self.clocks = [common.DeviceClock.start(self.rng) for _ in self.ids]
@@ -188,6 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     common.add_zenoh_args(p)
     common.add_fleet_args(p, id_prefix="rod", samples_per_packet=5)
+    common.add_imu_args(p)
     g = p.add_argument_group("rod")
     g.add_argument("--script", default=None, help="events: inline JSON list or a path to a JSON file")
     g.add_argument("--random-events", action="store_true", help="random bites, fights, drop-backs, wind, handling")
@@ -206,7 +207,8 @@ def make_fleet(args: argparse.Namespace, fleet: FleetSettings) -> RodFleet:
         rates = dataclasses.replace(rates, bite_per_h=args.bite_per_h)
     rod = RodSettings(holder_pitch_rad=math.radians(args.holder_pitch_deg),
                       breaking_strength_n=args.breaking_strength_n, drag_n=args.drag_n)
-    return RodFleet(fleet, rod, script=load_script(args.script), rates=rates, with_mag=not args.no_mag)
+    return RodFleet(fleet, rod, script=load_script(args.script), rates=rates, with_mag=not args.no_mag,
+                    error_model=ImuErrorModel.preset(args.imu))
 
 
 def main(argv: list[str] | None = None) -> int:
