@@ -1,0 +1,222 @@
+"""Per-device sensor calibration from a recording of the device being turned: `python -m gateway.calibrate --help`.
+
+Procedure (docs/calibration.md): record the device (`python -m gateway.recording.record`) while you hold it still
+in at least six poses (each axis up and down, ≥ 2 s each) and, between and after them, turn it slowly through as
+many orientations as you can. Then:
+
+    python -m gateway.calibrate REC [--device ID] [-o calib.json]
+
+- Accelerometer offset and per-axis scale: rest segments (`rest_mask`) of at least `--min-pose-s`
+  give one mean reading each; `fit_accel_offset_scale` fits |(a - offset) / scale| = g over those poses.
+- Magnetometer hard iron and full soft-iron matrix: `calibrate_mag_ellipsoid` over every sample, scaled so the
+  calibrated field keeps the ellipsoid's mean radius.
+
+The result (`DeviceCalibration`, JSON) is applied before fusion as `acc_cal = (acc - offset) / scale`,
+`mag_cal = soft_iron @ (mag - offset)`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+from tqdm import tqdm
+
+from gateway import schemas
+from gateway.fusion.base import FloatArray
+from gateway.fusion.calibration import (
+    BoolArray,
+    MagCalibration,
+    RestSettings,
+    apply_accel_calibration,
+    calibrate_mag_ellipsoid,
+    fit_accel_offset_scale,
+)
+
+
+@dataclass(frozen=True)
+class DeviceCalibration:
+    """Accelerometer offset (m/s²) and scale, magnetometer offset (µT) and soft-iron matrix, with fit figures."""
+
+    acc_offset_m_s2: FloatArray
+    acc_scale: FloatArray
+    mag_offset_uT: FloatArray
+    mag_soft_iron: FloatArray
+    n_poses: int = 0
+    acc_fit_rms_m_s2: float = 0.0  # rms of |calibrated pose mean| - g over the poses
+    mag_fit_rms_uT: float = 0.0  # rms of |calibrated field| - its mean over the samples
+
+    @staticmethod
+    def identity() -> DeviceCalibration:
+        """No correction."""
+        return DeviceCalibration(np.zeros(3), np.ones(3), np.zeros(3), np.eye(3))
+
+    def apply(self, acc_m_s2: ArrayLike, mag_uT: ArrayLike | None) -> tuple[FloatArray, FloatArray | None]:
+        """Calibrated (acc, mag), shapes (..., 3)."""
+        acc = apply_accel_calibration(acc_m_s2, self.acc_offset_m_s2, self.acc_scale)
+        mag = None if mag_uT is None else MagCalibration(self.mag_offset_uT, self.mag_soft_iron).apply(mag_uT)
+        return acc, mag
+
+    def to_json(self) -> dict[str, Any]:
+        """Plain dict (lists of floats), the form stored with the device's settings."""
+        return {
+            "acc_offset_m_s2": np.round(self.acc_offset_m_s2, 6).tolist(),
+            "acc_scale": np.round(self.acc_scale, 7).tolist(),
+            "mag_offset_uT": np.round(self.mag_offset_uT, 4).tolist(),
+            "mag_soft_iron": np.round(self.mag_soft_iron, 6).tolist(),
+            "n_poses": self.n_poses, "acc_fit_rms_m_s2": round(self.acc_fit_rms_m_s2, 6),
+            "mag_fit_rms_uT": round(self.mag_fit_rms_uT, 4),
+        }  # fmt: skip
+
+    @staticmethod
+    def from_json(d: dict[str, Any]) -> DeviceCalibration:
+        """Inverse of `to_json`."""
+        return DeviceCalibration(
+            np.asarray(d["acc_offset_m_s2"], dtype=np.float64), np.asarray(d["acc_scale"], dtype=np.float64),
+            np.asarray(d["mag_offset_uT"], dtype=np.float64), np.asarray(d["mag_soft_iron"], dtype=np.float64),
+            int(d.get("n_poses", 0)), float(d.get("acc_fit_rms_m_s2", 0.0)), float(d.get("mag_fit_rms_uT", 0.0)),
+        )  # fmt: skip
+
+
+def rest_mask(gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, rate_hz: float, rest: RestSettings | None = None) -> BoolArray:
+    """Rest samples: over the trailing window the gyro's and accelerometer's spread (root of summed per-axis
+    variances) are below the thresholds. Unlike `calibration.detect_rest` it ignores the gyro's mean, so an
+    uncalibrated gyro bias of a few °/s does not hide the poses."""
+    s = rest or RestSettings()
+    gyr, acc = np.asarray(gyr_rad_s, dtype=np.float64), np.asarray(acc_m_s2, dtype=np.float64)
+    w = max(2, int(round(s.window_s * rate_hz)))
+    out = np.zeros(gyr.shape[0], dtype=bool)
+    if gyr.shape[0] < w:
+        return out
+
+    def spread2(x: FloatArray) -> FloatArray:
+        c1 = np.cumsum(np.vstack([np.zeros((1, 3)), x]), axis=0)
+        c2 = np.cumsum(np.vstack([np.zeros((1, 3)), x * x]), axis=0)
+        m1, m2 = (c1[w:] - c1[:-w]) / w, (c2[w:] - c2[:-w]) / w
+        v: FloatArray = np.maximum(np.sum(m2 - m1 * m1, axis=1), 0.0)
+        return v
+
+    out[w - 1 :] = (spread2(gyr) < s.gyr_th_rad_s**2) & (spread2(acc) < s.acc_th_m_s2**2)
+    return out
+
+
+def rest_pose_means(
+    gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, rate_hz: float, min_pose_s: float = 1.0,
+    rest: RestSettings | None = None,
+) -> FloatArray:
+    """Mean accelerometer reading (m/s²) of every rest segment lasting at least `min_pose_s`, shape (P, 3)."""
+    acc = np.asarray(acc_m_s2, dtype=np.float64)
+    mask = rest_mask(gyr_rad_s, acc, rate_hz, rest or RestSettings(gyr_th_rad_s=np.deg2rad(0.5), acc_th_m_s2=0.1))
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], mask.astype(np.int8), [0]))))
+    n_min = max(2, int(round(min_pose_s * rate_hz)))
+    means = [acc[a:b].mean(axis=0) for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= n_min]
+    return np.array(means, dtype=np.float64).reshape(-1, 3)
+
+
+def fit_device(
+    gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, mag_uT: ArrayLike | None, rate_hz: float, min_pose_s: float = 1.0
+) -> DeviceCalibration:
+    """Calibration from one recording of the device held in rest poses and turned (see the module docstring).
+
+    Raises ValueError when the poses do not span all axes (accelerometer) or the field samples do not span an
+    ellipsoid (magnetometer); without `mag_uT` the magnetometer part is the identity.
+    """
+    poses = rest_pose_means(gyr_rad_s, acc_m_s2, rate_hz, min_pose_s)
+    if poses.shape[0] < 6:
+        raise ValueError(f"found {poses.shape[0]} rest poses of ≥ {min_pose_s:g} s; need 6 or more (each axis up/down)")
+    offset, scale = fit_accel_offset_scale(poses)
+    acc_rms = float(np.sqrt(np.mean((np.linalg.norm((poses - offset) / scale, axis=1) - 9.80665) ** 2)))
+    if mag_uT is None:
+        return DeviceCalibration(offset, scale, np.zeros(3), np.eye(3), poses.shape[0], acc_rms)
+    mag = np.asarray(mag_uT, dtype=np.float64)
+    cal = calibrate_mag_ellipsoid(mag)
+    norms = np.linalg.norm(cal.apply(mag), axis=1)
+    mag_rms = float(np.sqrt(np.mean((norms - norms.mean()) ** 2)))
+    return DeviceCalibration(offset, scale, cal.offset_uT, cal.soft_iron, poses.shape[0], acc_rms, mag_rms)
+
+
+@dataclass(frozen=True)
+class ImuSeries:
+    """The IMU samples of one device in a recording, in packet order."""
+
+    device_id: str
+    rate_hz: float
+    gyr_rad_s: FloatArray
+    acc_m_s2: FloatArray
+    mag_uT: FloatArray | None
+
+
+def load_imu(path: str | Path, device_id: str | None = None, progress: bool = False) -> ImuSeries:
+    """IMU packets of `device_id` (default: the first IMU device in the recording) from a `.rigrec` file or dir."""
+    from gateway.recording.format import read_recording
+
+    gyr: list[Sequence[float]] = []
+    acc: list[Sequence[float]] = []
+    mag: list[Sequence[float]] = []
+    rate, has_mag = 0.0, True
+    for rec in tqdm(read_recording(path), unit="rec", desc="reading", disable=not progress, file=sys.stderr):
+        if not rec.key.endswith("/imu"):
+            continue
+        try:
+            p = schemas.decode(rec.key, rec.payload)
+        except schemas.DecodeError:
+            continue
+        if not isinstance(p, schemas.ImuPacket):
+            continue
+        if device_id is None:
+            device_id = p.device_id
+        if p.device_id != device_id:
+            continue
+        rate = p.rate_hz
+        gyr += p.gyr_rad_s
+        acc += p.acc_m_s2
+        has_mag = has_mag and p.mag_uT is not None
+        mag += p.mag_uT or []
+    if device_id is None or not gyr:
+        raise ValueError(f"no IMU packets{'' if device_id is None else ' of ' + device_id} in {path}")
+    return ImuSeries(device_id, rate, np.array(gyr, dtype=np.float64), np.array(acc, dtype=np.float64),
+                     np.array(mag, dtype=np.float64) if has_mag else None)  # fmt: skip
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """CLI."""
+    p = argparse.ArgumentParser(prog="python -m gateway.calibrate", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    p.add_argument("recording", help=".rigrec file or directory of the device being posed and turned")
+    p.add_argument("--device", default=None, help="device id (default: the first IMU device in the recording)")
+    p.add_argument("--min-pose-s", type=float, default=1.0, help="shortest rest segment used as a pose, s (default 1)")
+    p.add_argument("--no-mag", action="store_true", help="calibrate the accelerometer only")
+    p.add_argument("-o", "--output", default=None, help="write the calibration JSON here (default: stdout)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Fit and print (or write) the device's calibration; exit 1 with a message when the recording is not enough."""
+    args = build_parser().parse_args(argv)
+    try:
+        imu = load_imu(args.recording, args.device, progress=not args.no_progress)
+        cal = fit_device(imu.gyr_rad_s, imu.acc_m_s2, None if args.no_mag else imu.mag_uT, imu.rate_hz,
+                         args.min_pose_s)  # fmt: skip
+    except ValueError as exc:
+        print(f"calibration failed: {exc}", file=sys.stderr)
+        return 1
+    text = json.dumps({"device_id": imu.device_id, **cal.to_json()}, indent=2)
+    if args.output:
+        Path(args.output).write_text(text + "\n")
+        print(f"wrote {args.output}: {cal.n_poses} poses, accel fit rms {cal.acc_fit_rms_m_s2 * 1e3:.1f} mm/s², "
+              f"mag fit rms {cal.mag_fit_rms_uT:.2f} µT", file=sys.stderr)  # fmt: skip
+    else:
+        print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
