@@ -70,8 +70,8 @@ def test_rope_length_setting_reaches_the_filter_and_a_change_restarts_fusion() -
 
 
 def test_torsion_is_measured_from_the_configured_rest_heading() -> None:
-    """Hanging still (no torque): torsion ≈ 0 (< 2°) from the first fused heading; with rest_heading_deg set, torsion is the
-    twist heading minus that setting."""
+    """Hanging still (no torque): torsion ≈ 0 (< 2°) from the first fused heading; with rest_heading_deg set,
+    torsion is the twist heading minus that setting."""
     pkts = _packets(30)
     dev_id = pkts[0].device_id
     pipe = Pipeline()
