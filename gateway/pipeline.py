@@ -113,6 +113,15 @@ class AlarmOut(NamedTuple):
     source_wall_us: int | None
 
 
+class FilterFailure(NamedTuple):
+    """A device's filter raised or returned a non-finite quaternion; its fusion restarts from a fresh warm-up."""
+
+    kind: str
+    device_id: str
+    reason: str  # the exception's class name (e.g. `LinAlgError`), or `non_finite`
+    detail: str
+
+
 _Timed = tuple[str, int, int | None, Condition]  # (kind, device t_us, device wall µs or None, wall-time condition)
 
 
@@ -125,6 +134,7 @@ class Output:
     alarms: list[AlarmOut] = field(default_factory=list)
     spots: schemas.SpotRanking | None = None
     reel_commands: list[tuple[str, dict[str, Any]]] = field(default_factory=list)  # (device id, ReelCommand fields)
+    filter_failures: list[FilterFailure] = field(default_factory=list)
 
 
 def _thermocline_m(profile: list[schemas.ProfilePoint] | None) -> float | None:
@@ -413,11 +423,15 @@ class Pipeline:
                 warm = self._warmup.setdefault(dev_id, [])
                 warm.extend(pkts)
                 self.kinds[dev_id] = pkts[0].kind
-                if sum(p.n / p.rate_hz for p in warm) < self.settings.warmup_s:
+                if sum(p.n / p.rate_hz for p in warm) < self.settings.warmup_s - 1e-9:  # 10 x 0.05 s is 0.4999…
                     continue
                 pkts = self._warmup.pop(dev_id)
                 gyr, acc, mag, t_s = self._gather(dev_id, pkts)
-                dev = self._device(pkts[0], gyr, acc, mag)
+                try:
+                    dev = self._device(pkts[0], gyr, acc, mag)
+                except Exception as exc:  # a filter that cannot start: count it, warm up again
+                    self._fail(pkts[0].kind, dev_id, exc, out)
+                    continue
             else:
                 gyr, acc, mag, t_s = self._gather(dev_id, pkts)
             if abs(1.0 / pkts[-1].rate_hz - dev.dt_s) > 1e-12:
@@ -433,13 +447,15 @@ class Pipeline:
             idx = np.cumsum([p.n for p in pkts]) - 1
             ends[dev_id] = [(int(i), p.seq, p.t0_us + int(round((p.n - 1) * 1e6 / p.rate_hz)))
                             for i, p in zip(idx, pkts, strict=True)]  # fmt: skip
-        quats = self._step_filters(blocks)
+        quats = self._step_filters(blocks, out)
         for dev_id, q in quats.items():
             self._post(self.devices[dev_id], q, blocks[dev_id], ends[dev_id], now, out, conds)
 
     def _step_filters(
-        self, blocks: dict[str, tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]]
+        self, blocks: dict[str, tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]], out: Output
     ) -> dict[str, FloatArray]:
+        """One fused block per device. A filter that raises or returns a non-finite quaternion fails alone: it is
+        reported in `out.filter_failures` and its device restarts from a fresh warm-up window (`_fail`)."""
         quats: dict[str, FloatArray] = {}
         by_len: dict[int, list[str]] = {}
         for dev_id, (gyr, acc, mag, _) in blocks.items():
@@ -448,7 +464,39 @@ class Pipeline:
                 by_len.setdefault(gyr.shape[0], []).append(dev_id)
                 continue
             step = getattr(dev.filt, "update_block", None) or dev.filt.run
-            quats[dev_id] = step(gyr, acc, mag, dev.dt_s)
+            try:
+                quats[dev_id] = step(gyr, acc, mag, dev.dt_s)
+            except Exception as exc:
+                self._fail(dev.kind, dev_id, exc, out)
+        if by_len:
+            try:
+                quats.update(self._step_batch(blocks, by_len))
+            except Exception as exc:  # the shared kernel failed: every device in it restarts
+                for ids in by_len.values():
+                    for dev_id in ids:
+                        self._fail(self.devices[dev_id].kind, dev_id, exc, out)
+        for dev_id in [d for d, q in quats.items() if not np.isfinite(q).all()]:
+            del quats[dev_id]
+            self._fail(self.devices[dev_id].kind, dev_id, None, out)
+        return quats
+
+    def _fail(self, kind: str, device_id: str, exc: Exception | None, out: Output) -> None:
+        """Record a filter failure and forget the device's fusion state; its next packets start a new warm-up.
+        Like a filter change, this also restarts the device's rules state (alarms stay with the engine)."""
+        reason = "non_finite" if exc is None else type(exc).__name__
+        detail = "non-finite quaternion" if exc is None else str(exc)[:200]
+        out.filter_failures.append(FilterFailure(kind, device_id, reason, detail))
+        self._warmup.pop(device_id, None)
+        if device_id in self.devices:
+            self._drop(device_id)
+        elif self._batch is not None and device_id in self._batch.device_ids:  # failed half-way through `_device`
+            self._batch.remove(device_id)
+
+    def _step_batch(
+        self, blocks: dict[str, tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]],
+        by_len: dict[int, list[str]],
+    ) -> dict[str, FloatArray]:  # fmt: skip
+        quats: dict[str, FloatArray] = {}
         batch = self._batch
         for n, ids in by_len.items():
             n_dev = len(batch)

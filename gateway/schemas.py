@@ -563,16 +563,19 @@ class DeviceIngestCounters(WireModel):
     reordered: Annotated[int, Field(ge=0)] = 0
     reboots: Annotated[int, Field(ge=0)] = 0
     rejected: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
+    filter_restarts: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
 
 
 class IngestStats(WireModel):
-    """Ingest counters: `rejected` totals by reason (including packets whose device is unknown), per device."""
+    """Ingest counters: `rejected` totals by reason (including packets whose device is unknown), per device;
+    `filter_restarts` totals of fusion restarts by reason (a filter raised, or gave a non-finite quaternion)."""
 
     v: Version = 1
     wall_t_us: TimeUs
     received: Annotated[int, Field(ge=0)]
     queue_drops: Annotated[int, Field(ge=0)] = 0
     rejected: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
+    filter_restarts: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)
     devices: list[DeviceIngestCounters] = Field(default_factory=list)
 
 
@@ -888,6 +891,8 @@ FIELD_NOTES: Final[dict[str, str]] = {
     "alarm_id": "the gateway's alarm id (REST `/api/alarms` `id`, ack with `POST /api/alarms/{alarm_id}/ack`)",
     "severity": "most severe first: critical, major, minor, warning, indeterminate (alarm engine levels)",
     "yaw_unwrapped_rad": "yaw without the ±π jumps",
+    "filter_restarts": "fusion restarted from a fresh warm-up, by reason: the filter's exception class (e.g. "
+                       "`LinAlgError`) or `non_finite` (it returned NaN/inf)",
     "swing_direction_rad": "bearing of the swing plane, counter-clockwise from East",
 }
 

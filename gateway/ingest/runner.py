@@ -155,7 +155,10 @@ class GatewayService:
                 packets.append(p)
         if packets:
             self.batches += 1
-            self.hub.emit(self.pipeline.process(packets, now))
+            out = self.pipeline.process(packets, now)
+            for f in out.filter_failures:
+                c.filter_failed(f.kind, f.device_id, f.reason, f.detail, items[-1][2])
+            self.hub.emit(out)
             self.batch_delay_s.append(time.monotonic() - items[0][2])
 
     def _publish_rejected(self, key: str, err: schemas.DecodeError, size: int, now: float) -> None:

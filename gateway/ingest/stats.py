@@ -25,6 +25,7 @@ class DeviceStream:
     kind: str
     trackers: dict[str, schemas.SequenceTracker] = field(default_factory=dict)
     rejected: Counter[str] = field(default_factory=Counter)
+    filter_restarts: Counter[str] = field(default_factory=Counter)
     last_arrival_s: float | None = None
     packets: int = 0
 
@@ -68,6 +69,7 @@ class IngestCounters:
         self.received = 0
         self.queue_drops = 0
         self.rejected: Counter[str] = Counter()
+        self.filter_restarts: Counter[str] = Counter()
         self.devices: dict[str, DeviceStream] = {}
         self.log = RateLimitedLog()
 
@@ -96,6 +98,13 @@ class IngestCounters:
             self.devices[parts[2]].rejected[err.reason] += 1
         self.log.warning(err.reason, f"rejected packet on {key[:120]!r}: {err}", now_s)
 
+    def filter_failed(self, kind: str, device_id: str, reason: str, detail: str, now_s: float) -> None:
+        """Count a device's filter failure (its fusion restarts) by reason; log it, rate-limited per device."""
+        self.filter_restarts[reason] += 1
+        self.stream(kind, device_id).filter_restarts[reason] += 1
+        self.log.warning(f"filter:{device_id}", f"device {device_id}: filter failed ({reason}: {detail}); "
+                         "restarting its fusion from a new warm-up window", now_s)  # fmt: skip
+
     def snapshot(self, wall_us: int) -> schemas.IngestStats:
         devices = []
         for d in self.devices.values():
@@ -103,8 +112,9 @@ class IngestCounters:
             devices.append(schemas.DeviceIngestCounters(
                 device_id=d.device_id, kind=d.kind, ok=t.ok, lost=t.lost,  # type: ignore[arg-type]
                 duplicates=t.duplicates, reordered=t.reordered, reboots=t.reboots, rejected=dict(d.rejected),
+                filter_restarts=dict(d.filter_restarts),
             ))  # fmt: skip
         return schemas.IngestStats(
             wall_t_us=wall_us, received=self.received, queue_drops=self.queue_drops,
-            rejected=dict(self.rejected), devices=devices,
+            rejected=dict(self.rejected), filter_restarts=dict(self.filter_restarts), devices=devices,
         )  # fmt: skip
