@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
+from pathlib import Path
 
 import numpy as np
 
@@ -83,3 +85,37 @@ def test_torsion_is_measured_from_the_configured_rest_heading() -> None:
     expected = math.remainder(float(alpha) - math.radians(40.0), 2 * math.pi)
     assert out.swings[-1].seq == out.attitudes[-1].seq
     assert abs(math.remainder(out.swings[-1].torsion_rad - expected, 2 * math.pi)) < 1e-9
+
+
+def test_rope_length_and_rest_heading_over_rest(tmp_path: Path) -> None:
+    """The existing settings endpoints carry the hook settings: validated (422 with a readable message), stored per
+    device, and the device's hook filter is built with the rope length once its packets arrive."""
+    from fastapi.testclient import TestClient
+
+    from gateway.app import create_app
+    from gateway.config import Settings
+    from gateway.ingest.bus import MemoryBus
+
+    settings = Settings(data_dir=tmp_path / "data", zenoh_listen=[])
+    bus = MemoryBus()
+    with TestClient(create_app(settings, lambda _: bus, warm_up=False)) as client:
+        auth = {"Authorization": f"Bearer {(settings.data_dir / 'api_token').read_text().strip()}"}
+        bad = client.put("/api/thresholds/hook", json={"rope_length_m": 0.1}, headers=auth)
+        assert bad.status_code == 422 and "rope_length_m" in str(bad.json()["detail"])
+        pkts = _packets(20)
+        dev_id = pkts[0].device_id
+        r = client.put(f"/api/devices/{dev_id}/settings", headers=auth,
+                       json={"kind": "hook", "thresholds": {"rope_length_m": 18.0, "rest_heading_deg": -30.0}})
+        assert r.status_code == 200, r.text
+        assert r.json()["effective"]["thresholds"]["rope_length_m"] == 18.0
+        assert r.json()["effective"]["thresholds"]["rest_heading_deg"] == -30.0
+        service = client.app.state.service  # type: ignore[attr-defined]
+        for p in pkts:
+            bus.put(schemas.imu_key("hook", dev_id), p.model_dump_json().encode(), encoding=schemas.ENCODING_IMU)
+        deadline = time.monotonic() + 30.0
+        while dev_id not in service.pipeline.devices:
+            assert time.monotonic() < deadline, "the hook's fusion did not start"
+            time.sleep(0.05)
+        filt = service.pipeline.devices[dev_id].filt
+        assert filt.settings.rope_length_m == 18.0
+        assert service.pipeline.devices[dev_id].rest_heading_set_rad == math.radians(-30.0)
