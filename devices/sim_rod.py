@@ -10,6 +10,7 @@ Examples:
     python -m devices.sim_rod --random-events --count 5          # five rods with bites, fights, wind, handling
     python -m devices.sim_rod --script '[{"type": "bite", "t_s": 5, "depth_deg": 20, "duration_s": 2}]'
     python -m devices.sim_rod --script events.json --duration 60
+    python -m devices.sim_rod --imu uncalibrated                 # raw IMU: hard iron tens of µT, heading far off
 
 Script items: `{"type": bite|drop_back|fight|handling|wind|waves, "t_s": ..., <fields of the event class in
 devices.rod_physics, angles as *_rad or *_deg>, "device": "rod-2" (optional; default all rods)}`.
