@@ -6,20 +6,22 @@ Here the tilt comes from the pendulum dynamics instead: gravity sets the rope's 
 gyroscope (which measures the rope's swing rate) reveals where "down" is, and the tension magnitude
 `T/m = g cos Θ + l |n'|²` (accelerometer z) pins the swing amplitude (seed 001 Fig. 1, eq. 6).
 
-State (12): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
+State (14): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
 `n_z = sqrt(1 - |p|²)`); `v = p'`; the hook heading about the rope `α` (swing-twist split
 `q = q_swing(n) ⊗ q_z(α)`, see gateway.fusion.hook) and its rate `α'`; the gyroscope bias `b` (rad/s, body);
 the offset of the tension channel (m/s²); the equilibrium `e` of `p` (`-f/g` for a steady horizontal force `f`
-per unit mass, e.g. wind).
+per unit mass, e.g. wind); the gyroscope's x/y sensitivity `c` to the z rate (cross-axis coupling: a hook twisting
+at ~1 rad/s would otherwise put ~0.005 rad/s of false swing rate into x/y and double the Θ error).
 
 * Predict: RK4 of the pendulum `p'' = -(g/l)(n_z p - e + (p·e) p) - |n'|² p` (boom tip assumed still: trolley
-  moves and gusts enter as process noise on `v`), `α` integrates `α'`; `α'`, `b`, offset and `e` random-walk.
-  `e` is observable because tension `g n_z` then has a component at the swing frequency ∝ `e · amplitude`.
-* Update: gyroscope `ω_b(n, n', α, α') + b` (exact kinematics of the split, as in devices.hook_physics);
-  accelerometer z `T/m + [ω' × r + ω × (ω × r)]_z + offset` (lever arm `r` of the IMU from the rope axis) after
-  subtracting the zero-g offset calibrated at rest; in 9D the magnetometer `Rᵀ m_ref` for heading only (its
-  Jacobian is restricted to `α`, so hard-iron errors cannot tilt the estimate; likewise the tension row only
-  informs the swing states and its offset).
+  moves and gusts enter as process noise on `v`), `α` integrates `α'`; `α'`, `b`, offset and `e` random-walk,
+  `c` is constant. `e` is observable because tension `g n_z` then has a component at the swing frequency
+  ∝ `e · amplitude`.
+* Update: gyroscope `ω_b(n, n', α, α') + b + (c_x, c_y, 0) ω_z` (exact kinematics of the split, as in
+  devices.hook_physics); accelerometer z `T/m + [ω' × r + ω × (ω × r)]_z + offset` (lever arm `r` of the IMU
+  from the rope axis) after subtracting the zero-g offset calibrated at rest; in 9D the magnetometer `Rᵀ m_ref`
+  for heading only (its Jacobian is restricted to `α`, so hard-iron errors cannot tilt the estimate; likewise the
+  tension row only informs the swing states and its offset).
 * Jacobians are forward differences of numba kernels. `update()` feeds them to filterpy's
   ExtendedKalmanFilter; `run()` is a numba twin of the same steps (tests check they agree).
 * Adaptive process noise: when the swing-rate innovation fails a χ² gate, its square is added to the rope-rate
@@ -41,7 +43,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 from gateway.fusion.base import AttitudeFilter, FloatArray
 from gateway.fusion.quaternion import njit
 
-N_STATE = 12
+N_STATE = 14
 _P, _V, _ALPHA, _ALPHA_RATE, _BIAS, _ACC_BIAS = slice(0, 2), slice(2, 4), 4, 5, slice(6, 9), 9
 
 
@@ -67,6 +69,7 @@ class HookFilterSettings:
     init_bias_std_rad_s: float = 0.03  # MPU-6050 residual start-up bias is about 1 °/s
     init_acc_offset_std_m_s2: float = 0.1  # left after the rest calibration (scale error × g, bias drift)
     init_equilibrium_std: float = 0.002  # rad: steady wind tilt at start
+    init_cross_axis_std: float = 0.01  # gyro x/y sensitivity to the z rate (MPU-6050 cross-axis ±2 %)
     moving_swing_std: float = 0.3  # rad, per axis: priors after `assume_moving()` (started while swinging)
     moving_rate_std_rad_s: float = 0.3
     moving_acc_offset_std_m_s2: float = 0.5  # the window's mean tension is not g when swinging
@@ -100,7 +103,7 @@ def _attitude_rate(
 
 @njit
 def attitude_and_rate(x: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """`q = q_swing(n) ⊗ q_z(α)` and the body rate `2 vec(q* ⊗ q')` in rad/s for one state (12,)."""
+    """`q = q_swing(n) ⊗ q_z(α)` and the body rate `2 vec(q* ⊗ q')` in rad/s for one state (14,)."""
     qw, qx, qy, qz, wx, wy, wz = _attitude_rate(x[0], x[1], x[2], x[3], x[4], x[5])
     return np.array([qw, qx, qy, qz]), np.array([wx, wy, wz])
 
@@ -119,7 +122,7 @@ def _pendulum_accel(
 
 @njit
 def process(x: FloatArray, dt_s: float, g_over_l: float) -> FloatArray:
-    """State (12,) after `dt_s`: RK4 of the pendulum (`_pendulum_accel`), α integrates α'."""
+    """State (14,) after `dt_s`: RK4 of the pendulum (`_pendulum_accel`), α integrates α'."""
     px, py, vx, vy, ex, ey = x[0], x[1], x[2], x[3], x[10], x[11]
     a1x, a1y = _pendulum_accel(px, py, vx, vy, g_over_l, ex, ey)
     h = 0.5 * dt_s
@@ -141,7 +144,7 @@ def process(x: FloatArray, dt_s: float, g_over_l: float) -> FloatArray:
 
 @njit
 def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
-    """Predicted `[gyr (3), acc_z (1), mag (3, zero unless params[8])]` (7,) for one state (12,).
+    """Predicted `[gyr (3), acc_z (1), mag (3, zero unless params[8])]` (7,) for one state (14,).
 
     acc_z is the tension `l |n'|² + g n_z` plus the lever-arm terms `[ω' × r + ω × (ω × r)]_z`, with `ω'` the
     body-rate derivative along the pendulum's own motion (central difference over ±1 ms, twist acceleration 0).
@@ -162,7 +165,7 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
     dwx, dwy = (px_ - mx_) / (2.0 * h), (py_ - my_) / (2.0 * h)
     lever_z = dwx * ry - dwy * rx + wz * (wx * rx + wy * ry + wz * rz) - rz * (wx * wx + wy * wy + wz * wz)
     out = np.zeros(7)
-    out[0], out[1], out[2] = wx + x[6], wy + x[7], wz + x[8]
+    out[0], out[1], out[2] = wx + x[6] + x[12] * wz, wy + x[7] + x[13] * wz, wz + x[8]
     out[3] = l * (vx * vx + vy * vy + vz * vz) + g * nz + lever_z + x[9]
     if params[8] > 0.0:  # Rᵀ m_ref
         mx, my, mz = params[5], params[6], params[7]
@@ -176,7 +179,7 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
 
 @njit
 def process_jacobian(x: FloatArray, dt_s: float, g_over_l: float) -> FloatArray:
-    """Jacobian (12, 12) of `process` at `x`: forward differences (step 1e-7) in the pendulum columns `p, v, e`;
+    """Jacobian (14, 14) of `process` at `x`: forward differences (step 1e-7) in the pendulum columns `p, v, e`;
     the rest is exact (α integrates α'; α', bias, offset and `e` random-walk)."""
     eps = 1e-7
     f0 = process(x, dt_s, g_over_l)
@@ -205,6 +208,8 @@ def measurement_jacobian(x: FloatArray, params: FloatArray) -> tuple[FloatArray,
     for j in range(3):  # the gyroscope bias and the tension offset enter linearly
         h_jac[j, 6 + j] = 1.0
     h_jac[3, 9] = 1.0
+    wz = h0[2] - x[8]  # cross-axis sensitivity: the twist rate leaks into x and y
+    h_jac[0, 12], h_jac[1, 13] = wz, wz
     for j in range(N_STATE):
         if j != 4:  # heading-only magnetometer: hard iron must not tilt the rope estimate
             h_jac[4:, j] = 0.0
@@ -282,7 +287,7 @@ def ekf_run(
 class HookFilter(AttitudeFilter):
     """Pendulum-aware EKF for the crane hook (see the module docstring). `update()` runs filterpy's
     ExtendedKalmanFilter on the numba model; `run()` the numba twin `ekf_run` (same operation order).
-    State: `self.ekf.x` (12,), `self.ekf.P` (12, 12)."""
+    State: `self.ekf.x` (14,), `self.ekf.P` (14, 14)."""
 
     name = "hook"
 
@@ -297,6 +302,7 @@ class HookFilter(AttitudeFilter):
             + [s.gyro_bias_psd] * 3
             + [s.acc_bias_psd]
             + [s.equilibrium_psd] * 2
+            + [0.0] * 2
         )
         self._initialised = False
         self._reset(heading_rad=0.0, heading_std_rad=s.init_heading_std_rad)
@@ -324,6 +330,7 @@ class HookFilter(AttitudeFilter):
             + [s.init_bias_std_rad_s] * 3
             + [s.init_acc_offset_std_m_s2]
             + [s.init_equilibrium_std] * 2
+            + [s.init_cross_axis_std] * 2
         )
         self.ekf.P = np.diag(std**2)
 
