@@ -58,7 +58,7 @@ def test_rod_theta_order_enforced_with_clear_message():
     with pytest.raises(ValidationError, match="theta1 < theta2 < theta3"):
         RodThresholds(line_switch_deg=40.0, line_limit_deg=35.0)
     with pytest.raises(ValidationError, match="sensitivity 1: 22.5 deg"):
-        RodThresholds(bite_deviation_deg=15.0, sensitivity=1)  # 15 * 1.5 > theta2 = 20
+        RodThresholds(bite_deviation_deg=15.0, sensitivity=1, line_switch_deg=20.0)  # 15 * 1.5 > theta2 = 20
     with pytest.raises(ValidationError, match="sensitivity"):
         RodThresholds(sensitivity=6)
 

@@ -176,7 +176,7 @@ def test_detector_rebaselines_after_rod_settles_at_new_rest(rng):
 
 def test_line_guard_warning_critical_and_clear(rng):
     t = times(30.0)
-    th = RodThresholds()  # theta2 20, theta3 35 -> critical at 31.5
+    th = RodThresholds(line_switch_deg=20.0, line_limit_deg=35.0)  # critical at 0.9 * 35 = 31.5
     rel = -(raised_cosine_step(t, 5, 0.5, 25.0) + raised_cosine_step(t, 10, 0.5, 8.0)
             - raised_cosine_step(t, 15, 0.5, 33.0))  # fmt: skip
     run = run_rod(t, noisy(t, rel, NOISE_DEG, rng), th=th)

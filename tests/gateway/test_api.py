@@ -47,7 +47,7 @@ def test_token_file_is_owner_only_and_reads_stay_open(running: Callable[[], Runn
 @pytest.mark.parametrize(
     ("path", "body", "message"),
     [
-        ("/api/thresholds/rod", {"bite_deviation_deg": 30.0}, "need theta1 < theta2 < theta3"),
+        ("/api/thresholds/rod", {"bite_deviation_deg": 40.0, "sensitivity": 1}, "need theta1 < theta2 < theta3"),
         ("/api/thresholds/rod", {"sensitivity": 9}, "sensitivity: Input should be less than or equal to 5"),
         ("/api/thresholds/rod", {"bite_deviaton_deg": 5.0}, "bite_deviaton_deg: Extra inputs are not permitted"),
         ("/api/thresholds/hook", {"swing_warn_deg": 12.0}, "swing: warn (12 deg) must be below critical (10 deg)"),
