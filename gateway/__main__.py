@@ -36,6 +36,16 @@ def build_parser() -> argparse.ArgumentParser:
     z.add_argument("--multicast", dest="zenoh_multicast_scouting", action="store_true", default=None,
                    help="enable multicast scouting (default: off)")  # fmt: skip
     p.add_argument("--filter", dest="default_filter", help="default attitude filter for rods (default: default)")
+    o = p.add_argument_group("attitude output (replay scoring, full-rate recording)")
+    o.add_argument("--attitude-interval-s", type=float, metavar="S",
+                   help="least device time between two gw/{kind}/{id}/attitude messages of a device; 0 = the last "
+                        "sample of every packet (default: 0.02, i.e. at most 50 Hz)")  # fmt: skip
+    o.add_argument("--attitude-blocks", action="store_true", default=None,
+                   help="also publish every sample's attitude on gw/{kind}/{id}/attitude/block, one message per IMU "
+                        "packet, with CongestionControl.BLOCK (default: off)")  # fmt: skip
+    o.add_argument("--no-warmup-bias-seed", dest="warmup_bias_seed", action="store_false", default=None,
+                   help="do not seed the gyro bias from a resting warm-up window; filters start from zero bias, as "
+                        "the offline gateway.fusion.evaluate does (default: seed)")  # fmt: skip
     p.add_argument("--with-devices", action="store_true", help="also start the simulated devices (python -m devices)")
     p.add_argument("--devices-args", default="", metavar="ARGS", help="extra arguments for python -m devices")
     p.add_argument("--log-level", default="INFO", help="logging level (default: INFO)")
@@ -45,7 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
 def settings_from_args(args: argparse.Namespace) -> Settings:
     """Settings from the environment (RIG_*) with the given options on top."""
     names = ("data_dir", "http_host", "http_port", "zenoh_mode", "zenoh_listen", "zenoh_connect",
-             "zenoh_multicast_scouting", "default_filter")  # fmt: skip
+             "zenoh_multicast_scouting", "default_filter", "attitude_interval_s", "attitude_blocks",
+             "warmup_bias_seed")  # fmt: skip
     overrides: dict[str, Any] = {n: getattr(args, n) for n in names if getattr(args, n) is not None}
     return Settings(**overrides)
 

@@ -1,6 +1,6 @@
 """Fan-out of pipeline results: zenoh outputs, the store (alarm history), and in-process listeners (websocket,
-3-D view later). Alarms and reel commands are published with CongestionControl.BLOCK; attitude and swing with
-DROP (a newer sample follows shortly)."""
+3-D view later). Alarms, reel commands and (opt-in) attitude blocks are published with CongestionControl.BLOCK;
+attitude and swing with DROP (a newer sample follows shortly)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from gateway.store import Store
 log = logging.getLogger("gateway.hub")
 
 Listener = Callable[[str, schemas.WireModel], None]
-"""(topic, model): topic is `attitude`, `swing`, `alarm`, `spots` or `reel_cmd`."""
+"""(topic, model): topic is `attitude`, `attitude_block`, `swing`, `alarm`, `spots` or `reel_cmd`."""
 
 
 def alarm_event(out: AlarmOut, now_us: int) -> schemas.AlarmEvent:
@@ -56,7 +56,8 @@ class Hub:
                 log.exception("listener failed on %s", topic)
 
     def emit(self, out: Output) -> None:
-        """Alarms first (they matter most and are rare), then reel commands, attitude, swing, spots."""
+        """Alarms first (they matter most and are rare), then reel commands, attitude, attitude blocks (BLOCK: a
+        scoring run or a full-rate recording must not lose samples), swing, spots."""
         now_us = int(self.clock() * 1e6)
         for al in out.alarms:
             stored = self.store.upsert_alarm(al.change.alarm)  # may keep an older active row's id: publish that one
@@ -68,6 +69,8 @@ class Hub:
             self.send_reel(device_id, sender="auto", **fields)
         for a in out.attitudes:
             self._put(schemas.attitude_key(a.kind, a.device_id), "attitude", a)
+        for b in out.attitude_blocks:
+            self._put(schemas.attitude_block_key(b.kind, b.device_id), "attitude_block", b, block=True)
         for s in out.swings:
             self._put(schemas.swing_key(s.device_id), "swing", s)
         if out.spots is not None:

@@ -61,7 +61,8 @@ class PipelineSettings:
 
     default_filter: str = DEFAULT_FILTER
     hook_filter: str = HOOK_FILTER  # hooks not configured otherwise use the rope-aware EKF
-    attitude_interval_s: float = 0.02  # at most 50 Hz of attitude per device
+    attitude_interval_s: float = 0.02  # at most 50 Hz of attitude per device (0: the end of every packet)
+    attitude_blocks: bool = False  # also every sample's attitude, one AttitudeBlock per IMU packet
     spots_interval_s: float = 1.0
     reel_max_age_s: float = 1.0  # reel tension older than this is not fed to the line guard
     warmup_s: float = 0.5  # samples averaged before a filter starts (design.md: initial rest window)
@@ -70,6 +71,7 @@ class PipelineSettings:
     # 5 s burst a tension spike that rose and fell would clear only at the burst's end. inf = no splitting.
     rule_block_s: float = 0.25
     rest_gyr_std_rad_s: float = 0.01  # warm-up counts as rest below this gyro std (then its mean seeds the bias)
+    warmup_bias_seed: bool = True  # False: never seed the gyro bias from a resting warm-up (as offline evaluate)
     rest_acc_tol_m_s2: float = 0.5  # ... and with |acc| within this of g
 
 
@@ -130,6 +132,7 @@ class Output:
     """What one batch produced; the hub publishes and persists it."""
 
     attitudes: list[schemas.Attitude] = field(default_factory=list)
+    attitude_blocks: list[schemas.AttitudeBlock] = field(default_factory=list)
     swings: list[schemas.Swing] = field(default_factory=list)
     alarms: list[AlarmOut] = field(default_factory=list)
     spots: schemas.SpotRanking | None = None
@@ -373,10 +376,11 @@ class Pipeline:
             # A hook can hang still yet twist in gusts: x/y quiet is rest for the swing (seed the x/y bias), z too
             # seeds the z bias. Swinging at start: the filter must not assume plumb.
             if level and quiet[0] and quiet[1]:
-                filt.seed_gyro_bias(gyr.mean(axis=0), axes=(0, 1, 2) if quiet[2] else (0, 1))  # type: ignore[union-attr]
+                if self.settings.warmup_bias_seed:
+                    filt.seed_gyro_bias(gyr.mean(axis=0), axes=(0, 1, 2) if quiet[2] else (0, 1))  # type: ignore[union-attr]
             else:
                 filt.assume_moving()  # type: ignore[union-attr]
-        elif level and quiet.all():
+        elif level and quiet.all() and self.settings.warmup_bias_seed:
             self._seed_bias(dev, gyr.mean(axis=0))
         if p.kind == "rod":
             dev.rod = RodAlarms(p.device_id, th if isinstance(th, RodThresholds) else None)
@@ -417,6 +421,7 @@ class Pipeline:
     ) -> None:
         blocks: dict[str, tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]] = {}
         ends: dict[str, list[tuple[int, int, int]]] = {}  # per device: (last sample index, seq, t_us) per packet
+        fused: dict[str, list[schemas.ImuPacket]] = {}  # per device: the packets behind its block
         for dev_id, pkts in imu.items():
             dev = self.devices.get(dev_id)
             if dev is None:  # warm-up: collect, start the filter once the window is full
@@ -444,12 +449,16 @@ class Pipeline:
             dev.wall_offset_us = (last.wall_t0_us - last.t0_us) if last.wall_t0_us is not None else (
                 int(now * 1e6) - dev.t_us)  # fmt: skip
             blocks[dev_id] = (gyr, acc, mag if dev.use_mag else None, t_s)
+            fused[dev_id] = pkts
             idx = np.cumsum([p.n for p in pkts]) - 1
             ends[dev_id] = [(int(i), p.seq, p.t0_us + int(round((p.n - 1) * 1e6 / p.rate_hz)))
                             for i, p in zip(idx, pkts, strict=True)]  # fmt: skip
         quats = self._step_filters(blocks, out)
         for dev_id, q in quats.items():
-            self._post(self.devices[dev_id], q, blocks[dev_id], ends[dev_id], now, out, conds)
+            dev = self.devices[dev_id]
+            self._post(dev, q, blocks[dev_id], ends[dev_id], now, out, conds)
+            if self.settings.attitude_blocks:
+                out.attitude_blocks += self._attitude_blocks(dev, q, fused[dev_id])
 
     def _step_filters(
         self, blocks: dict[str, tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]], out: Output
@@ -513,6 +522,21 @@ class Pipeline:
             for d, r in zip(ids, rows, strict=True):
                 quats[d] = q_all[r]
         return quats
+
+    def _attitude_blocks(
+        self, dev: ImuDevice, q: FloatArray, pkts: list[schemas.ImuPacket]
+    ) -> list[schemas.AttitudeBlock]:
+        """Every sample's attitude, one AttitudeBlock per packet (`q` holds the packets' samples in order)."""
+        out, start = [], 0
+        for p in pkts:
+            rows = q[start : start + p.n].tolist()
+            start += p.n
+            out.append(schemas.AttitudeBlock(
+                device_id=dev.device_id, kind=dev.kind, boot_id=p.boot_id, seq=p.seq,  # type: ignore[arg-type]
+                t0_us=p.t0_us, rate_hz=p.rate_hz, wall_t0_us=p.t0_us + dev.wall_offset_us,
+                quat_wxyz=[tuple(r) for r in rows], filter=dev.filter_name,
+            ))  # fmt: skip
+        return out
 
     def _post(
         self,

@@ -17,6 +17,7 @@ Key layout (`{kind}` in `rod`, `hook`, `ball`; `{device_id}` matches `DEVICE_ID_
     rig/rod/{id}/reel/cmd          ReelCommand       gateway/app -> device (CongestionControl.BLOCK)
     rig/ball/{id}/cmd              BallCommand       gateway/app -> device (CongestionControl.BLOCK)
     gw/{rod|hook}/{id}/attitude    Attitude          gateway -> apps
+    gw/{rod|hook}/{id}/attitude/block  AttitudeBlock  gateway -> apps (opt-in `--attitude-blocks`, BLOCK)
     gw/hook/{id}/swing             Swing             gateway -> apps
     gw/{kind}/{id}/alarm           AlarmEvent        gateway -> apps (BLOCK)
     gw/spots                       SpotRanking       gateway -> apps
@@ -132,6 +133,11 @@ def ball_cmd_key(device_id: str) -> str:
 def attitude_key(kind: str, device_id: str) -> str:
     """`gw/{kind}/{device_id}/attitude`."""
     return f"gw/{kind}/{_check_id(device_id)}/attitude"
+
+
+def attitude_block_key(kind: str, device_id: str) -> str:
+    """`gw/{kind}/{device_id}/attitude/block`: every sample's attitude, one message per IMU packet (opt-in)."""
+    return f"gw/{kind}/{_check_id(device_id)}/attitude/block"
 
 
 def swing_key(device_id: str) -> str:
@@ -490,6 +496,27 @@ class Attitude(WireModel):
     filter: Name | None = None
 
 
+class AttitudeBlock(WireModel):
+    """Fused attitude of every sample of one IMU packet (`boot_id`, `seq`, `t0_us`, `rate_hz` as in that packet;
+    sample i at `t0_us + i * 1e6 / rate_hz`). Published only when the gateway runs with `--attitude-blocks`,
+    with CongestionControl.BLOCK, for replay scoring and recording at full rate."""
+
+    v: Version = 1
+    device_id: DeviceId
+    kind: ImuKind
+    boot_id: Uint32
+    seq: Uint32
+    t0_us: TimeUs
+    rate_hz: RateHz
+    wall_t0_us: TimeUs | None = None
+    quat_wxyz: list[QuatWxyz] = _samples()
+    filter: Name | None = None
+
+    def t_us(self) -> list[int]:
+        """Device time (µs) of each sample, rounded as the gateway's `Attitude.t_us`."""
+        return [self.t0_us + int(round(i * 1e6 / self.rate_hz)) for i in range(len(self.quat_wxyz))]
+
+
 class Swing(WireModel):
     """Hook swing from the fused attitude (paper 001 eq. 4-7): angle Θ, direction Φ (ENU bearing), torsion φ."""
 
@@ -823,6 +850,10 @@ def examples() -> dict[str, tuple[str, WireModel]]:
         device_id="rod-1", kind="rod", seq=1042, t_us=10_430_000, wall_t_us=wall + 10_436_000, quat_wxyz=quat,
         roll_rad=0.0012, pitch_rad=0.3316, yaw_rad=0.5236, yaw_unwrapped_rad=6.8068, filter="complementary",
     )
+    att_block = AttitudeBlock(
+        device_id="rod-1", kind="rod", boot_id=2_882_400_001, seq=1042, t0_us=10_420_000, rate_hz=100.0,
+        wall_t0_us=wall + 10_420_000, quat_wxyz=[quat, quat], filter="default",
+    )
     swing = Swing(device_id="hook-1", seq=7, t_us=80_000, wall_t_us=wall + 86_000, swing_angle_rad=0.087,
                   swing_direction_rad=1.2, torsion_rad=0.15)
     alarm = AlarmEvent(
@@ -856,6 +887,7 @@ def examples() -> dict[str, tuple[str, WireModel]]:
         "reel_cmd": (reel_cmd_key("rod-1"), reel_cmd),
         "ball_cmd": (ball_cmd_key("ball-1"), ball_cmd),
         "attitude": (attitude_key("rod", "rod-1"), att),
+        "attitude_block": (attitude_block_key("rod", "rod-1"), att_block),
         "swing": (swing_key("hook-1"), swing),
         "alarm": (alarm_key("rod", "rod-1"), alarm),
         "spots": (SPOTS_KEY, spots),
@@ -898,6 +930,9 @@ FIELD_NOTES: Final[dict[str, str]] = {
 
 # Notes that differ from FIELD_NOTES for one model: (model name, field) -> note.
 MODEL_FIELD_NOTES: Final[dict[tuple[str, str], str]] = {
+    ("AttitudeBlock", "wall_t0_us"): "sample 0 on the realtime clock (unix µs): the packet's `wall_t0_us`, else "
+                                     "mapped from the gateway's arrival time (as `Attitude.wall_t_us`)",
+    ("AttitudeBlock", "quat_wxyz"): "n unit quaternions body -> ENU, scalar first, one per sample of the packet",
     ("AlarmEvent", "t_us"): "device monotonic clock (µs) of the sample that raised, updated or cleared the alarm",
     ("AlarmEvent", "wall_t_us"): "gateway realtime clock (unix µs) when the event was published",
 }
@@ -948,7 +983,7 @@ _FIELDS_BEGIN = "<!-- fields:begin (generated) -->"
 _FIELDS_END = "<!-- fields:end -->"
 DOC_MODELS: Final[tuple[type[WireModel], ...]] = (
     ImuPacket, EnvPacket, ProfilePoint, ReelStatus, RodTruth, HookTruth, BallTruth, TruthEvent, ReelCommand,
-    BallCommand, Attitude, Swing, AlarmEvent, SpotRanking, SpotScore, IngestStats, DeviceIngestCounters,
+    BallCommand, Attitude, AttitudeBlock, Swing, AlarmEvent, SpotRanking, SpotScore, IngestStats, DeviceIngestCounters,
     RejectedPacket, DeviceConfig,
 )
 

@@ -229,6 +229,7 @@ def test_protocol_doc_examples_validate() -> None:
     assert len(pairs) >= len(schemas.examples())
     models = {
         "attitude": schemas.Attitude, "swing": schemas.Swing, "alarm": schemas.AlarmEvent,
+        "attitude/block": schemas.AttitudeBlock,
         "gw/spots": schemas.SpotRanking, "gw/diag/ingest": schemas.IngestStats,
         "gw/diag/rejected": schemas.RejectedPacket, "gw/config": schemas.DeviceConfig,
     }

@@ -71,6 +71,12 @@ class Inbox:
         return len(self._items)
 
 
+def pipeline_settings_from(settings: Settings) -> PipelineSettings:
+    """The pipeline options that `Settings` (and so the command line) sets."""
+    return PipelineSettings(default_filter=settings.default_filter, attitude_interval_s=settings.attitude_interval_s,
+                            attitude_blocks=settings.attitude_blocks, warmup_bias_seed=settings.warmup_bias_seed)
+
+
 class GatewayService:
     """Owns bus subscriptions, the pipeline, the hub, presence and counters. `start()` on the event loop,
     `stop()` before closing the bus."""
@@ -86,7 +92,7 @@ class GatewayService:
         self.diag_period_s = diag_period_s
         active, _ = store.list_alarms(status="active", limit=1_000_000)
         self.pipeline = Pipeline(
-            pipeline_settings or PipelineSettings(default_filter=settings.default_filter),
+            pipeline_settings or pipeline_settings_from(settings),
             store.load_defaults(), store.load_device_settings(), active,
         )  # fmt: skip
         self.hub = Hub(bus, store)

@@ -186,3 +186,38 @@ def test_alarm_times_are_device_time_and_device_wall_only_when_the_device_sends_
     (bite2,) = [a for o in outs for a in o.alarms if a.change.kind == "raised"]
     assert bite2.t_us == bite.t_us and bite2.source_wall_us is None
     assert 1e9 < bite2.change.alarm.started_at < 1e9 + 7.0
+
+
+def test_attitude_blocks_carry_every_sample_whatever_the_batching() -> None:
+    messages = [m for m in rod_messages(2.0) if m[0].endswith("/imu")]
+    packets = [schemas.decode(k, v) for k, v in messages]
+    s = PipelineSettings(attitude_blocks=True, attitude_interval_s=0.0)
+    one, many = run(Pipeline(s), messages, per_batch=1), run(Pipeline(s), messages, per_batch=7)
+    blocks = [b for o in one for b in o.attitude_blocks]
+    assert [b.seq for b in blocks] == [p.seq for p in packets]  # the warm-up packets too
+    for b, p in zip(blocks, packets, strict=True):
+        assert isinstance(p, schemas.ImuPacket)
+        assert (b.boot_id, b.t0_us, b.rate_hz, len(b.quat_wxyz)) == (p.boot_id, p.t0_us, p.rate_hz, p.n)
+        assert b.wall_t0_us == p.wall_t0_us and b.filter == "default"
+        assert b.t_us()[-1] == p.t0_us + round((p.n - 1) * 1e6 / p.rate_hz)
+    # the packet-end Attitude is the block's last sample
+    ends = {a.seq: a.quat_wxyz for o in one for a in o.attitudes}
+    assert all(ends[b.seq] == b.quat_wxyz[-1] for b in blocks)
+    q1 = np.array([q for b in blocks for q in b.quat_wxyz])
+    q7 = np.array([q for o in many for b in o.attitude_blocks for q in b.quat_wxyz])
+    np.testing.assert_allclose(q7, q1, rtol=0, atol=1e-12)  # batching does not change the estimate
+    assert len(np.unique(q1.round(6), axis=0)) > len(packets), "per-sample attitudes, not one repeated per packet"
+    assert not [b for o in run(Pipeline(), messages, per_batch=7) for b in o.attitude_blocks], "opt-in"
+
+
+def test_warmup_bias_seed_can_be_turned_off() -> None:
+    packets = [schemas.decode(k, v) for k, v in rod_messages(1.0) if k.endswith("/imu")][:10]  # one resting window
+    gyr_mean = np.mean([s for p in packets for s in p.gyr_rad_s], axis=0)  # type: ignore[union-attr]
+    bias = {}
+    for seed in (True, False):
+        p = Pipeline(PipelineSettings(warmup_bias_seed=seed))
+        p.process(packets, now_wall_s=1e9)
+        bias[seed] = np.array(p.bias_rad_s("rod-1"))
+    assert np.linalg.norm(gyr_mean) > 0.03  # the simulated gyro bias, rad/s
+    np.testing.assert_allclose(bias[True], gyr_mean, atol=0.002)  # seeded, then barely moved in 0.5 s
+    assert np.linalg.norm(bias[False]) < 0.1 * np.linalg.norm(gyr_mean)  # from zero

@@ -1,0 +1,42 @@
+"""Command-line options reach the pipeline, and attitude blocks go out on their own key with BLOCK."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from gateway import schemas
+from gateway.__main__ import build_parser, settings_from_args
+from gateway.config import Settings
+from gateway.ingest.bus import MemoryBus
+from gateway.ingest.runner import GatewayService, pipeline_settings_from
+from gateway.pipeline import PipelineSettings
+from gateway.store import Store
+from tests.gateway.conftest import rod_messages
+
+
+def test_attitude_options_reach_the_pipeline(tmp_path: Path) -> None:
+    args = build_parser().parse_args(["--data-dir", str(tmp_path), "--attitude-blocks", "--no-warmup-bias-seed",
+                                      "--attitude-interval-s", "0", "--filter", "mahony"])  # fmt: skip
+    ps = pipeline_settings_from(settings_from_args(args))
+    assert (ps.attitude_blocks, ps.warmup_bias_seed, ps.attitude_interval_s, ps.default_filter) == (
+        True, False, 0.0, "mahony")  # fmt: skip
+    plain = pipeline_settings_from(settings_from_args(build_parser().parse_args(["--data-dir", str(tmp_path)])))
+    d = PipelineSettings()
+    assert (plain.attitude_blocks, plain.warmup_bias_seed, plain.attitude_interval_s) == (
+        d.attitude_blocks, d.warmup_bias_seed, d.attitude_interval_s) == (False, True, 0.02)  # fmt: skip
+
+
+def test_attitude_blocks_are_published_with_block_next_to_the_decimated_attitude(tmp_path: Path) -> None:
+    bus = MemoryBus()
+    imu = [(k, p) for k, p in rod_messages(1.0) if k.endswith("/imu")]
+    with Store(tmp_path / "gw.sqlite3") as store:
+        service = GatewayService(Settings(data_dir=tmp_path, zenoh_listen=[], attitude_blocks=True,
+                                          attitude_interval_s=0.1), bus, store)
+        for key, payload in imu:
+            service.handle([(key, payload, time.monotonic())], now_wall_s=1e9)
+    block_key, att_key = schemas.attitude_block_key("rod", "rod-1"), schemas.attitude_key("rod", "rod-1")
+    blocks = [(schemas.AttitudeBlock.model_validate_json(p), b) for k, p, b in bus.sent if k == block_key]
+    assert [m.seq for m, _ in blocks] == list(range(len(imu))) and all(b for _, b in blocks)
+    atts = [b for k, _, b in bus.sent if k == att_key]
+    assert len(atts) == len(imu) // 2 and not any(atts)  # 0.05 s packets, attitude every 0.1 s, DROP
