@@ -82,15 +82,23 @@ SENSITIVITY_STEPS: dict[int, tuple[float, float, float, float]] = {
 
 
 class RodThresholds(_Thresholds):
-    """Smart-rod alarm thresholds (seed 000 §3.3: theta1 bite, theta2 reel switch, theta3 line limit)."""
+    """Smart-rod alarm thresholds (seed 000 §3.3: theta1 bite, theta2 reel switch, theta3 line limit).
+
+    theta1 = 10 deg is the paper's. The paper defines theta2/theta3 but gives no values; they depend on the rod and
+    line, so the defaults fit the rod the project ships, `devices.rod_physics.RodSettings` (the simulator stands in
+    for the hardware): bend = 60 deg * tanh(T / 15 N), resting at T = 1 N (bend 4.0 deg), 40 N line. As pitch drops
+    below rest: theta3 = drop at the breaking load (55.4 deg -> 55), theta2 = drop at half of it (20 N: 48.2 deg
+    -> 48), as `bench.fights` sets them. Auto reel then asks for a drag of 60 % of `line_breaking_n` (24 N).
+    Another rod or line needs its own values (docs/control.md, "Gateway defaults").
+    """
 
     bite_deviation_deg: float = Field(default=10.0, gt=0.0, le=45.0, description="theta1: pitch drop = bite.")
     sensitivity: int = Field(default=3, ge=1, le=5, description="1 least .. 5 most sensitive; scales theta1, see docs.")
-    line_switch_deg: float = Field(default=20.0, gt=0.0, le=80.0, description="theta2: pay out line above this drop.")
-    line_limit_deg: float = Field(default=35.0, gt=0.0, le=85.0, description="theta3: drop at breaking load.")
+    line_switch_deg: float = Field(default=48.0, gt=0.0, le=80.0, description="theta2: pay out line above this drop.")
+    line_limit_deg: float = Field(default=55.0, gt=0.0, le=85.0, description="theta3: drop at breaking load.")
     line_critical_fraction: float = Field(default=0.9, gt=0.5, le=1.0, description="Critical at this share of theta3.")
     drop_back_rise_deg: float = Field(default=5.0, gt=0.0, le=45.0, description="Pitch rise above rest = slack line.")
-    line_breaking_n: float = Field(default=100.0, gt=0.0, description="Breaking load of the line in newtons.")
+    line_breaking_n: float = Field(default=40.0, gt=0.0, description="Breaking load of the line in newtons.")
     tension_warn_fraction: float = Field(default=0.8, gt=0.0, le=1.0, description="Critical at this share of breaking.")
     rearm_quiet_s: float = Field(default=5.0, ge=0.0, le=600.0, description="Pitch near rest this long re-arms.")
     baseline_tau_s: float = Field(default=5.0, gt=0.0, le=600.0, description="Rest-pitch tracking time constant.")
