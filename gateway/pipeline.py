@@ -73,6 +73,9 @@ class PipelineSettings:
     rest_gyr_std_rad_s: float = 0.01  # warm-up counts as rest below this gyro std (then its mean seeds the bias)
     warmup_bias_seed: bool = True  # False: never seed the gyro bias from a resting warm-up (as offline evaluate)
     rest_acc_tol_m_s2: float = 0.5  # ... and with |acc| within this of g
+    # Auto reel watchdog: every rod in auto mode has its controller stepped at least this often (gateway clock), so
+    # the controller's data timeout stops the reel when the rod's packets stop (`Pipeline.tick_reel`).
+    reel_watchdog_s: float = 0.1
 
 
 @dataclass
@@ -102,7 +105,7 @@ class ImuDevice:
     swing: schemas.Swing | None = None
     baseline_rad: float = math.nan
     auto_reel: Any = None  # FishWalkingController when auto mode is on
-    last_reel: dict[str, Any] | None = None  # last auto command sent
+    reel_step_t_s: float = -math.inf  # device time the controller was last stepped at (its steps move forward)
 
 
 class AlarmOut(NamedTuple):
@@ -124,6 +127,26 @@ class FilterFailure(NamedTuple):
     detail: str
 
 
+class ReelEvent(NamedTuple):
+    """A reel safety action for the event log: `reel_data_lost` (auto mode, no fresh attitude within the
+    controller's timeout, stop sent) or `reel_offline` (the rod's liveliness token vanished, stop sent)."""
+
+    device_id: str
+    kind: str
+    t_s: float  # gateway wall time
+    details: dict[str, Any]
+
+
+@dataclass
+class ReelWatch:
+    """Auto-reel bookkeeping of one rod; it outlives the device's fusion state (a filter restart drops that)."""
+
+    since_s: float  # gateway time the newest rod data reached the controller (or of the first watchdog look)
+    device_t_s: float | None = None  # device time of that data's last sample
+    fields: dict[str, Any] | None = None  # last command sent
+    lost: bool = False  # a data-lost stop went out and no fresh data has been used since
+
+
 _Timed = tuple[str, int, int | None, Condition]  # (kind, device t_us, device wall µs or None, wall-time condition)
 
 
@@ -137,6 +160,7 @@ class Output:
     alarms: list[AlarmOut] = field(default_factory=list)
     spots: schemas.SpotRanking | None = None
     reel_commands: list[tuple[str, dict[str, Any]]] = field(default_factory=list)  # (device id, ReelCommand fields)
+    reel_events: list[ReelEvent] = field(default_factory=list)  # reel safety stops (watchdog, offline) to log
     filter_failures: list[FilterFailure] = field(default_factory=list)
 
 
@@ -196,6 +220,7 @@ class Pipeline:
         self.env: dict[str, schemas.EnvPacket] = {}  # device id -> latest reading
         self.reel: dict[str, tuple[schemas.ReelStatus, float]] = {}  # rod id -> (latest status, arrival wall s)
         self.auto_reel: dict[str, bool] = {d: True for d, (_, ds) in self.device_settings.items() if ds.auto_reel}
+        self._reel_watch: dict[str, ReelWatch] = {}
         self._batch: Any = None
         self._warmup: dict[str, list[schemas.ImuPacket]] = {}
         self._last_spots_s = -math.inf
@@ -271,6 +296,7 @@ class Pipeline:
         return not on or _controller_class() is not None
 
     def _switch_auto_reel(self, device_id: str, on: bool) -> None:
+        self._reel_watch.pop(device_id, None)  # a fresh watchdog record per auto session
         if on:
             self.auto_reel[device_id] = True
         else:
@@ -579,7 +605,7 @@ class Pipeline:
                 new += c
             dev.baseline_rad = rod_block.baseline_rad
             if dev.auto_reel is not None:
-                self._auto_reel(dev, float(t_s[-1]), float(eul[-1, 1]), reel[0] if reel else None, out)
+                self._auto_reel(dev, float(t_s[-1]), float(eul[-1, 1]), reel[0] if reel else None, now, out)
         elif dev.hook is not None:
             if dev.rest_heading_rad is None:
                 dev.rest_heading_rad = float(hook_geo.twist_heading(q[0]))
@@ -614,17 +640,82 @@ class Pipeline:
         return cls(s)
 
     def _auto_reel(
-        self, dev: ImuDevice, t_s: float, pitch: float, reel: schemas.ReelStatus | None, out: Output
+        self, dev: ImuDevice, t_s: float, pitch: float, reel: schemas.ReelStatus | None, now: float, out: Output
     ) -> None:
+        """Step the controller on a fused block's last sample (device time `t_s`); send the command if it changed."""
         from gateway.control.fish_walking import Observation
 
+        t_step = t_s
+        if t_s <= dev.reel_step_t_s:
+            if dev.reel_step_t_s - t_s > dev.auto_reel.settings.attitude_timeout_s:  # device clock restarted (reboot)
+                dev.auto_reel.enable()
+            else:  # a watchdog step's estimate ran ahead of this late sample: keep the controller's time moving on
+                t_step = dev.reel_step_t_s + 1e-3
         obs = Observation(t_s, pitch - dev.baseline_rad, None, reel.tension_n if reel else None,
                           reel.line_out_m if reel else None)  # fmt: skip
-        decision = dev.auto_reel.step(t_s, obs)
-        fields = decision.command_fields()
-        if dev.last_reel != fields:
-            dev.last_reel = fields
-            out.reel_commands.append((dev.device_id, fields))
+        decision = dev.auto_reel.step(t_step, obs)
+        dev.reel_step_t_s = t_step
+        w = self._watch(dev.device_id, now)
+        w.since_s, w.device_t_s = now, t_s
+        self._reel_send(dev.device_id, w, decision.command_fields(), decision.reason, now, out)
+
+    def tick_reel(self, now_wall_s: float) -> Output:
+        """Reel watchdog tick, at gateway wall time (the clock `process` gets); the service calls it every
+        `reel_watchdog_s`. Each rod in auto mode whose newest data is older than `reel_watchdog_s` has its controller
+        stepped with no new observation at device time t = (device time of the newest sample it got) + (gateway
+        time elapsed since that sample was processed). Only elapsed gateway time enters, so the device's clock
+        offset and the wall clocks' skew do not; the sample's transport delay is not counted (the stop comes that
+        much later than `attitude_timeout_s` after the sample was taken, but never before it). Once no fresh data
+        came for the controller's timeout, its decision is `stop` (with the drag), sent once more and logged as
+        `reel_data_lost`. A rod in auto without a running controller (no data since auto went on or since the
+        gateway started, or its filter restarting) gets a plain stop once that timeout has passed."""
+        out = Output()
+        for dev_id in [d for d, on in self.auto_reel.items() if on]:
+            w = self._watch(dev_id, now_wall_s)
+            if now_wall_s - w.since_s < self.settings.reel_watchdog_s:  # fresh: the packets step the controller
+                continue
+            dev = self.devices.get(dev_id)
+            ctrl = dev.auto_reel if dev is not None else None
+            if dev is not None and ctrl is not None and w.device_t_s is not None:
+                t = w.device_t_s + (now_wall_s - w.since_s)
+                if t <= dev.reel_step_t_s:
+                    continue
+                decision = ctrl.step(t, None)
+                dev.reel_step_t_s = t
+                self._reel_send(dev_id, w, decision.command_fields(), decision.reason, now_wall_s, out)
+            elif now_wall_s - w.since_s > _reel_timeout_s():
+                self._reel_send(dev_id, w, {"action": "stop"}, "timeout", now_wall_s, out)
+        return out
+
+    def reel_offline(self, device_id: str, now_wall_s: float) -> Output:
+        """The rod's liveliness token vanished: if it is in auto mode, stop its reel and log `reel_offline`. Auto
+        stays on; fresh data after a reconnect restarts the controller as after a data timeout."""
+        out = Output()
+        if self.auto_reel.get(device_id):
+            w = self._watch(device_id, now_wall_s)
+            w.fields, w.lost = {"action": "stop"}, True
+            out.reel_commands.append((device_id, w.fields))
+            out.reel_events.append(ReelEvent(device_id, "reel_offline", now_wall_s, {"command": w.fields}))
+        return out
+
+    def _watch(self, device_id: str, now: float) -> ReelWatch:
+        w = self._reel_watch.get(device_id)
+        if w is None:
+            w = self._reel_watch[device_id] = ReelWatch(now)
+        return w
+
+    def _reel_send(
+        self, device_id: str, w: ReelWatch, fields: dict[str, Any], reason: str, now: float, out: Output
+    ) -> None:
+        """Queue `fields` if they changed; a data-lost stop is always sent (and logged) the first time."""
+        lost = reason == "timeout" and not w.lost
+        w.lost = reason == "timeout"
+        if lost:
+            out.reel_events.append(ReelEvent(device_id, "reel_data_lost", now,
+                                             {"data_age_s": round(now - w.since_s, 3), "command": fields}))  # fmt: skip
+        if lost or fields != w.fields:
+            w.fields = fields
+            out.reel_commands.append((device_id, fields))
 
     # -- views ----------------------------------------------------------------------------------------------
 
@@ -682,6 +773,15 @@ def _make_filter(name: str, use_mag: bool, rope_length_m: float | None = None) -
     if name in registry.FILTERS:
         return registry.make_filter(name, use_mag=use_mag)
     raise KeyError(name)
+
+
+def _reel_timeout_s() -> float:
+    """The fish-walking controller's data timeout, s (its default; 0.3 s when the module is missing)."""
+    try:
+        from gateway.control.fish_walking import FishWalkingSettings
+    except ImportError:
+        return 0.3
+    return FishWalkingSettings().attitude_timeout_s
 
 
 def _controller_class() -> Any:

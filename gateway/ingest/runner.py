@@ -23,7 +23,7 @@ from gateway.hub import Hub
 from gateway.ingest.bus import Bus, key_matches
 from gateway.ingest.presence import Presence
 from gateway.ingest.stats import IngestCounters
-from gateway.pipeline import Pipeline, PipelineSettings
+from gateway.pipeline import Output, Pipeline, PipelineSettings
 from gateway.store import Store
 
 log = logging.getLogger("gateway.ingest")
@@ -117,7 +117,8 @@ class GatewayService:
         self.bus.watch_liveliness(schemas.SEL_DEVICE_TOKENS, on_token)
         self.bus.declare_queryable(schemas.SEL_GW_CONFIG, self.config_replies, encoding=schemas.ENCODING_GW)
         self.bus.declare_token(schemas.GW_ALIVE_KEY)
-        self._tasks = [asyncio.create_task(self._ingest_loop()), asyncio.create_task(self._diag_loop())]
+        self._tasks = [asyncio.create_task(self._ingest_loop()), asyncio.create_task(self._diag_loop()),
+                       asyncio.create_task(self._reel_loop())]  # fmt: skip
 
     async def stop(self) -> None:
         for t in self._tasks:
@@ -188,6 +189,27 @@ class GatewayService:
             except Exception:
                 log.exception("diagnostics publish failed")
 
+    async def _reel_loop(self) -> None:
+        """Reel watchdog: tick the auto-reel controllers every `reel_watchdog_s` on the gateway's wall clock (the one
+        `handle` gives the pipeline), so a rod whose packets stop gets a stop (`Pipeline.tick_reel`)."""
+        while True:
+            await asyncio.sleep(self.pipeline.settings.reel_watchdog_s)
+            try:
+                self._emit_reel(self.pipeline.tick_reel(time.time()))
+            except Exception:
+                log.exception("reel watchdog tick failed")
+
+    def _emit_reel(self, out: Output) -> None:
+        """Publish reel safety stops (BLOCK, via the hub) and record their events in the store's event log."""
+        if out.reel_commands:
+            self.hub.emit(out)
+        for e in out.reel_events:
+            log.warning("rod %s: %s, reel stop sent", e.device_id, e.kind)
+            try:
+                self.store.log_event(e.t_s, e.kind, e.device_id, e.details)
+            except Exception:
+                log.exception("event log write failed")
+
     # -- presence and config --------------------------------------------------------------------------------
 
     def _on_presence(self, key: str, alive: bool) -> None:
@@ -201,6 +223,8 @@ class GatewayService:
                                  {"kind": change.kind})  # fmt: skip
         except Exception:
             log.exception("event log write failed")
+        if not alive:
+            self._emit_reel(self.pipeline.reel_offline(change.device_id, change.since_s))
 
     def device_config(self, kind: str, device_id: str) -> schemas.DeviceConfig:
         """Current thresholds of a device (the kind defaults when it has no override)."""
