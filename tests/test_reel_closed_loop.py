@@ -1,8 +1,8 @@
 """Reel control closed over real zenoh on loopback: a simulated rod PROCESS (`python -m devices.sim_rod`) with a
 scripted bite and then a fish fight -> the gateway PROCESS (`python -m gateway`) -> bite alarm -> auto mode via
-REST (bearer token) -> fish-walking ReelCommands on `rig/rod/{id}/reel/cmd` -> the sim reel obeys (its status
-echoes `last_cmd_id` and the commanded motion) and the line holds; a manual REST command then stops auto mode.
-Multicast off, explicit endpoints, free ports."""
+REST (bearer token), with the default rod thresholds (they fit the sim rod) -> fish-walking ReelCommands on
+`rig/rod/{id}/reel/cmd` -> the sim reel obeys (its status echoes `last_cmd_id` and the commanded motion) and the
+line holds; a manual REST command then stops auto mode. Multicast off, explicit endpoints, free ports."""
 
 from __future__ import annotations
 
@@ -50,8 +50,8 @@ def test_auto_reel_drives_the_sim_reel_and_manual_takes_over(tmp_path: Path) -> 
         wait_http(hport)
         api = httpx.Client(base_url=f"http://127.0.0.1:{hport}/api", timeout=10.0, headers={
             "Authorization": f"Bearer {(tmp_path / 'data' / 'api_token').read_text().strip()}"})
-        # The operator tells the gateway the line's breaking load: the controller sets the drag to 60 % of it.
-        assert api.put("/thresholds/rod", json={"line_breaking_n": BREAKING_N}).status_code == 200
+        # No threshold set: the defaults are the sim rod's (40 N line), and the controller sets the drag to 60 % of it.
+        assert api.get("/thresholds/rod").json()["line_breaking_n"] == BREAKING_N
         with zenoh.open(observer_config(zport)) as session:
             subs = [session.declare_subscriber(sel, rec) for sel in (
                 "gw/rod/*/alarm", "rig/rod/*/reel", "rig/rod/*/reel/cmd", "rig/rod/*/truth")]
