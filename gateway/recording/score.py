@@ -1,12 +1,14 @@
 """Score the gateway's published attitude of a replayed real recording against its reference, BROAD's way.
 
-    # the gateway (exact mode: one attitude per sample, no bias seed) and a 1-sample-per-packet import
-    python -m gateway.recording.exact_gateway --filter default &
-    python -m gateway.recording.import_broad DATA/15_undisturbed_fast_translation_A.mat -o rec/ --samples-per-packet 1
-    python -m gateway.recording.score rec/15_undisturbed_fast_translation_A.rigrec --live --replay --speed 20
+    # the gateway with every sample's attitude (gw/{kind}/{id}/attitude/block, BLOCK) and no warm-up bias seed
+    python -m gateway --attitude-blocks --no-warmup-bias-seed --filter default &
+    python -m gateway.recording.import_broad DATA/15_undisturbed_fast_translation_A.mat -o rec/
+    python -m gateway.recording.score rec/15_undisturbed_fast_translation_A.rigrec --live --replay --speed 0
     # or from a recording of the gateway's output made with `record -k 'gw/**'`
     python -m gateway.recording.score rec/15_...rigrec --attitudes gwrec/
 
+Uses the attitude blocks when the gateway publishes them (one attitude per sample), else the packet-end
+`gw/{kind}/{id}/attitude` messages (decimated to 50 Hz and DROPped under load by a default gateway).
 Prints RMSE (deg) of total / heading / inclination error over the reference's movement samples
 (gateway.fusion.broad.score), next to the offline `gateway.fusion.evaluate` figures for the same filter on the
 same samples, and their difference; `--check TOL` exits 1 when any figure differs by more than TOL degrees.
@@ -97,20 +99,34 @@ def recorded_trial(records: Iterable[Record], name: str = "recording") -> Record
     return RecordedTrial(trial, device[0], device[1], pkts[0].t0_us)
 
 
-def attitude_array(rt: RecordedTrial, attitudes: Iterable[schemas.Attitude]) -> FloatArray:
-    """(N, 4) estimate per sample from the gateway's Attitude messages (NaN where none was received)."""
+GatewayAttitude = schemas.Attitude | schemas.AttitudeBlock
+
+
+def attitude_array(rt: RecordedTrial, attitudes: Iterable[GatewayAttitude]) -> FloatArray:
+    """(N, 4) estimate per sample from the gateway's Attitude (packet end) and AttitudeBlock (every sample)
+    messages; NaN where none was received."""
     q = np.full((rt.trial.n, 4), np.nan)
     for a in attitudes:
-        i = rt.index(a.t_us)
-        if 0 <= i < rt.trial.n:
-            q[i] = a.quat_wxyz
+        pairs = zip(a.t_us(), a.quat_wxyz, strict=True) if isinstance(a, schemas.AttitudeBlock) else [
+            (a.t_us, a.quat_wxyz)]  # fmt: skip
+        for t_us, quat in pairs:
+            i = rt.index(t_us)
+            if 0 <= i < rt.trial.n:
+                q[i] = quat
     return q
 
 
-def attitudes_from_records(records: Iterable[Record], kind: str, device_id: str) -> list[schemas.Attitude]:
-    """Attitude messages of one device found in a recording of the gateway's output."""
-    key = schemas.attitude_key(kind, device_id)
-    return [schemas.Attitude.model_validate_json(r.payload) for r in records if r.key == key]
+def parse_attitude(key: str, payload: bytes) -> GatewayAttitude:
+    """An attitude message by its key: `.../attitude/block` -> AttitudeBlock, else Attitude."""
+    if key.endswith("/block"):
+        return schemas.AttitudeBlock.model_validate_json(payload)
+    return schemas.Attitude.model_validate_json(payload)
+
+
+def attitudes_from_records(records: Iterable[Record], kind: str, device_id: str) -> list[GatewayAttitude]:
+    """Attitude and attitude-block messages of one device found in a recording of the gateway's output."""
+    keys = (schemas.attitude_key(kind, device_id), schemas.attitude_block_key(kind, device_id))
+    return [parse_attitude(r.key, r.payload) for r in records if r.key in keys]
 
 
 @dataclass(frozen=True)
@@ -155,24 +171,29 @@ class AttitudeCollector:
     """Zenoh callback target: decodes nothing on zenoh's thread, only appends the bytes."""
 
     def __init__(self) -> None:
-        self.payloads: list[bytes] = []
+        self.payloads: list[tuple[str, bytes]] = []
         self.lock = threading.Lock()
         self.last_s = time.monotonic()
 
     def __call__(self, sample: zenoh.Sample) -> None:
         with self.lock:
-            self.payloads.append(sample.payload.to_bytes())
+            self.payloads.append((str(sample.key_expr), sample.payload.to_bytes()))
             self.last_s = time.monotonic()
 
-    def attitudes(self) -> list[schemas.Attitude]:
+    def attitudes(self) -> list[GatewayAttitude]:
         with self.lock:
-            return [schemas.Attitude.model_validate_json(p) for p in self.payloads]
+            return [parse_attitude(k, p) for k, p in self.payloads]
 
     def latest_wall_us(self) -> int | None:
         """Wall time (device clock mapped by the gateway) of the newest attitude received."""
         with self.lock:
             last = self.payloads[-1] if self.payloads else None
-        return None if last is None else schemas.Attitude.model_validate_json(last).wall_t_us
+        if last is None:
+            return None
+        a = parse_attitude(*last)
+        if isinstance(a, schemas.AttitudeBlock):
+            return None if a.wall_t0_us is None else a.wall_t0_us + a.t_us()[-1] - a.t0_us
+        return a.wall_t_us
 
 
 class LatestIngestStats:
@@ -226,20 +247,36 @@ def wait_for_gateway(session: zenoh.Session, timeout_s: float) -> bool:
     return False
 
 
+def wait_for_routes(session: zenoh.Session, rt: RecordedTrial, diag: LatestIngestStats, timeout_s: float) -> None:
+    """Wait until the gateway's IMU subscription has reached this session (a put before that is dropped here,
+    unseen) and the gateway has our subscriptions (its 1 Hz `gw/diag/ingest` reaches the subscriber declared
+    after the attitude ones), so neither the first packets nor the first attitudes are lost."""
+    deadline = time.monotonic() + timeout_s
+    probe = session.declare_publisher(schemas.imu_key(rt.kind, rt.device_id))
+    try:
+        while not (probe.matching_status.matching and diag.payload is not None):  # type: ignore[attr-defined]
+            if time.monotonic() > deadline:
+                raise TimeoutError("the gateway's subscriptions did not reach this session")
+            time.sleep(0.02)
+    finally:
+        probe.undeclare()  # type: ignore[no-untyped-call]
+
+
 def collect_live(
     session: zenoh.Session, rt: RecordedTrial, recording: Path | None, speed: float | None, idle_s: float,
     timeout_s: float, progress: bool = True, max_ahead_s: float = 0.3,
-) -> tuple[list[schemas.Attitude], schemas.IngestStats | None]:  # fmt: skip
-    """Subscribe to the device's attitude key; replay `recording` if given (paced, see `paced`); stop `idle_s`
-    after the last attitude. Returns the attitudes and the gateway's last ingest counters."""
+) -> tuple[list[GatewayAttitude], schemas.IngestStats | None]:  # fmt: skip
+    """Subscribe to the device's attitude and attitude-block keys; replay `recording` if given (paced, see
+    `paced`); stop `idle_s` after the last attitude. Returns the attitudes and the gateway's last ingest counters."""
     col = AttitudeCollector()
     diag = LatestIngestStats()
-    sub = session.declare_subscriber(schemas.attitude_key(rt.kind, rt.device_id), col)
+    subs = [session.declare_subscriber(key, col) for key in (schemas.attitude_key(rt.kind, rt.device_id),
+                                                             schemas.attitude_block_key(rt.kind, rt.device_id))]
     sub_diag = session.declare_subscriber(schemas.DIAG_INGEST_KEY, diag)
     deadline = time.monotonic() + timeout_s
     if not wait_for_gateway(session, min(timeout_s, 60.0)):
         raise TimeoutError(f"no gateway ({schemas.GW_ALIVE_KEY} liveliness token) within {min(timeout_s, 60.0)} s")
-    time.sleep(0.5)  # the gateway's subscriptions reach us shortly after its token
+    wait_for_routes(session, rt, diag, max(1.0, deadline - time.monotonic()))
     if recording is not None:
         recs = list(select(read_recording(recording), DEVICE_KEYS))
         pub = Publisher(session)
@@ -249,7 +286,7 @@ def collect_live(
     while time.monotonic() < deadline and time.monotonic() - col.last_s < idle_s:
         time.sleep(0.05)
     time.sleep(1.1)  # one more ingest report (about 1 Hz) covering everything
-    for s in (sub, sub_diag):
+    for s in (*subs, sub_diag):
         s.undeclare()  # type: ignore[no-untyped-call]
     if recording is not None:
         pub.close()
