@@ -1,7 +1,7 @@
 """End to end over real zenoh: a swinging, twisting hook PROCESS -> gateway PROCESS -> `gw/hook/*/swing`, compared
 with ground truth by sequence number (bench.hook_e2e's `free` scenario, shortened: still 1 s, a 2 s trolley jerk,
 free swing scored from 12 s after it, 15-26 s). Tolerances: swing RMSE < 0.15°, torsion and bearing relative to the
-start heading < 12°, with margin over what the same packets give in process (0.043°, 6.4°, 5.9° over 15-30 s);
+start heading < 12°, with margin over what the same packets give in process (0.038°, 6.4°, 6.0° over 15-30 s);
 `python -m bench.hook_e2e` measures the full 40 s run."""
 
 from __future__ import annotations
