@@ -358,6 +358,10 @@ const LABELS = {
   bite_deviation_deg: "θ1 bite deviation (°)", line_switch_deg: "θ2 reel switch (°)", line_limit_deg: "θ3 line limit (°)",
   sensitivity: "sensitivity (1–5)", swing_warn_deg: "swing warn (°)", swing_critical_deg: "swing critical (°)",
   torsion_warn_deg: "torsion warn (°)", torsion_critical_deg: "torsion critical (°)", hysteresis_deg: "hysteresis (°)",
+  drop_back_rise_deg: "drop-back rise (°)", line_breaking_n: "line breaking strength (N)",
+  line_critical_fraction: "θ3 critical at (fraction)", tension_warn_fraction: "tension warn (fraction of breaking)",
+  rearm_quiet_s: "re-arm after quiet (s)", baseline_tau_s: "rest baseline time constant (s)",
+  rope_length_m: "rope length (m)", rest_heading_deg: "rest heading (°, empty = first fused)",
 };
 async function loadThresholds(kind) {
   const r = await fetch(`/api/thresholds/${kind}`);
@@ -367,7 +371,7 @@ async function loadThresholds(kind) {
   const form = $(`#th-${kind}`);
   form.querySelector(".fields").replaceChildren(...Object.entries(th).flatMap(([k, v]) => [
     el("label", { for: `f-${kind}-${k}` }, LABELS[k] || k.replace(/_/g, " "), el("small", {}, k)),
-    el("input", { id: `f-${kind}-${k}`, name: k, type: "number", step: "any", value: String(v), "data-testid": `th-${kind}-${k}` }),
+    el("input", { id: `f-${kind}-${k}`, name: k, type: "number", step: "any", value: v == null ? "" : String(v), "data-testid": `th-${kind}-${k}` }),
   ]));
 }
 async function saveThresholds(ev) {
