@@ -20,7 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -76,13 +76,34 @@ class DeviceCalibration:
         }  # fmt: skip
 
     @staticmethod
-    def from_json(d: dict[str, Any]) -> DeviceCalibration:
-        """Inverse of `to_json`."""
-        return DeviceCalibration(
-            np.asarray(d["acc_offset_m_s2"], dtype=np.float64), np.asarray(d["acc_scale"], dtype=np.float64),
-            np.asarray(d["mag_offset_uT"], dtype=np.float64), np.asarray(d["mag_soft_iron"], dtype=np.float64),
-            int(d.get("n_poses", 0)), float(d.get("acc_fit_rms_m_s2", 0.0)), float(d.get("mag_fit_rms_uT", 0.0)),
-        )  # fmt: skip
+    def from_json(d: Mapping[str, Any]) -> DeviceCalibration:
+        """Inverse of `to_json` (extra keys such as `device_id` are ignored). Raises ValueError naming the field when
+        a key is missing, a shape is wrong, a value is not finite, a scale is not in (0.5, 2) or the soft-iron matrix
+        is singular: a bad calibration must not reach fusion."""
+
+        def arr(key: str, shape: tuple[int, ...]) -> FloatArray:
+            if key not in d:
+                raise ValueError(f"{key}: missing")
+            try:
+                a = np.asarray(d[key], dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"{key}: not numbers ({exc})") from None
+            if a.shape != shape:
+                raise ValueError(f"{key}: shape {a.shape}, need {shape}")
+            if not np.isfinite(a).all():
+                raise ValueError(f"{key}: not finite")
+            return a
+
+        acc_scale, soft = arr("acc_scale", (3,)), arr("mag_soft_iron", (3, 3))
+        if not np.all((acc_scale > 0.5) & (acc_scale < 2.0)):
+            raise ValueError(f"acc_scale: {acc_scale.tolist()} outside (0.5, 2)")
+        if np.linalg.cond(soft) > 1e3:
+            raise ValueError("mag_soft_iron: singular or near-singular matrix")
+        try:
+            extra = int(d.get("n_poses", 0)), float(d.get("acc_fit_rms_m_s2", 0.0)), float(d.get("mag_fit_rms_uT", 0.0))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"fit figures: {exc}") from None
+        return DeviceCalibration(arr("acc_offset_m_s2", (3,)), acc_scale, arr("mag_offset_uT", (3,)), soft, *extra)
 
 
 def rest_mask(gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, rate_hz: float, rest: RestSettings | None = None) -> BoolArray:

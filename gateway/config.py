@@ -13,9 +13,9 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal, Self, TypeVar
+from typing import Annotated, Any, Literal, Self, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 ZenohMode = Literal["peer", "client", "router"]
@@ -185,15 +185,30 @@ THRESHOLD_MODELS: dict[str, type[ThresholdModel]] = {
 }
 
 
+def _check_calibration(cal: dict[str, Any] | None) -> dict[str, Any] | None:
+    """A calibration JSON must load with `DeviceCalibration.from_json` (its ValueError becomes the 422 message)."""
+    if cal is not None:
+        from gateway.calibrate import DeviceCalibration  # lazy: keeps config importable without numpy/fusion
+
+        DeviceCalibration.from_json(cal)
+    return cal
+
+
+# The JSON `python -m gateway.calibrate` writes (docs/calibration.md), None = raw sensor values.
+CalibrationJson = Annotated[dict[str, Any] | None, AfterValidator(_check_calibration)]
+
+
 class DeviceSettings(BaseModel):
-    """Per-device settings: filter (None = `Settings.default_filter`), a partial thresholds override, and for a rod
-    whether the reel is in auto (fish-walking) mode, so the mode survives a restart."""
+    """Per-device settings: filter (None = `Settings.default_filter`), a partial thresholds override, for a rod
+    whether the reel is in auto (fish-walking) mode, so the mode survives a restart, and the IMU calibration applied
+    to the device's accelerometer and magnetometer before fusion (None: none)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     filter_name: str | None = None
     thresholds: dict[str, Any] = Field(default_factory=dict)
     auto_reel: bool = False
+    calibration: CalibrationJson = None
 
 
 def merge_thresholds(defaults: T, override: Mapping[str, Any]) -> T:

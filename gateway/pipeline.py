@@ -33,6 +33,7 @@ from gateway.alarm.bite import tip_acc_up
 from gateway.alarm.engine import Alarm, AlarmChange, AlarmEngine, Condition
 from gateway.alarm.hook import HookAlarms
 from gateway.alarm.rules import RodAlarms
+from gateway.calibrate import DeviceCalibration
 from gateway.config import (
     DeviceSettings,
     HookThresholds,
@@ -223,6 +224,12 @@ class Pipeline:
         self._reel_watch: dict[str, ReelWatch] = {}
         self._batch: Any = None
         self._warmup: dict[str, list[schemas.ImuPacket]] = {}
+        # Per-device IMU calibration, parsed once from DeviceSettings.calibration (absent: raw values are fused).
+        self._cal: dict[str, DeviceCalibration] = {
+            d: DeviceCalibration.from_json(ds.calibration)
+            for d, (_, ds) in self.device_settings.items()
+            if ds.calibration is not None
+        }
         self._last_spots_s = -math.inf
         self._spots_dirty = False
 
@@ -270,16 +277,23 @@ class Pipeline:
         return th
 
     def set_device_settings(self, device_id: str, kind: str, ds: DeviceSettings) -> None:
-        """Validate and apply one device's settings (auto reel included); a changed filter restarts its fusion on the
-        next packet."""
+        """Validate and apply one device's settings (auto reel included); a changed filter or calibration restarts its
+        fusion on the next packet (the filter's reference field came from the data as it was corrected before)."""
         self.validate_device_settings(kind, ds)
+        old = self.device_settings.get(device_id)
+        recalibrated = (old[1].calibration if old else None) != ds.calibration
+        if recalibrated:
+            if ds.calibration is None:
+                self._cal.pop(device_id, None)
+            else:
+                self._cal[device_id] = DeviceCalibration.from_json(ds.calibration)
         self.device_settings[device_id] = (kind, ds)
         self.kinds[device_id] = kind
         if ds.auto_reel != self.auto_reel.get(device_id, False):
             self._switch_auto_reel(device_id, ds.auto_reel)
         dev = self.devices.get(device_id)
         if dev is not None:
-            if self.effective(kind, device_id)[0] != dev.filter_name:
+            if recalibrated or self.effective(kind, device_id)[0] != dev.filter_name:
                 self._drop(device_id)
             else:
                 self._apply(dev)
@@ -458,6 +472,8 @@ class Pipeline:
                     continue
                 pkts = self._warmup.pop(dev_id)
                 gyr, acc, mag, t_s = self._gather(dev_id, pkts)
+                if (cal := self._cal.get(dev_id)) is not None:  # before `_device` takes the warm-up means
+                    acc, mag = cal.apply(acc, mag)
                 try:
                     dev = self._device(pkts[0], gyr, acc, mag)
                 except Exception as exc:  # a filter that cannot start: count it, warm up again
@@ -465,6 +481,8 @@ class Pipeline:
                     continue
             else:
                 gyr, acc, mag, t_s = self._gather(dev_id, pkts)
+                if (cal := self._cal.get(dev_id)) is not None:
+                    acc, mag = cal.apply(acc, mag)
             if abs(1.0 / pkts[-1].rate_hz - dev.dt_s) > 1e-12:
                 dev.dt_s = 1.0 / pkts[-1].rate_hz
                 if dev.filt is None:

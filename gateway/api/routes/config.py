@@ -13,7 +13,7 @@ from fastapi import APIRouter, Body, HTTPException
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from gateway.api.deps import ServiceDep, WriterDep
-from gateway.config import THRESHOLD_MODELS, DeviceSettings
+from gateway.config import THRESHOLD_MODELS, CalibrationJson, DeviceSettings
 
 router = APIRouter(tags=["config"])
 Kind = Literal["rod", "hook", "ball"]
@@ -25,7 +25,8 @@ def _messages(exc: ValidationError) -> list[str]:
 
 class DeviceSettingsIn(BaseModel):
     """Settings of one device; `kind` is required the first time a device is configured before it was seen.
-    `auto_reel` (rods): None keeps the current mode (also switched by `POST /api/rods/{id}/reel`)."""
+    `auto_reel` (rods): None keeps the current mode (also switched by `POST /api/rods/{id}/reel`). `calibration`: the
+    JSON of `python -m gateway.calibrate`; left out keeps the stored one, null removes it."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -33,6 +34,7 @@ class DeviceSettingsIn(BaseModel):
     filter_name: str | None = None
     thresholds: dict[str, Any] = Field(default_factory=dict)
     auto_reel: bool | None = None
+    calibration: CalibrationJson = None
 
 
 @router.get("/thresholds/{kind}")
@@ -85,7 +87,10 @@ def put_settings(device_id: str, body: DeviceSettingsIn, service: ServiceDep, _:
     """Replace a device's settings (validated against its kind's defaults), applied live and stored."""
     kind = _kind_of(service, device_id, body.kind)
     auto = service.pipeline.auto_reel.get(device_id, False) if body.auto_reel is None else body.auto_reel
-    ds = DeviceSettings(filter_name=body.filter_name, thresholds=body.thresholds, auto_reel=auto)
+    entry = service.pipeline.device_settings.get(device_id)
+    keep = entry[1].calibration if entry else None
+    cal = body.calibration if "calibration" in body.model_fields_set else keep
+    ds = DeviceSettings(filter_name=body.filter_name, thresholds=body.thresholds, auto_reel=auto, calibration=cal)
     service.pipeline.set_device_settings(device_id, kind, ds)
     service.store.save_device_settings(device_id, kind, ds)
     service.store.log_event(time.time(), "settings_changed", device_id, ds.model_dump())
@@ -94,11 +99,14 @@ def put_settings(device_id: str, body: DeviceSettingsIn, service: ServiceDep, _:
 
 @router.delete("/devices/{device_id}/settings")
 def delete_settings(device_id: str, service: ServiceDep, _: WriterDep) -> dict[str, Any]:
-    """Forget a device's filter and threshold overrides: it follows its kind's defaults again (auto reel stays)."""
+    """Forget a device's filter and threshold overrides: it follows its kind's defaults again (auto reel and the IMU
+    calibration, properties of the hardware, stay)."""
     kind = _kind_of(service, device_id, None)
-    kept = DeviceSettings(auto_reel=service.pipeline.auto_reel.get(device_id, False))
+    entry = service.pipeline.device_settings.get(device_id)
+    kept = DeviceSettings(auto_reel=service.pipeline.auto_reel.get(device_id, False),
+                          calibration=entry[1].calibration if entry else None)  # fmt: skip
     service.pipeline.set_device_settings(device_id, kind, kept)
-    if kept.auto_reel:
+    if kept.auto_reel or kept.calibration is not None:
         service.store.save_device_settings(device_id, kind, kept)
     else:
         service.pipeline.device_settings.pop(device_id, None)
