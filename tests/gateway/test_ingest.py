@@ -38,11 +38,17 @@ def live(tmp_path: Path) -> Iterator[tuple[TestClient, zenoh.Session]]:
         yield client, session
 
 
-def wait_for(cond: Callable[[], bool], timeout_s: float = 20.0) -> None:
+def wait_for(cond: Callable[[], bool], timeout_s: float = 20.0, show: Callable[[], object] = lambda: "") -> None:
+    """Poll `cond` until true; on timeout fail with `show()` (what was seen instead)."""
     deadline = time.monotonic() + timeout_s
     while not cond():
-        assert time.monotonic() < deadline, "condition not met in time"
+        assert time.monotonic() < deadline, f"condition not met in {timeout_s} s: {show()}"
         time.sleep(0.05)
+
+
+def put(session: zenoh.Session, key: str, payload: bytes) -> None:
+    """A device put that a busy transmit queue cannot drop (session.put defaults to CongestionControl.DROP)."""
+    session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
 
 
 def test_malformed_packets_are_counted_by_reason_and_ingest_goes_on(live: tuple[TestClient, zenoh.Session]) -> None:
@@ -69,22 +75,23 @@ def test_malformed_packets_are_counted_by_reason_and_ingest_goes_on(live: tuple[
         ("rig/rod/rod-1/imu", imu[0][1].replace(b'"boot_id":', b'"boot":')),  # schema
     ]
     for key, payload in imu[:5]:
-        session.put(key, payload)
+        put(session, key, payload)
     for key, payload in garbage:
-        session.put(key, payload)
+        put(session, key, payload)
     for key, payload in imu[5:]:
-        session.put(key, payload)
+        put(session, key, payload)
     expect = {"bad_json": 1, "version": 1, "too_large": 1, "unknown_key": 1, "key_mismatch": 1, "out_of_range": 1,
               "schema": 1}  # fmt: skip
-    wait_for(lambda: client.get("/api/stats").json()["rejected"] == expect)
-    wait_for(lambda: client.get("/api/stats").json()["devices"][0]["ok"] == len(imu))  # the good ones after too
+    wait_for(lambda: client.get("/api/stats").json()["rejected"] == expect, show=lambda: client.get("/api/stats").text)
+    wait_for(lambda: client.get("/api/stats").json()["devices"][0]["ok"] == len(imu),  # the good ones after too
+             show=lambda: client.get("/api/stats").text)  # fmt: skip
     stats = client.get("/api/stats").json()
     assert stats["received"] == len(imu) + len(garbage)
     assert stats["batch_delay_ms"]["n"] >= 1 and 0.0 <= stats["batch_delay_ms"]["p50"] <= stats["batch_delay_ms"]["max"]
     dev = client.get("/api/devices/rod-1").json()
     assert dev["stream"]["rejected"] == {"bad_json": 1, "version": 1, "too_large": 1, "out_of_range": 1,
                                          "schema": 1}  # fmt: skip
-    wait_for(lambda: len(rejected) == len(garbage))
+    wait_for(lambda: len(rejected) == len(garbage), show=lambda: rejected)
     assert sorted(r["reason"] for r in rejected) == sorted(expect)
     wait_for(lambda: bool(diag) and diag[-1]["rejected"] == expect, timeout_s=15.0)  # 1 Hz, DROP
     sub.undeclare()
@@ -95,8 +102,9 @@ def test_duplicates_and_losses_are_accounted(live: tuple[TestClient, zenoh.Sessi
     imu = [(k, p) for k, p in rod_messages(1.0) if k.endswith("/imu")]
     sent = imu[:3] + imu[2:3] + imu[5:]  # one duplicate, two lost
     for key, payload in sent:
-        session.put(key, payload)
-    wait_for(lambda: client.get("/api/stats").json()["received"] == len(sent))
+        put(session, key, payload)
+    wait_for(lambda: client.get("/api/stats").json()["received"] == len(sent),
+             show=lambda: client.get("/api/stats").text)  # fmt: skip
     stream = client.get("/api/devices/rod-1").json()["stream"]
     assert (stream["ok"], stream["duplicates"], stream["lost"]) == (len(imu) - 2, 1, 2)
 
