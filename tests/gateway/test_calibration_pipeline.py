@@ -1,14 +1,17 @@
 """Per-device IMU calibration applied by the gateway itself (docs/calibration.md, "Per-device calibration").
 
-The raw simulated rod (`ImuErrorModel.uncalibrated()`: 15 µT hard iron, 30 mg offsets) is posed and turned
-(tests/test_calibrate.py's dance), fitted with `gateway.calibrate`, and its JSON goes into the device's
+The raw simulated rod (`ImuErrorModel.uncalibrated()`: 15 µT hard iron, 30 mg offsets) is recorded while posed and
+turned (tests/test_calibrate.py's dance), `python -m gateway.calibrate` fits it, and its JSON goes into the device's
 `DeviceSettings.calibration`; the real `Pipeline` then corrects acc/mag after `_gather`, warm-up included.
 """
 
 from __future__ import annotations
 
+import functools
 import json
+import tempfile
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -19,22 +22,36 @@ from pydantic import ValidationError
 
 from devices.common import FleetSettings, ImuErrorModel
 from devices.sim_rod import RodFleet
-from gateway import schemas
-from gateway.calibrate import DeviceCalibration, fit_device
+from gateway import calibrate, schemas
+from gateway.calibrate import DeviceCalibration
 from gateway.config import DeviceSettings
 from gateway.fusion.quaternion import to_euler
 from gateway.pipeline import Pipeline
+from gateway.recording.format import write_recording
+from gateway.recording.importers import ImuStream, imu_records
 from tests.gateway.conftest import Running, rod_messages
 from tests.test_calibrate import RATE_HZ, dance
 
 
-def fitted_json(seed: int) -> dict[str, Any]:
-    """The JSON `python -m gateway.calibrate` writes for the raw rod board of `seed` (same draw as RodFleet's)."""
+@functools.cache
+def _fitted_text(seed: int) -> str:
+    """What `python -m gateway.calibrate dance.rigrec -o cal.json` writes for the raw rod board of `seed` (the same
+    drawn board as RodFleet's with that seed), recorded while posed and turned (tests/test_calibrate.py's dance)."""
     fleet = RodFleet(FleetSettings(seed=seed, id_prefix="rod"), error_model=ImuErrorModel.uncalibrated())
     _, gyr_t, acc_t, mag_t = dance(np.random.default_rng(seed))
     g, a, m = fleet.sensor.measure(gyr_t, acc_t, mag_t, 1.0 / RATE_HZ)
-    cal = fit_device(g, a, m, RATE_HZ)
-    return json.loads(json.dumps({"device_id": "rod-1", **cal.to_json()}))  # through text, as stored
+    with tempfile.TemporaryDirectory() as tmp:
+        rec, out = Path(tmp) / "dance.rigrec", Path(tmp) / "cal.json"
+        write_recording(rec, [r for *_, r in imu_records(ImuStream(RATE_HZ, g, a, m), "rod-1")])
+        assert calibrate.main([str(rec), "-o", str(out), "--no-progress"]) == 0
+        return out.read_text()
+
+
+def fitted_json(seed: int) -> dict[str, Any]:
+    """The calibration JSON of the raw rod board of `seed`, from the command."""
+    d: dict[str, Any] = json.loads(_fitted_text(seed))
+    assert d["device_id"] == "rod-1"
+    return d
 
 
 def rest_error_deg(seed: int, calibration: dict[str, Any] | None, duration_s: float = 10.0) -> np.ndarray:
