@@ -1,10 +1,11 @@
 """Convert BROAD trials (.mat) into replayable recordings: IMU packets of a `rod` device plus reference packets.
 
     python -m gateway.recording.import_broad ../shared/data/broad/15_undisturbed_fast_translation_A.mat -o rec/
-    python -m gateway.recording.import_broad DATA_DIR --trials '*translation*' -o rec/ --samples-per-packet 1
+    python -m gateway.recording.import_broad DATA_DIR --trials '*translation*' -o rec/
 
 One file per trial, `<out>/<trial>.rigrec`. The device publishes at the trial's rate (285.714 Hz) in blocks of
---samples-per-packet; 1 gives one gateway attitude per sample (needed to reproduce the offline BROAD figures).
+--samples-per-packet. To reproduce the offline BROAD figures through zenoh, run the gateway with
+`--attitude-blocks --no-warmup-bias-seed` (every sample's attitude; docs/recording.md); any block size works.
 Data: BROAD, Laidig et al., Data 6(7):72, 2021, CC BY 4.0.
 """
 

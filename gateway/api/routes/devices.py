@@ -48,7 +48,8 @@ def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dic
         if stream is not None:
             t = stream.main()
             out["stream"] = {"ok": t.ok, "lost": t.lost, "duplicates": t.duplicates, "reordered": t.reordered,
-                             "reboots": t.reboots, "rejected": dict(stream.rejected)}  # fmt: skip
+                             "reboots": t.reboots, "rejected": dict(stream.rejected),
+                             "filter_restarts": dict(stream.filter_restarts)}  # fmt: skip
     return out
 
 
