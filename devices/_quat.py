@@ -30,6 +30,12 @@ def multiply(p: ArrayLike, q: ArrayLike) -> FloatArray:
     return out
 
 
+def conjugate(q: ArrayLike) -> FloatArray:
+    """Conjugate q* (the inverse of a unit quaternion), shapes (..., 4)."""
+    out: FloatArray = np.asarray(q, dtype=np.float64) * np.array([1.0, -1.0, -1.0, -1.0])
+    return out
+
+
 def to_matrix(q: ArrayLike) -> FloatArray:
     """Rotation matrix body -> earth, shape (..., 3, 3)."""
     a = np.asarray(q, dtype=np.float64)

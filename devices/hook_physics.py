@@ -36,6 +36,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from devices import _quat
+
 FloatArray = NDArray[np.float64]
 
 
@@ -175,33 +177,6 @@ def _swing_quaternion_rate(n: FloatArray, v: FloatArray) -> FloatArray:
     return rate
 
 
-def _qmul(p: FloatArray, q: FloatArray) -> FloatArray:
-    """Hamilton product `p ⊗ q` over (..., 4)."""
-    pw, px, py, pz = np.moveaxis(p, -1, 0)
-    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
-
-
-def _conj(q: FloatArray) -> FloatArray:
-    out: FloatArray = q * np.array([1.0, -1.0, -1.0, -1.0])
-    return out
-
-
-def _rotate_inverse(q: FloatArray, v_earth: FloatArray) -> FloatArray:
-    """Earth-frame vectors into the body frame: `q* ⊗ v ⊗ q`."""
-    v4 = np.concatenate([np.zeros((*v_earth.shape[:-1], 1)), v_earth], axis=-1)
-    out: FloatArray = _qmul(_qmul(_conj(q), v4), q)[..., 1:]
-    return out
-
-
 def _twist_quaternion(alpha_rad: FloatArray) -> FloatArray:
     z = np.zeros_like(alpha_rad)
     return np.stack([np.cos(0.5 * alpha_rad), z, z, np.sin(0.5 * alpha_rad)], axis=-1)
@@ -217,9 +192,9 @@ def hook_attitude_and_rate(
         [-np.sin(0.5 * alpha_rad), np.zeros_like(alpha_rad), np.zeros_like(alpha_rad), np.cos(0.5 * alpha_rad)],
         axis=-1,
     )
-    q = _qmul(qs, qz)
-    qd = _qmul(_swing_quaternion_rate(n, v), qz) + _qmul(qs, qzd)
-    return q, 2.0 * _qmul(_conj(q), qd)[..., 1:]
+    q = _quat.multiply(qs, qz)
+    qd = _quat.multiply(_swing_quaternion_rate(n, v), qz) + _quat.multiply(qs, qzd)
+    return q, 2.0 * _quat.multiply(_quat.conjugate(q), qd)[..., 1:]
 
 
 @dataclass
@@ -382,8 +357,8 @@ def _truth(settings: HookPhysicsSettings, scenario: HookScenario, st: dict[str, 
     f_b_earth = tension[:, None] * n + st["wind"] + c * l * v  # rope pull + wind + air damping, per unit mass
     f_b_earth[held] = -g_vec  # held: the holding force balances gravity
     tension[held] = settings.gravity_m_s2 * n[held, 2]
-    acc = _rotate_inverse(q, f_b_earth) + np.cross(w_dot, r_b) + np.cross(w_b, np.cross(w_b, r_b))
-    mag = _rotate_inverse(q, np.broadcast_to(np.asarray(settings.earth_field_uT, dtype=np.float64), n.shape))
+    acc = _quat.rotate_inverse(q, f_b_earth) + np.cross(w_dot, r_b) + np.cross(w_b, np.cross(w_b, r_b))
+    mag = _quat.rotate_inverse(q, np.broadcast_to(np.asarray(settings.earth_field_uT, dtype=np.float64), n.shape))
     susp = st["susp_pos"]
     return HookTruth(
         t_s=t,
