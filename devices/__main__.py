@@ -77,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     """Start the children, wait for them, stop them all on Ctrl-C or when one fails."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(message)s")
     args = build_parser().parse_args(argv)
+    common.stop_on_termination_signals()  # the gateway stops us with SIGTERM: pass it on, never orphan children
     procs = {kind: subprocess.Popen(cmd) for kind, cmd in child_commands(args).items()}
     if not procs:
         log.error("nothing to start")
@@ -97,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
         rc = 130
     finally:
         for p in procs.values():
-            p.send_signal(signal.SIGINT)
+            p.send_signal(signal.SIGTERM)
         for p in procs.values():
             try:
                 p.wait(timeout=5)

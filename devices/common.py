@@ -34,6 +34,7 @@ import logging
 import math
 import queue
 import random
+import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -603,6 +604,19 @@ def run_fleet(session: zenoh.Session, fleet: Fleet, settings: FleetSettings, sto
     return stats
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def stop_on_termination_signals() -> None:
+    """Make SIGTERM (and SIGINT, even when a background shell started us with it ignored) stop like Ctrl-C.
+
+    A launcher or service manager stops devices with SIGTERM; Python's default for it kills the process before
+    `finally` blocks run, so the zenoh session and child processes would not be cleaned up."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _interrupt)
+
+
 def run_main(
     make_fleet: Callable[[argparse.Namespace, FleetSettings], Fleet],
     args: argparse.Namespace,
@@ -611,6 +625,7 @@ def run_main(
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(message)s")
     settings = FleetSettings.from_args(args)
     fleet = make_fleet(args, settings)
+    stop_on_termination_signals()
     with zenoh.open(zenoh_config_from_args(args)) as session:
         log.info("%s: publishing %d device(s) %s..%s at %g Hz, %d samples/packet", fleet.kind, len(fleet.ids),
                  fleet.ids[0], fleet.ids[-1], settings.rate_hz, settings.samples_per_packet)
