@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -72,6 +73,10 @@ def device_command(settings: Settings, extra: str) -> list[str]:
     return cmd + shlex.split(extra)
 
 
+def _terminate(signum: int, frame: object) -> None:
+    raise SystemExit(128 + signum)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -80,6 +85,9 @@ def main(argv: list[str] | None = None) -> int:
 
     from gateway.app import create_app
 
+    # uvicorn shuts down gracefully on SIGTERM, then re-raises it; with Python's default disposition that kills the
+    # process before `finally`, orphaning the devices. As an exception it unwinds through the cleanup below.
+    signal.signal(signal.SIGTERM, _terminate)
     devices = subprocess.Popen(device_command(settings, args.devices_args)) if args.with_devices else None
     try:
         uvicorn.run(create_app(settings), host=settings.http_host, port=settings.http_port, log_level="warning")
