@@ -59,6 +59,15 @@ def start_gateway(
     )  # fmt: skip
 
 
+def stop_gateway(gw: subprocess.Popen[bytes]) -> None:
+    """SIGTERM (graceful: the gateway closes its zenoh session and stops its devices), SIGKILL after 15 s."""
+    gw.terminate()
+    try:
+        gw.wait(timeout=15)
+    except subprocess.TimeoutExpired:
+        gw.kill()
+
+
 def wait_http(port: int, timeout_s: float = 180.0) -> None:
     """Wait until the gateway's /api/health answers."""
     import httpx
@@ -233,11 +242,7 @@ def run_session(script: list[dict[str, Any]], duration_s: float, seed: int, work
             for s in subs:
                 s.undeclare()  # type: ignore[no-untyped-call]
     finally:
-        gw.terminate()
-        try:
-            gw.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            gw.kill()
+        stop_gateway(gw)
     return rec, rod
 
 
