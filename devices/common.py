@@ -604,6 +604,20 @@ def run_fleet(session: zenoh.Session, fleet: Fleet, settings: FleetSettings, sto
     return stats
 
 
+def decode_command(key: str, payload: bytes, index: dict[str, int]) -> tuple[int, schemas.Packet] | None:
+    """A command for one of this fleet's instances as (instance index, packet); rejected or foreign ones are None.
+
+    Malformed commands are logged with the protocol's reject reason; commands for ids not in `index` (a wildcard
+    subscription sees every device's) are ignored silently."""
+    try:
+        cmd = schemas.decode(key, payload)
+    except schemas.DecodeError as exc:
+        log.warning("rejected command on %s: %s", key, exc)
+        return None
+    i = index.get(schemas.parse_key(key).device_id)
+    return None if i is None else (i, cmd)
+
+
 def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 

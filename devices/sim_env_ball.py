@@ -156,14 +156,9 @@ class BallFleet:
 
     def on_command(self, key: str, payload: bytes) -> None:
         """Queue a re-throw from a BallCommand."""
-        try:
-            cmd = schemas.decode(key, payload)
-        except schemas.DecodeError as exc:
-            common.log.warning("rejected command on %s: %s", key, exc)
-            return
-        i = self.index.get(schemas.parse_key(key).device_id)
-        if i is not None and isinstance(cmd, schemas.BallCommand):
-            self.pending_spot[i] = cmd.spot or ""
+        got = common.decode_command(key, payload, self.index)
+        if got is not None and isinstance(got[1], schemas.BallCommand):
+            self.pending_spot[got[0]] = got[1].spot or ""
 
     def rethrow(self, i: int, t_s: float, spot_name: str = "") -> None:
         """Throw ball i to `spot_name` (unknown or empty: a random other spot)."""

@@ -85,14 +85,10 @@ class RodFleet:
 
     def on_command(self, key: str, payload: bytes) -> None:
         """Apply a ReelCommand (decoded and validated with gateway.schemas); anything else is logged and ignored."""
-        try:
-            cmd = schemas.decode(key, payload)
-        except schemas.DecodeError as exc:
-            common.log.warning("rejected command on %s: %s", key, exc)
+        got = common.decode_command(key, payload, self.index)
+        if got is None or not isinstance(got[1], schemas.ReelCommand):
             return
-        i = self.index.get(schemas.parse_key(key).device_id)
-        if i is None or not isinstance(cmd, schemas.ReelCommand):
-            return
+        i, cmd = got[0], got[1]
         if cmd.drag_n is not None:
             self.bank.set_drag(cmd.drag_n, i)
         self.cmd_speed[i] = reel_speed_for(cmd.action, cmd.speed_m_s, self.rod)
