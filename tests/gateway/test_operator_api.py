@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import time
 from collections.abc import Callable
 
 from prometheus_client.parser import text_string_to_metric_families
@@ -68,3 +69,41 @@ def test_openapi_documents_token_errors_and_curl_examples(running: Callable[[], 
 
 def test_health_is_ready_once_ingest_runs(running: Callable[[], Running]) -> None:
     assert running().client.get("/api/health").json()["ready"] is True
+
+
+def _wait(pred: Callable[[], bool], timeout_s: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not pred():
+        assert time.monotonic() < deadline, "condition not reached in time"
+        time.sleep(0.05)
+
+
+def test_device_offline_alarm_is_raised_then_cleared_by_presence(running: Callable[[], Running]) -> None:
+    r = running()
+    r.bus.set_alive("rig/hook/hook-3", True)
+    _wait(lambda: r.client.get("/api/health").json()["devices_online"] == 1)
+    r.bus.set_alive("rig/hook/hook-3", False)
+    active = lambda: r.client.get("/api/alarms?status=active&type=device_offline").json()["items"]  # noqa: E731
+    _wait(lambda: len(active()) == 1)
+    [a] = active()
+    assert (a["device_id"], a["severity"]) == ("hook-3", "major") and "offline" in a["message"]
+    assert [e["alarm"] for e in r.bus.sent_json("gw/hook/hook-3/alarm")] == ["device_offline"]
+    r.bus.set_alive("rig/hook/hook-3", True)
+    _wait(lambda: not active())
+    assert r.client.get("/api/alarms?type=device_offline").json()["items"][0]["status"] == "cleared"
+
+
+def test_manual_clear_needs_the_token_and_publishes_the_clear(running: Callable[[], Running]) -> None:
+    r = running()
+    r.bus.set_alive("rig/rod/rod-2", True)
+    r.bus.set_alive("rig/rod/rod-2", False)  # a device that will not come back: its offline alarm is stale
+    _wait(lambda: r.client.get("/api/alarms?status=active").json()["total"] == 1)
+    alarm_id = r.client.get("/api/alarms?status=active").json()["items"][0]["id"]
+    assert r.client.post(f"/api/alarms/{alarm_id}/clear").status_code == 401
+    assert r.client.post(f"/api/alarms/{alarm_id}/clear", headers={"Authorization": "Bearer nope"}).status_code == 403
+    resp = r.client.post(f"/api/alarms/{alarm_id}/clear", headers=r.auth)
+    assert resp.status_code == 200, resp.text
+    assert resp.json()["status"] == "cleared" and "cleared by hand" in resp.json()["message"]
+    assert r.client.get("/api/alarms?status=active").json()["total"] == 0
+    assert r.bus.sent_json("gw/rod/rod-2/alarm")[-1]["state"] == "cleared"
+    assert r.client.post(f"/api/alarms/{alarm_id}/clear", headers=r.auth).status_code == 404
