@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 
 from gateway.api.deps import ServiceDep
 
@@ -13,11 +13,13 @@ router = APIRouter(tags=["health"])
 
 
 @router.get("/health")
-def health(service: ServiceDep) -> dict[str, Any]:
-    """Liveness: uptime, devices online, zenoh mode and endpoints."""
+def health(service: ServiceDep, request: Request) -> dict[str, Any]:
+    """Liveness: uptime, devices online, zenoh mode and endpoints; `ready` is false while the gateway warms up
+    (fusion kernels loading, ingest not started yet)."""
     s = service.settings
     return {
         "status": "ok",
+        "ready": bool(getattr(request.app.state, "ready", False)),
         "uptime_s": round(time.time() - service.started_s, 3),
         "devices_online": sum(p.online for p in service.presence.devices.values()),
         "zenoh": {"mode": s.zenoh_mode, "listen": s.zenoh_listen, "connect": s.zenoh_connect},
