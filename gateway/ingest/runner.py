@@ -44,12 +44,14 @@ class Inbox:
         self.loop = loop
         self.maxsize = maxsize
         self.drops = 0
+        self.offered = 0
         self._items: collections.deque[Received] = collections.deque()
         self._ready = asyncio.Event()
         self._wake_pending = False
 
     def offer(self, key: str, payload: bytes) -> None:
         """Called on a bus thread: enqueue or count a drop; never blocks."""
+        self.offered += 1
         if len(self._items) >= self.maxsize:
             self.drops += 1
             return

@@ -33,6 +33,7 @@ def stats(service: ServiceDep) -> dict[str, Any]:
     if service.inbox is not None:
         snap["queue_drops"] = service.inbox.drops
         snap["queue_depth"] = len(service.inbox)
+        snap["offered"] = service.inbox.offered
     snap["batches"] = service.batches
     delays = sorted(service.batch_delay_s)
     if delays:  # arrival of a batch's oldest packet -> its results handed to zenoh, last 2000 batches
