@@ -630,10 +630,8 @@ class Pipeline:
             reel = self.reel.get(dev.device_id)
             if reel is not None and reel[0].tension_n is not None and now - reel[1] <= self.settings.reel_max_age_s:
                 tension = np.full(t_s.shape, reel[0].tension_n)
-            for a, b in _chunks(ends, t_s, self.settings.rule_block_s):  # streaming: one chunk; bursts: several
-                rod_block, c = dev.rod.update(t_s[a:b], eul[a:b, 1], eul[a:b, 0], eul[a:b, 2], acc_up[a:b],
-                                              None if tension is None else tension[a:b])  # fmt: skip
-                new += c
+            # The rod rules decide sample by sample: a burst gives the same alarms in one call as packet by packet.
+            rod_block, new = dev.rod.update(t_s, eul[:, 1], eul[:, 0], eul[:, 2], acc_up, tension)
             dev.baseline_rad = rod_block.baseline_rad
             if dev.auto_reel is not None:
                 self._auto_reel(dev, float(t_s[-1]), float(eul[-1, 1]), reel[0] if reel else None, now, out)
