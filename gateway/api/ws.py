@@ -67,13 +67,14 @@ class ClientQueue:
 class LiveSettings:
     """Stream rates and bounds. `tick_s`: period of tick frames; `series_max`: samples kept per device between
     ticks (older ones are dropped); `raw_packets`: raw packets kept per key between ticks; `cards_every`: ticks between
-    full device cards (the other ticks carry only the new samples)."""
+    full device cards (the other ticks carry only the new samples); `max_raw_keys`: raw buffers at most."""
 
     queue_size: int = 256
     tick_s: float = 0.1
     cards_every: int = 5  # full device cards and the spot ranking every this many ticks (2 Hz)
     series_max: int = 200
     raw_packets: int = 8
+    max_raw_keys: int = 512  # raw buffers (one per known device's imu/env key)
 
 
 @dataclass
@@ -151,6 +152,8 @@ class LiveStream:
         self._series: dict[str, _Series] = {}
         self._raw: dict[str, collections.deque[bytes]] = {}
         self._task: asyncio.Task[None] | None = None
+        self.entry_failures = 0
+        self._entry_fail_logged_s = -math.inf
 
     # -- producers --------------------------------------------------------------------------------------------
 
@@ -181,9 +184,15 @@ class LiveStream:
         return s
 
     def on_raw(self, key: str, payload: bytes) -> None:
-        """Bus callback (zenoh thread): keep the payload, nothing else."""
+        """Bus callback (zenoh thread): keep the payload, nothing else. Only keys of devices the pipeline knows get
+        a buffer (and at most `max_raw_keys`): anyone can publish on `rig/*/*/imu`, and a buffer per arbitrary key
+        kept rejected payloads forever (150 keys of large payloads: +700 MB)."""
         q = self._raw.get(key)
         if q is None:
+            parts = key.split("/")
+            if (len(parts) != 4 or parts[2] not in self.service.pipeline.kinds
+                    or len(self._raw) >= self.settings.max_raw_keys):  # fmt: skip
+                return
             q = self._raw.setdefault(key, collections.deque(maxlen=self.settings.raw_packets))
         q.append(payload)
 
@@ -215,30 +224,40 @@ class LiveStream:
         svc = self.service
         devices = []
         for device_id, kind in sorted(svc.pipeline.kinds.items()):
-            entry: dict[str, Any] = {"device_id": device_id, "kind": kind}
-            if full:
-                try:
-                    entry = device_view(svc, device_id, detail=False)
-                except Exception:  # a device half-registered mid-batch: skip its card this tick
-                    pass
-            s = self._series.get(device_id)
-            entry["series"] = s.take() if s is not None else {"t_s": []}
-            if kind in schemas.IMU_KINDS:
-                raw = raw_imu_summary(self._take_raw(schemas.imu_key(kind, device_id)), now_s)
-                entry["acc"] = raw["acc"]
-                if raw["link"]:
-                    entry["link"] = raw["link"]
-            elif kind == "ball" and full:
-                for raw_env in self._take_raw(schemas.env_key(device_id))[-1:]:
-                    with contextlib.suppress(ValueError):
-                        p = json.loads(raw_env)
-                        entry["link"] = {k: p[k] for k in ("battery_v", "rssi_dbm") if _finite(p.get(k)) is not None}
-            devices.append(entry)
+            try:  # one device's card must never stop the stream for all
+                devices.append(self._device_entry(device_id, kind, now_s, full))
+            except Exception:
+                self.entry_failures += 1
+                if now_s - self._entry_fail_logged_s >= 10.0:
+                    self._entry_fail_logged_s = now_s
+                    log.exception("tick: device %r skipped (%d skipped so far)", device_id[:80], self.entry_failures)
         frame = {"type": "tick", "wall_s": round(now_s, 3), "alarm_seq": self.alarm_seq, "full": full,
                  "devices": devices}  # fmt: skip
         if full:
             frame["spots"] = svc.pipeline.rank_spots(now_s).model_dump()["spots"]
         return frame
+
+    def _device_entry(self, device_id: str, kind: str, now_s: float, full: bool) -> dict[str, Any]:
+        svc = self.service
+        entry: dict[str, Any] = {"device_id": device_id, "kind": kind}
+        if full:
+            try:
+                entry = device_view(svc, device_id, detail=False)
+            except Exception:  # a device half-registered mid-batch: skip its card this tick
+                pass
+        s = self._series.get(device_id)
+        entry["series"] = s.take() if s is not None else {"t_s": []}
+        if kind in schemas.IMU_KINDS:
+            raw = raw_imu_summary(self._take_raw(schemas.imu_key(kind, device_id)), now_s)
+            entry["acc"] = raw["acc"]
+            if raw["link"]:
+                entry["link"] = raw["link"]
+        elif kind == "ball" and full:
+            for raw_env in self._take_raw(schemas.env_key(device_id))[-1:]:
+                with contextlib.suppress(ValueError):
+                    p = json.loads(raw_env)
+                    entry["link"] = {k: p[k] for k in ("battery_v", "rssi_dbm") if _finite(p.get(k)) is not None}
+        return entry
 
     async def run(self) -> None:
         """Tick loop; work is skipped while nobody listens (buffers are still bounded)."""

@@ -96,9 +96,13 @@ class GatewayService:
         self.max_batch = max_batch
         self.diag_period_s = diag_period_s
         active, _ = store.list_alarms(status="active", limit=1_000_000)
+        stored = store.load_device_settings()
+        for bad in [d for d in stored if not schemas.valid_device_id(d)]:  # stored by an older gateway's REST
+            log.warning("ignoring stored settings of invalid device id %r", bad[:80])
+            del stored[bad]
         self.pipeline = Pipeline(
             pipeline_settings or pipeline_settings_from(settings),
-            store.load_defaults(), store.load_device_settings(), active,
+            store.load_defaults(), stored, [a for a in active if schemas.valid_device_id(a.device_id)],
         )  # fmt: skip
         self.hub = Hub(bus, store)
         self.counters = IngestCounters()

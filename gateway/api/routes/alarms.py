@@ -8,9 +8,10 @@ from typing import Annotated, Any
 from fastapi import APIRouter, HTTPException, Query
 
 from gateway.alarm.engine import Alarm, AlarmStatus, Severity
-from gateway.api.deps import ServiceDep, WriterDep
+from gateway.api.deps import AlarmIdPath, DeviceIdQuery, ServiceDep, WriterDep
 
 router = APIRouter(prefix="/alarms", tags=["alarms"])
+MAX_OFFSET = 2**53  # SQLite integers stop at 2**63 - 1: a larger OFFSET was a 500
 
 
 def alarm_json(a: Alarm) -> dict[str, Any]:
@@ -26,13 +27,13 @@ def alarm_json(a: Alarm) -> dict[str, Any]:
 @router.get("")
 def list_alarms(
     service: ServiceDep,
-    device_id: str | None = None,
-    type: str | None = None,
+    device_id: DeviceIdQuery = None,
+    type: Annotated[str | None, Query(max_length=64)] = None,
     status: AlarmStatus | None = None,
     severity: Severity | None = None,
     acknowledged: bool | None = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
 ) -> dict[str, Any]:
     """Alarms newest first; `total` counts every match, `items` is one page."""
     rows, total = service.store.list_alarms(device_id, type, status, severity, acknowledged, limit=limit, offset=offset)
@@ -41,7 +42,7 @@ def list_alarms(
 
 
 @router.post("/{alarm_id}/ack")
-def ack_alarm(alarm_id: str, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
+def ack_alarm(alarm_id: AlarmIdPath, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
     """Acknowledge an alarm (it stays active until its condition clears)."""
     now = time.time()
     service.pipeline.engine.acknowledge(alarm_id, who, now)

@@ -39,4 +39,5 @@ def stats(service: ServiceDep) -> dict[str, Any]:
             "max": 1e3 * delays[-1], "n": len(delays),
         }  # fmt: skip
     snap["published"] = service.hub.published
+    snap["invalid_tokens"] = service.presence.invalid_tokens  # liveliness tokens with a bad key (ignored)
     return snap
