@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import sqlite3
 import sys
 import time
 from collections.abc import AsyncIterator, Callable
@@ -69,6 +70,11 @@ def create_app(
     @app.exception_handler(BadSettings)
     async def bad_settings(_: Request, exc: BadSettings) -> JSONResponse:
         return JSONResponse({"detail": exc.errors}, status_code=422)
+
+    @app.exception_handler(sqlite3.Error)
+    async def store_failed(_: Request, exc: sqlite3.Error) -> JSONResponse:  # e.g. disk full on a REST write
+        log.error("store error on a REST request: %s", exc)
+        return JSONResponse({"detail": f"storage unavailable: {exc}"[:300]}, status_code=503)
 
     @app.exception_handler(UnknownDevice)
     async def unknown_device(_: Request, exc: UnknownDevice) -> JSONResponse:

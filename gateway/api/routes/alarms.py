@@ -11,6 +11,7 @@ from gateway.alarm.engine import Alarm, AlarmStatus, Severity
 from gateway.api.deps import AlarmIdPath, DeviceIdQuery, ServiceDep, WriterDep
 
 router = APIRouter(prefix="/alarms", tags=["alarms"])
+READ_WAIT_S = 1.0  # longest wait for pending alarm writes before a read (the store may be failing)
 MAX_OFFSET = 2**53  # SQLite integers stop at 2**63 - 1: a larger OFFSET was a 500
 
 
@@ -36,6 +37,7 @@ def list_alarms(
     offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
 ) -> dict[str, Any]:
     """Alarms newest first; `total` counts every match, `items` is one page."""
+    service.writer.flush(READ_WAIT_S)  # read what ingest has handed the writer so far (unless the store is failing)
     rows, total = service.store.list_alarms(device_id, type, status, severity, acknowledged, limit=limit, offset=offset)
     return {"total": total, "limit": limit, "offset": offset, "items": [alarm_json(a) for a in rows],
             "counts": service.store.counts(device_id)}  # fmt: skip
@@ -45,6 +47,7 @@ def list_alarms(
 def ack_alarm(alarm_id: AlarmIdPath, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
     """Acknowledge an alarm (it stays active until its condition clears)."""
     now = time.time()
+    service.writer.flush(READ_WAIT_S)  # a pending upsert of this alarm must not overwrite the acknowledgement
     service.pipeline.engine.acknowledge(alarm_id, who, now)
     alarm = service.store.acknowledge(alarm_id, who, now)
     if alarm is None:

@@ -14,10 +14,15 @@ router = APIRouter(tags=["health"])
 
 @router.get("/health")
 def health(service: ServiceDep) -> dict[str, Any]:
-    """Liveness: uptime, devices online, zenoh mode and endpoints."""
+    """Liveness: `ok`, or `degraded` with `reasons` (e.g. store writes failing: alarms are still published and their
+    rows wait in the writer's journal); uptime, devices online, zenoh mode and endpoints, the store writer's state."""
     s = service.settings
+    store = service.writer.status()
+    reasons = [store["reason"]] if store["reason"] else []
     return {
-        "status": "ok",
+        "status": "degraded" if reasons else "ok",
+        "reasons": reasons,
+        "store": {k: v for k, v in store.items() if k != "reason"},
         "uptime_s": round(time.time() - service.started_s, 3),
         "devices_online": sum(p.online for p in service.presence.devices.values()),
         "zenoh": {"mode": s.zenoh_mode, "listen": s.zenoh_listen, "connect": s.zenoh_connect},
