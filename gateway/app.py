@@ -17,6 +17,7 @@ from fastapi.staticfiles import StaticFiles
 
 from gateway import view3d
 from gateway.api import api_router, ws
+from gateway.api.security import BrowserGuard
 from gateway.config import Settings
 from gateway.errors import BadSettings, UnknownDevice
 from gateway.ingest.bus import Bus, ZenohBus
@@ -63,6 +64,7 @@ def create_app(
             store.close()
 
     app = FastAPI(title="rig-gateway", lifespan=lifespan)
+    app.add_middleware(BrowserGuard, allowed_hosts=settings.allowed_hosts)  # Host check, CSP, frame options
     app.include_router(api_router, prefix="/api")
     app.include_router(ws.router)
     app.include_router(view3d.router)

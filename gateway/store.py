@@ -120,7 +120,11 @@ class Store:
     """The gateway database. Thread-safe; use as a context manager or call `close()`."""
 
     def __init__(self, db_path: Path) -> None:
-        db_path.parent.mkdir(parents=True, exist_ok=True)
+        private_dir(db_path.parent)
+        fd = os.open(db_path, os.O_RDWR | os.O_CREAT, 0o600)  # SQLite gives its -wal/-shm files the same mode
+        os.close(fd)
+        if stat.S_IMODE(db_path.stat().st_mode) & 0o077:
+            db_path.chmod(0o600)
         self.path = db_path
         self._lock = threading.Lock()
         self._conn = sqlite3.connect(db_path, check_same_thread=False, isolation_level=None, timeout=10.0)
@@ -329,6 +333,15 @@ class Store:
         return [dict(r) | {"payload": json.loads(r["payload"])} for r in rows]
 
 
+def private_dir(path: Path) -> None:
+    """Create `path` (mode 0700), or tighten it to 0700 if it is ours and not a shared sticky directory such as /tmp:
+    the database, its WAL and the token file are nobody else's business."""
+    path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    st = path.stat()
+    if stat.S_IMODE(st.st_mode) & 0o077 and st.st_uid == os.geteuid() and not st.st_mode & stat.S_ISVTX:
+        path.chmod(0o700)
+
+
 # -- API bearer token ---------------------------------------------------------------------------------------------
 
 TOKEN_FILE = "api_token"
@@ -339,7 +352,7 @@ def ensure_token(data_dir: Path) -> tuple[str, bool]:
 
     Returns (token, created). A file readable by group/others is tightened to 0600.
     """
-    data_dir.mkdir(parents=True, exist_ok=True)
+    private_dir(data_dir)
     path = data_dir / TOKEN_FILE
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)

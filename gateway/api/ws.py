@@ -28,7 +28,9 @@ from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect
 
 from gateway import schemas
 from gateway.api.routes.devices import device_view
+from gateway.api.security import origin_allowed
 from gateway.ingest.runner import GatewayService
+from gateway.store import ApiToken
 
 log = logging.getLogger("gateway.ws")
 router = APIRouter()
@@ -291,10 +293,28 @@ class LiveStream:
             self._task = None
 
 
+def stream_allowed(ws: WebSocket) -> bool:
+    """A browser page may open the stream only from the gateway's own origin (or `Settings.allowed_origins`),
+    else it needs the API token (`?token=` or `Authorization: Bearer`): any site the operator visits could
+    otherwise read the live data. Clients that send no Origin are not browsers and read as REST does."""
+    origin = ws.headers.get("origin")
+    settings = ws.app.state.service.settings
+    if origin is None or origin_allowed(origin, ws.headers.get("host"), settings.allowed_origins):
+        return True
+    auth = ws.headers.get("authorization", "")
+    given = ws.query_params.get("token") or (auth[7:] if auth.lower().startswith("bearer ") else None)
+    token: ApiToken = ws.app.state.token
+    return token.verify_token(given)
+
+
 @router.websocket("/ws/stream")
 async def stream(ws: WebSocket) -> None:
-    """Live frames (see module docstring); read-only, so no token."""
+    """Live frames (see module docstring); read-only: same origin, or the token from another origin."""
     live: LiveStream = ws.app.state.live
+    if not stream_allowed(ws):
+        log.warning("refused /ws/stream from origin %r", (ws.headers.get("origin") or "")[:100])
+        await ws.close(code=1008)  # before accept: the handshake gets a 403
+        return
     await ws.accept()
     q = ClientQueue(live.settings.queue_size)
     live.clients.add(q)
