@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import sqlite3
 import sys
 import time
 from collections.abc import AsyncIterator, Callable
@@ -20,6 +21,7 @@ from gateway import view3d
 from gateway.api import api_router, ws
 from gateway.api.routes import metrics
 from gateway.api.routes.docs import API_DESCRIPTION, install_openapi
+from gateway.api.security import BrowserGuard
 from gateway.config import Settings
 from gateway.errors import BadSettings, UnknownDevice
 from gateway.ingest.bus import Bus, ZenohBus
@@ -103,6 +105,7 @@ def create_app(
 
     # Swagger UI and ReDoc from the files fastapi-offline ships (no CDN): the docs work on a rig without internet
     app = FastAPIOffline(title="rig-gateway", lifespan=lifespan, description=API_DESCRIPTION)
+    app.add_middleware(BrowserGuard, allowed_hosts=settings.allowed_hosts)  # Host check, CSP, frame options
     app.include_router(api_router, prefix="/api")
     app.include_router(ws.router)
     app.include_router(metrics.router)
@@ -111,6 +114,11 @@ def create_app(
     @app.exception_handler(BadSettings)
     async def bad_settings(_: Request, exc: BadSettings) -> JSONResponse:
         return JSONResponse({"detail": exc.errors}, status_code=422)
+
+    @app.exception_handler(sqlite3.Error)
+    async def store_failed(_: Request, exc: sqlite3.Error) -> JSONResponse:  # e.g. disk full on a REST write
+        log.error("store error on a REST request: %s", exc)
+        return JSONResponse({"detail": f"storage unavailable: {exc}"[:300]}, status_code=503)
 
     @app.exception_handler(UnknownDevice)
     async def unknown_device(_: Request, exc: UnknownDevice) -> JSONResponse:

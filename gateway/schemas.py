@@ -89,8 +89,13 @@ class DecodeError(Exception):
 # ---------------------------------------------------------------------------------------------------------------
 
 
+def valid_device_id(device_id: str) -> bool:
+    """True when `device_id` matches DEVICE_ID_PATTERN (1-64 of A-Z a-z 0-9 _ -)."""
+    return _DEVICE_ID_RE.fullmatch(device_id) is not None
+
+
 def _check_id(device_id: str) -> str:
-    if not _DEVICE_ID_RE.match(device_id):
+    if not _DEVICE_ID_RE.fullmatch(device_id):
         raise ValueError(f"device id {device_id!r} does not match {DEVICE_ID_PATTERN}")
     return device_id
 
@@ -198,7 +203,7 @@ def parse_key(key: str) -> ParsedKey:
         raise DecodeError("unknown_key", key[:200])
     kind, device_id, topic = parts[1], parts[2], "/".join(parts[3:])
     kinds = _TOPICS.get(topic)
-    if kinds is None or kind not in kinds or not _DEVICE_ID_RE.match(device_id):
+    if kinds is None or kind not in kinds or not _DEVICE_ID_RE.fullmatch(device_id):
         raise DecodeError("unknown_key", key[:200])
     return ParsedKey(kind, device_id, topic)
 

@@ -27,7 +27,7 @@ from gateway.ingest.presence import Presence
 from gateway.ingest.stats import IngestCounters
 from gateway.ingest.timecheck import wall_time_plausible
 from gateway.pipeline import AlarmOut, Output, Pipeline, PipelineSettings
-from gateway.store import Store
+from gateway.store import Store, StoreWriter
 
 log = logging.getLogger("gateway.ingest")
 
@@ -98,11 +98,16 @@ class GatewayService:
         self.max_batch = max_batch
         self.diag_period_s = diag_period_s
         active, _ = store.list_alarms(status="active", limit=1_000_000)
+        stored = store.load_device_settings()
+        for bad in [d for d in stored if not schemas.valid_device_id(d)]:  # stored by an older gateway's REST
+            log.warning("ignoring stored settings of invalid device id %r", bad[:80])
+            del stored[bad]
         self.pipeline = Pipeline(
             pipeline_settings or pipeline_settings_from(settings),
-            store.load_defaults(), store.load_device_settings(), active,
+            store.load_defaults(), stored, [a for a in active if schemas.valid_device_id(a.device_id)],
         )  # fmt: skip
-        self.hub = Hub(bus, store)
+        self.writer = StoreWriter(store)
+        self.hub = Hub(bus, self.writer)
         self.counters = IngestCounters()
         self.presence = Presence()
         self.started_s = time.time()
@@ -138,6 +143,7 @@ class GatewayService:
             except (asyncio.CancelledError, Exception):
                 pass
         self._tasks = []
+        await asyncio.to_thread(self.writer.close)  # store what is pending (bounded wait), stop the thread
 
     # -- ingest ---------------------------------------------------------------------------------------------
 
@@ -281,10 +287,7 @@ class GatewayService:
             self.hub.emit(out)
         for e in out.reel_events:
             log.warning("rod %s: %s, reel stop sent", e.device_id, e.kind)
-            try:
-                self.store.log_event(e.t_s, e.kind, e.device_id, e.details)
-            except Exception:
-                log.exception("event log write failed")
+            self.writer.log_event(e.t_s, e.kind, e.device_id, e.details)
 
     # -- presence and config --------------------------------------------------------------------------------
 
@@ -294,11 +297,7 @@ class GatewayService:
             return
         self.pipeline.kinds.setdefault(change.device_id, change.kind)
         log.info("device %s %s", change.device_id, "online" if alive else "offline")
-        try:
-            self.store.log_event(change.since_s, "online" if alive else "offline", change.device_id,
-                                 {"kind": change.kind})  # fmt: skip
-        except Exception:
-            log.exception("event log write failed")
+        self.writer.log_event(change.since_s, "online" if alive else "offline", change.device_id, {"kind": change.kind})
         if not alive:
             self._emit_reel(self.pipeline.reel_offline(change.device_id, change.since_s))
         # device-offline alarm: raised when the token goes, cleared when it is back (one row per outage)

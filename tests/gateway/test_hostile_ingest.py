@@ -6,9 +6,11 @@ so what is co-batched is exact."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -40,9 +42,16 @@ def edit(msg: Msg, **fields: object) -> Msg:
     return msg[0], json.dumps(p).encode()
 
 
-def service(tmp_path: Path) -> tuple[GatewayService, MemoryBus, Store]:
+@contextlib.contextmanager
+def service(tmp_path: Path) -> Iterator[tuple[GatewayService, MemoryBus, Store]]:
+    """A service on a MemoryBus and a real SQLite file; its store writer is flushed and closed at the end."""
     bus, store = MemoryBus(), Store(tmp_path / "gw.db")
-    return GatewayService(Settings(data_dir=tmp_path, zenoh_listen=[]), bus, store), bus, store
+    svc = GatewayService(Settings(data_dir=tmp_path, zenoh_listen=[]), bus, store)
+    try:
+        yield svc, bus, store
+    finally:
+        svc.writer.close()
+        store.close()
 
 
 def run(svc: GatewayService, msgs: list[Msg], batch: int = 10) -> None:
@@ -66,8 +75,7 @@ def test_a_spoofed_boot_id_does_not_silence_the_device(tmp_path: Path) -> None:
     and a device_conflict alarm is raised (and clears once the spoofer is quiet)."""
     real = fleet_imu(4.0)
     spoof = [edit(m, boot_id=12345, seq=7 + i) for i, m in enumerate(real[40:43])]
-    svc, bus, store = service(tmp_path)
-    with store:
+    with service(tmp_path) as (svc, bus, store):
         run(svc, real[:40])
         before = len(attitudes(bus, "rod-1"))
         run(svc, spoof + real[40:60] + [edit(real[60], boot_id=12345, seq=99)] + real[61:])
@@ -81,14 +89,14 @@ def test_a_spoofed_boot_id_does_not_silence_the_device(tmp_path: Path) -> None:
         assert [a.type for a in svc.pipeline.engine.active("rod-1")] == ["device_conflict"]
         svc._clear_conflicts(0.0, mono=1e9)  # long after the last rival packet
         assert [a["state"] for a in alarms(bus, "rod-1", "device_conflict")] == ["raised", "cleared"]
+        assert svc.writer.flush()
         assert store.counts("rod-1")["active"] == 0
 
 
 def test_a_real_reboot_is_not_a_conflict(tmp_path: Path) -> None:
     msgs = fleet_imu(2.0)
     rebooted = [edit(m, boot_id=777, seq=i) for i, m in enumerate(msgs[20:])]
-    svc, bus, store = service(tmp_path)
-    with store:
+    with service(tmp_path) as (svc, bus, store):
         run(svc, msgs[:20] + rebooted + [msgs[19]])  # plus one late straggler of the old boot
         stats = svc.counters.snapshot(0)
         assert "device_conflict" not in stats.rejected and stats.devices[0].reboots == 1
@@ -114,8 +122,7 @@ def test_extreme_timestamps_cost_only_that_device(
     raised, rod-1 lost the attitudes of every batch rod-2 was in, and each failure logged a traceback)."""
     msgs = [edit(m, t0_us=json.loads(m[1])["t0_us"] + 10**9) if "/rod-2/" in m[0] else m  # rod-2 started 1000 s ago
             for m in fleet_imu(4.0, count=2)]  # fmt: skip
-    clean_svc, clean_bus, clean_store = service(tmp_path / "clean")
-    with clean_store:
+    with service(tmp_path / "clean") as (clean_svc, clean_bus, _):
         run(clean_svc, msgs)
     n2 = 0
     poisoned = []
@@ -125,9 +132,8 @@ def test_extreme_timestamps_cost_only_that_device(
             if 30 <= n2 < 70:
                 k, p = poison((k, p), n2)
         poisoned.append((k, p))
-    svc, bus, store = service(tmp_path / "poisoned")
     caplog.set_level(logging.WARNING)
-    with store:
+    with service(tmp_path / "poisoned") as (svc, bus, _):
         run(svc, poisoned)
     assert len(attitudes(bus, "rod-1")) == len(attitudes(clean_bus, "rod-1")) > 50
     stats = svc.counters.snapshot(0)
@@ -146,8 +152,7 @@ def test_a_device_clock_that_really_jumped_resyncs(tmp_path: Path) -> None:
     and the device's fusion restarts."""
     msgs = fleet_imu(4.0)
     jumped = msgs[:30] + [edit(m, t0_us=json.loads(m[1])["t0_us"] + 7200 * 10**6) for m in msgs[30:]]
-    svc, bus, store = service(tmp_path)
-    with store:
+    with service(tmp_path) as (svc, bus, store):
         run(svc, jumped)
     stats = svc.counters.snapshot(0)
     assert stats.rejected["time_jump"] == 2 and stats.rejected["time_resync"] == 1
