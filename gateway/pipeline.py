@@ -77,6 +77,7 @@ class PipelineSettings:
     # Auto reel watchdog: every rod in auto mode has its controller stepped at least this often (gateway clock), so
     # the controller's data timeout stops the reel when the rod's packets stop (`Pipeline.tick_reel`).
     reel_watchdog_s: float = 0.1
+    height_interval_s: float = 0.1  # at most 10 Hz of Height (heave) per IMU device; <= 0: none computed
 
 
 @dataclass
@@ -107,6 +108,9 @@ class ImuDevice:
     baseline_rad: float = math.nan
     auto_reel: Any = None  # FishWalkingController when auto mode is on
     reel_step_t_s: float = -math.inf  # device time the controller was last stepped at (its steps move forward)
+    heave: Any = None  # gateway.fusion.heave.HeaveEstimator, made on the first fused block
+    height: schemas.Height | None = None  # the last one published
+    last_height_t_s: float = -math.inf
 
 
 class AlarmOut(NamedTuple):
@@ -158,6 +162,7 @@ class Output:
     attitudes: list[schemas.Attitude] = field(default_factory=list)
     attitude_blocks: list[schemas.AttitudeBlock] = field(default_factory=list)
     swings: list[schemas.Swing] = field(default_factory=list)
+    heights: list[schemas.Height] = field(default_factory=list)
     alarms: list[AlarmOut] = field(default_factory=list)
     spots: schemas.SpotRanking | None = None
     reel_commands: list[tuple[str, dict[str, Any]]] = field(default_factory=list)  # (device id, ReelCommand fields)
@@ -356,6 +361,10 @@ class Pipeline:
             f.initialise(acc, mag)
             step = getattr(f, "update_block", None) or f.run
             step(np.zeros((n, 3)), np.tile(acc, (n, 1)), np.tile(mag, (n, 1)), 0.01)
+        if self.settings.height_interval_s > 0:
+            from gateway.fusion.heave import HeaveEstimator
+
+            HeaveEstimator().update(np.tile([1.0, 0, 0, 0], (n, 1)), np.zeros((n, 3)), np.tile(acc, (n, 1)), 0.01)
 
     # -- processing -----------------------------------------------------------------------------------------
 
@@ -501,8 +510,41 @@ class Pipeline:
         for dev_id, q in quats.items():
             dev = self.devices[dev_id]
             self._post(dev, q, blocks[dev_id], ends[dev_id], now, out, conds)
+            if self.settings.height_interval_s > 0:
+                out.heights += self._heights(dev, q, blocks[dev_id], fused[dev_id], ends[dev_id])
             if self.settings.attitude_blocks:
                 out.attitude_blocks += self._attitude_blocks(dev, q, fused[dev_id])
+
+    def _heights(
+        self, dev: ImuDevice, q: FloatArray, block: tuple[FloatArray, FloatArray, FloatArray | None, FloatArray],
+        pkts: list[schemas.ImuPacket], ends: list[tuple[int, int, int]],
+    ) -> list[schemas.Height]:  # fmt: skip
+        """Height / heave of the block (gateway.fusion.heave) at packet ends, at most every `height_interval_s`."""
+        from gateway.fusion.heave import AIDED_NAMES, HeaveEstimator
+
+        gyr, acc, _, t_s = block
+        if dev.heave is None:
+            g0 = float(np.linalg.norm(acc[: min(acc.shape[0], 50)].mean(axis=0)))
+            level = abs(g0 - G_M_S2) < self.settings.rest_acc_tol_m_s2
+            dev.heave = HeaveEstimator(gravity_m_s2=g0 if level else G_M_S2)
+        depth = np.full(t_s.shape[0], np.nan)
+        for (i, _, _), p in zip(ends, pkts, strict=True):
+            if p.depth_m is not None:
+                depth[i - p.n + 1] = p.depth_m
+        rows = dev.heave.update(q, gyr, acc, dev.dt_s, depth)
+        out = []
+        for i, seq, t_us in ends:
+            if t_s[i] - dev.last_height_t_s < self.settings.height_interval_s - 1e-9:
+                continue
+            dev.last_height_t_s = float(t_s[i])
+            h, v, rest, aided = rows[i]
+            out.append(schemas.Height(
+                device_id=dev.device_id, kind=dev.kind, seq=seq, t_us=t_us,  # type: ignore[arg-type]
+                wall_t_us=t_us + dev.wall_offset_us, vz_m_s=float(v), height_m=float(h), at_rest=bool(rest),
+                aided=AIDED_NAMES[int(aided)],  # type: ignore[arg-type]
+            ))  # fmt: skip
+        dev.height = out[-1] if out else dev.height
+        return out
 
     def _step_filters(
         self, blocks: dict[str, tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]], out: Output
