@@ -182,6 +182,11 @@ def _thermocline_m(profile: list[schemas.ProfilePoint] | None) -> float | None:
     return 0.5 * (pts[i].depth_m + pts[i + 1].depth_m)
 
 
+def _position(fix: schemas.GnssFix | None) -> dict[str, float]:
+    """A spot's `lat_deg`/`lon_deg` from its ball's GNSS fix (none without a fix or with fix quality 0)."""
+    return {} if fix is None or fix.fix_quality == 0 else {"lat_deg": fix.lat_deg, "lon_deg": fix.lon_deg}
+
+
 def _chunks(ends: list[tuple[int, int, int]], t_s: FloatArray, max_s: float) -> list[tuple[int, int]]:
     """Split a device's block at packet ends into slices of at most `max_s` (at least one packet each), so a
     burst of queued packets reaches the rules in packet-sized steps like a live stream does (the line guard's
@@ -796,9 +801,9 @@ class Pipeline:
         ranked = rank_spots(readings, prefs, lt.tm_hour + lt.tm_min / 60.0)
         spots = [
             schemas.SpotScore(
-                spot=s.spot_id, rank=i + 1, score=min(1.0, max(0.0, s.score / 100.0)),
+                spot=s.spot_id, rank=i + 1, score=min(1.0, max(0.0, s.score)),
                 device_id=latest[s.spot_id].device_id, last_seen_wall_us=latest[s.spot_id].wall_t_us,
-                reasons=[r[:200] for r in s.reasons][:20],
+                reasons=[r[:200] for r in s.reasons][:20], **_position(latest[s.spot_id].gnss),
             )
             for i, s in enumerate(ranked)
         ]  # fmt: skip

@@ -305,7 +305,7 @@ function renderSpots(spots) {
     const dev = [...Devices.values()].find((d) => d.id === s.device_id);
     const r = dev && dev.card ? dev.card.querySelector('[data-field="water"]') : null;
     return el("tr", { "data-testid": `spot-${s.spot}` }, el("td", {}, s.rank), el("td", {}, s.spot),
-      el("td", {}, el("span", { class: "scorebar", style: `width:${Math.round(60 * s.score)}px` }), fmt(100 * s.score, 0)),
+      el("td", {}, el("span", { class: "scorebar", style: `width:${Math.round(60 * s.score)}px` }), fmt(s.score, 2)),
       el("td", {}, r ? r.textContent : "–"), el("td", {}, el("ul", {}, ...(s.reasons || []).map((x) => el("li", {}, x)))));
   }));
 }

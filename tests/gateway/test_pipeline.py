@@ -258,3 +258,16 @@ def test_height_is_published_per_device_at_10_hz_and_follows_a_hoist() -> None:
         assert hs[-1].aided == ("depth" if with_depth else "rest")
         assert max(h.vz_m_s for h in hs) > 0.9  # the lift's 1 m/s peak
         assert schemas.Height.model_validate_json(hs[-1].to_json()) == hs[-1]
+
+
+def test_spots_carry_the_position_of_their_ball_and_scores_are_0_to_1() -> None:
+    fix = schemas.GnssFix(lat_deg=30.2468, lon_deg=120.1473, fix_quality=1)
+    no_fix = schemas.GnssFix(lat_deg=0.0, lon_deg=0.0, fix_quality=0)
+    a = env("ball-1", "deep", 8.0).model_copy(update={"gnss": fix})
+    b = env("ball-2", "bay", 8.0).model_copy(update={"gnss": no_fix})
+    out = Pipeline().process([a, b, env("ball-3", "reeds", 8.0)], now_wall_s=1e9)
+    assert out.spots is not None
+    by = {s.spot: s for s in out.spots.spots}
+    assert (by["deep"].lat_deg, by["deep"].lon_deg) == (30.2468, 120.1473)
+    assert by["bay"].lat_deg is None and by["reeds"].lat_deg is None  # invalid fix, no receiver
+    assert all(0.0 <= s.score <= 1.0 for s in out.spots.spots) and by["deep"].score > 0.5
