@@ -536,7 +536,8 @@ class Pipeline:
         for (i, _, _), p in zip(ends, pkts, strict=True):
             if p.depth_m is not None:
                 depth[i - p.n + 1] = p.depth_m
-        rows = dev.heave.update(q, gyr, acc, dev.dt_s, depth)
+        bias = self.bias_rad_s(dev.device_id)  # the rest detector sees the rate without the filter's bias estimate
+        rows = dev.heave.update(q, gyr if bias is None else gyr - np.asarray(bias), acc, dev.dt_s, depth)
         out = []
         for i, seq, t_us in ends:
             if t_s[i] - dev.last_height_t_s < self.settings.height_interval_s - 1e-9:

@@ -100,3 +100,36 @@ def test_command_writes_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     path, _ = _recording(tmp_path, None)
     assert export.main([str(path), "-o", str(tmp_path / "o"), "--no-progress"]) == 0
     assert f"{N} samples" in capsys.readouterr().err
+
+
+@pytest.mark.timeout(90)
+def test_live_export_from_zenoh(tmp_path: Path) -> None:
+    """Two processes on loopback: the exporter listens, a simulated rod connects; 30 packets (5 samples each at
+    100 Hz) land in one time-named CSV that reads back with the rod's rate."""
+    import os
+    import subprocess
+    import sys
+
+    from tests.test_zenoh_processes import REPO, free_port
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    exp = subprocess.Popen([sys.executable, "-m", "gateway.recording.export", "--live", "-o", str(tmp_path),
+                            "--listen", endpoint, "--connect", "none", "--count", "30", "--duration", "60",
+                            "--no-progress"], cwd=REPO, env=env, stderr=subprocess.PIPE)  # fmt: skip
+    rod = subprocess.Popen([sys.executable, "-m", "devices.sim_rod", "--connect", endpoint, "--duration", "20",
+                            "--no-progress"], cwd=REPO, env=env, stdout=subprocess.DEVNULL,
+                           stderr=subprocess.DEVNULL)  # fmt: skip
+    try:
+        _, err = exp.communicate(timeout=75)
+    finally:
+        rod.terminate()
+        rod.wait(timeout=20)
+        if exp.poll() is None:
+            exp.kill()
+    assert exp.returncode == 0, err.decode()[-2000:]
+    files = sorted(tmp_path.glob("rod-1-*.csv"))
+    assert len(files) == 1, err.decode()[-2000:]
+    imp = read_sensor_csv(files[0])
+    assert imp.stream.gyr_rad_s.shape[0] >= 140  # 30 packets of 5, minus at most a lost one or two
+    assert imp.stream.rate_hz == pytest.approx(100.0, rel=1e-3)
