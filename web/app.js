@@ -252,6 +252,7 @@ function updateCard(d, c) {
   if (c.attitude) rows.push(["pitch / roll", `${fmt(c.attitude.pitch_rad * 57.2958)}° / ${fmt(c.attitude.roll_rad * 57.2958)}°`],
     ["yaw (unwrapped)", `${fmt(c.attitude.yaw_unwrapped_rad * 57.2958)}°`]);
   if (c.swing) rows.push(["swing Θ", `${fmt(c.swing.swing_angle_rad * 57.2958)}°`], ["torsion φ", `${fmt(c.swing.torsion_rad * 57.2958)}°`]);
+  if (c.height) rows.push(["height / Vz", `${fmt(c.height.height_m, 2)} m / ${fmt(c.height.vz_m_s, 2)} m/s${c.height.at_rest ? " (rest)" : ""}`]);
   if (c.readings) rows.push(["spot", c.readings.spot], ["water", `${fmt(c.readings.water_temp_c)} °C, O₂ ${fmt(c.readings.oxygen_mg_l, 2)} mg/l`]);
   if (c.reel) rows.push(["reel", `${c.reel.mode} / ${c.reel.motor}`], ["line out", `${fmt(c.reel.line_out_m)} m`]);
   if (c.kind === "rod") rows.push(["auto reel", c.auto_reel ? "on" : "off"]);
@@ -304,7 +305,7 @@ function renderSpots(spots) {
     const dev = [...Devices.values()].find((d) => d.id === s.device_id);
     const r = dev && dev.card ? dev.card.querySelector('[data-field="water"]') : null;
     return el("tr", { "data-testid": `spot-${s.spot}` }, el("td", {}, s.rank), el("td", {}, s.spot),
-      el("td", {}, el("span", { class: "scorebar", style: `width:${Math.round(60 * s.score)}px` }), fmt(100 * s.score, 0)),
+      el("td", {}, el("span", { class: "scorebar", style: `width:${Math.round(60 * s.score)}px` }), fmt(s.score, 2)),
       el("td", {}, r ? r.textContent : "–"), el("td", {}, el("ul", {}, ...(s.reasons || []).map((x) => el("li", {}, x)))));
   }));
 }

@@ -7,6 +7,9 @@ The header row must name each column with its unit: `time (s)` or `time_ms`, `ac
 `gyro_x (deg/s)` or `gyr_x_rad/s`, optional `mag_x (uT)`. Units are converted to SI (s, m/s², rad/s, µT), and the
 samples are resampled linearly to a uniform grid (median rate, or --rate). `--flip-acc` negates the accelerometer
 for apps that report acceleration rather than specific force (iOS reads -1 g on z lying flat; we need +9.81).
+Optional one-value columns `temp (C)`, `depth (m)`, `lat (deg)`, `lon (deg)`, `alt (m)`, `speed (m/s)`,
+`fix_quality (nmea)` (what `python -m gateway.recording.export` writes) become each packet's `temp_c`, `depth_m`
+and `gnss` (from the first sample of the packet that has them), so an exported log reads back as it was recorded.
 """
 
 from __future__ import annotations
