@@ -18,7 +18,7 @@ from fastapi_offline import FastAPIOffline
 
 from gateway import view3d
 from gateway.api import api_router, ws
-from gateway.api.routes import metrics
+from gateway.api.routes import history, metrics
 from gateway.api.routes.docs import API_DESCRIPTION, install_openapi
 from gateway.config import Settings
 from gateway.errors import BadSettings, UnknownDevice
@@ -60,6 +60,7 @@ def create_app(
             log.info("fusion kernels ready in %.1f s", time.perf_counter() - t0)
         await service.start()
         ws.start_live(app, service)
+        history.start_history(app, service)
         if view_task is not None:
             try:
                 await view_task
@@ -96,6 +97,7 @@ def create_app(
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await starting
             await ws.stop_live(app)
+            await history.stop_history(app)
             view3d.stop_view3d(app)
             await service.stop()
             bus.close()
