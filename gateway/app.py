@@ -19,7 +19,7 @@ from fastapi_offline import FastAPIOffline
 from gateway import view3d
 from gateway.api import api_router, ws
 from gateway.api.routes import history, metrics
-from gateway.api.routes.docs import API_DESCRIPTION, install_openapi
+from gateway.api.routes.docs import API_DESCRIPTION, install_openapi, install_redoc
 from gateway.config import Settings
 from gateway.errors import BadSettings, UnknownDevice
 from gateway.ingest.bus import Bus, ZenohBus
@@ -104,7 +104,7 @@ def create_app(
             store.close()
 
     # Swagger UI and ReDoc from the files fastapi-offline ships (no CDN): the docs work on a rig without internet
-    app = FastAPIOffline(title="rig-gateway", lifespan=lifespan, description=API_DESCRIPTION)
+    app = FastAPIOffline(title="rig-gateway", lifespan=lifespan, description=API_DESCRIPTION, redoc_url=None)
     app.include_router(api_router, prefix="/api")
     app.include_router(ws.router)
     app.include_router(metrics.router)
@@ -119,6 +119,7 @@ def create_app(
         return JSONResponse({"detail": str(exc)}, status_code=404)
 
     install_openapi(app)
+    install_redoc(app)
     if (WEB_DIR / "index.html").is_file():
         app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     else:

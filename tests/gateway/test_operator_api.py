@@ -50,9 +50,11 @@ def test_docs_pages_use_only_local_files(running: Callable[[], Running]) -> None
         assert refs, page
         assert all(ref.startswith("/") for ref in refs), f"{page} loads from elsewhere: {refs}"
         for ref in refs:
-            if ref.startswith("/static-offline-docs/"):
+            if ref.startswith(("/static-offline-docs/", "/redoc-assets/")):
                 assert r.client.get(ref).status_code == 200, ref
         assert "cdn" not in html.lower() and "fonts.googleapis" not in html
+    bundle = r.client.get("/redoc-assets/redoc.standalone.js").text
+    assert len(bundle) > 100_000 and "cdn.redoc.ly" not in bundle  # ReDoc's one external image is patched out
 
 
 def test_openapi_documents_token_errors_and_curl_examples(running: Callable[[], Running]) -> None:
