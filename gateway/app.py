@@ -19,8 +19,8 @@ from fastapi_offline import FastAPIOffline
 
 from gateway import view3d
 from gateway.api import api_router, ws
-from gateway.api.routes import metrics
-from gateway.api.routes.docs import API_DESCRIPTION, install_openapi
+from gateway.api.routes import history, metrics
+from gateway.api.routes.docs import API_DESCRIPTION, install_openapi, install_redoc
 from gateway.api.security import BrowserGuard
 from gateway.config import Settings
 from gateway.errors import BadSettings, UnknownDevice
@@ -62,6 +62,7 @@ def create_app(
             log.info("fusion kernels ready in %.1f s", time.perf_counter() - t0)
         await service.start()
         ws.start_live(app, service)
+        history.start_history(app, service)
         if view_task is not None:
             try:
                 await view_task
@@ -98,13 +99,14 @@ def create_app(
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await starting
             await ws.stop_live(app)
+            await history.stop_history(app)
             view3d.stop_view3d(app)
             await service.stop()
             bus.close()
             store.close()
 
     # Swagger UI and ReDoc from the files fastapi-offline ships (no CDN): the docs work on a rig without internet
-    app = FastAPIOffline(title="rig-gateway", lifespan=lifespan, description=API_DESCRIPTION)
+    app = FastAPIOffline(title="rig-gateway", lifespan=lifespan, description=API_DESCRIPTION, redoc_url=None)
     app.add_middleware(BrowserGuard, allowed_hosts=settings.allowed_hosts)  # Host check, CSP, frame options
     app.include_router(api_router, prefix="/api")
     app.include_router(ws.router)
@@ -125,6 +127,7 @@ def create_app(
         return JSONResponse({"detail": str(exc)}, status_code=404)
 
     install_openapi(app)
+    install_redoc(app)
     if (WEB_DIR / "index.html").is_file():
         app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     else:

@@ -50,9 +50,11 @@ def test_docs_pages_use_only_local_files(running: Callable[[], Running]) -> None
         assert refs, page
         assert all(ref.startswith("/") for ref in refs), f"{page} loads from elsewhere: {refs}"
         for ref in refs:
-            if ref.startswith("/static-offline-docs/"):
+            if ref.startswith(("/static-offline-docs/", "/redoc-assets/")):
                 assert r.client.get(ref).status_code == 200, ref
         assert "cdn" not in html.lower() and "fonts.googleapis" not in html
+    bundle = r.client.get("/redoc-assets/redoc.standalone.js").text
+    assert len(bundle) > 100_000 and "cdn.redoc.ly" not in bundle  # ReDoc's one external image is patched out
 
 
 def test_openapi_documents_token_errors_and_curl_examples(running: Callable[[], Running]) -> None:
@@ -107,3 +109,31 @@ def test_manual_clear_needs_the_token_and_publishes_the_clear(running: Callable[
     assert r.client.get("/api/alarms?status=active").json()["total"] == 0
     assert r.bus.sent_json("gw/rod/rod-2/alarm")[-1]["state"] == "cleared"
     assert r.client.post(f"/api/alarms/{alarm_id}/clear", headers=r.auth).status_code == 404
+
+
+def test_history_is_bounded_decimated_and_keeps_peaks() -> None:
+    from gateway.api.routes.history import DeviceHistory
+
+    h = DeviceHistory(bucket_s=0.5, maxlen=10)
+    for k in range(1000):  # 10 s at 100 Hz: 20 buckets, only the newest 10 kept (+ the open one)
+        t = 1000.0 + k / 100
+        h.add(t, pitch_deg=float(k), tension_n=100.0 if k == 955 else 1.0, direction_deg=179.0 if k % 2 else -179.0)
+    cols = h.columns(0.0, 10_000)
+    assert len(cols["t_s"]) == 11 and cols["t_s"] == sorted(cols["t_s"])
+    assert cols["pitch_deg"][-2:] == [924.5, 974.5]  # bucket means of samples 900..949 and (open) 950..999
+    assert max(cols["tension_n"]) == 100.0  # a one-sample spike survives decimation (max)
+    assert set(cols["direction_deg"]) <= {179.0, -179.0}  # no mean across the ±180 wrap
+    small = h.columns(0.0, 4)
+    assert len(small["t_s"]) <= 4 and small["t_s"][-1] == cols["t_s"][-1]
+
+
+def test_history_route_fills_from_the_live_pipeline(running: Callable[[], Running]) -> None:
+    r = running()
+    r.feed(rod_messages(3.0))
+    _wait(lambda: len(r.client.get("/api/history/rod-1").json()["series"]["t_s"]) >= 3)
+    series = r.client.get("/api/history/rod-1?seconds=3600").json()["series"]
+    assert {"pitch_deg", "roll_deg", "yaw_deg"} <= set(series)
+    assert all(abs(p) < 90 for p in series["pitch_deg"] if p is not None)
+    overview = r.client.get("/api/history?max_points=5").json()["devices"]["rod-1"]
+    assert 1 <= len(overview["t_s"]) <= 5
+    assert r.client.get("/api/history/nope").status_code == 404

@@ -1,16 +1,23 @@
 """What /docs (Swagger UI) and /redoc show beyond the routes themselves: how to authenticate, the error codes
 of write routes (401, 403, 422) and a curl example for every operation (ReDoc's `x-codeSamples`).
 
-The pages themselves come from the files fastapi-offline ships (app.py), so they render without internet.
+The pages themselves come from the files fastapi-offline ships (app.py), so they render without internet. ReDoc's
+bundle draws one image from the internet (the Redocly logo in its menu); `/redoc` serves that bundle with the logo
+pointed at an empty inline SVG, so the page makes no request that leaves the machine.
 """
 
 from __future__ import annotations
 
+import functools
 import json
+from pathlib import Path
 from typing import Any
 
+import fastapi_offline
 from fastapi import FastAPI
+from fastapi.openapi.docs import get_redoc_html
 from fastapi.openapi.utils import get_openapi
+from fastapi.responses import HTMLResponse, Response
 
 API_DESCRIPTION = """\
 REST API of the rig gateway. Reads need nothing; **writes need the API token** as a bearer token:
@@ -85,3 +92,28 @@ def install_openapi(app: FastAPI) -> None:
         return schema
 
     app.openapi = openapi  # type: ignore[method-assign]
+
+
+OFFLINE_STATIC = Path(fastapi_offline.__file__).resolve().parent / "static"
+REDOC_LOGO = "https://cdn.redoc.ly/redoc/logo-mini.svg"
+EMPTY_SVG = "data:image/svg+xml,%3Csvg xmlns='http://www.w3.org/2000/svg' width='1' height='1'/%3E"
+
+
+@functools.cache
+def redoc_bundle() -> str:
+    """fastapi-offline's ReDoc bundle with its one external image replaced (read once, on first use)."""
+    return (OFFLINE_STATIC / "redoc.standalone.js").read_text(encoding="utf-8").replace(REDOC_LOGO, EMPTY_SVG)
+
+
+def install_redoc(app: FastAPI, path: str = "/redoc") -> None:
+    """ReDoc at `path` from the patched local bundle (create the app with `redoc_url=None`)."""
+
+    @app.get("/redoc-assets/redoc.standalone.js", include_in_schema=False)
+    async def redoc_js() -> Response:
+        return Response(redoc_bundle(), media_type="application/javascript")
+
+    @app.get(path, include_in_schema=False)
+    async def redoc_page() -> HTMLResponse:
+        return get_redoc_html(openapi_url=app.openapi_url or "/openapi.json", title=f"{app.title} - ReDoc",
+                              redoc_js_url="/redoc-assets/redoc.standalone.js", with_google_fonts=False,
+                              redoc_favicon_url="/static-offline-docs/favicon.png")  # fmt: skip
