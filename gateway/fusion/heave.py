@@ -19,8 +19,11 @@ Drift is held by three things:
 - **the depth sensor** where the device has one (`depth_m` samples, NaN between): a second-order complementary
   observer pulls H towards −depth and V_z along with it (crossover `depth_crossover_rad_s`, damping 0.7), so the
   height is then "minus the depth" and its drift is bounded by the sensor;
-- optional leaks (`velocity_leak_tau_s`, `height_leak_tau_s`; 0 = off): a high-pass that turns open-loop height into
-  heave about the last rest height for long runs without rest or depth.
+- **a high-pass once free-running**: after `leak_after_s` without rest or depth (a hook that keeps swinging, minutes
+  of hand-held motion) velocity and height leak (`velocity_leak_tau_s`, `height_leak_tau_s`) towards the last rest
+  height and g follows f_up slowly (`gravity_tau_moving_s`: over a swing or a ride the mean vertical acceleration is
+  zero), so the output becomes heave about that height instead of a drift without bound; `aided` says `highpass`.
+  Moves between rests shorter than `leak_after_s` (hoisting) are integrated without leaks.
 
 `run_heave` is the batch form (numba), `HeaveEstimator` the streaming one the gateway calls per device and block;
 both run the same step.
@@ -38,12 +41,13 @@ from gateway.fusion.base import FloatArray
 from gateway.fusion.quaternion import njit
 
 # state: V_z, H, previous a_up, g, rest timer, have-previous, rest height, time since the last depth sample, depth seen,
-# onset velocity and height (integrated since |a_up| was last below the onset level), previous at-rest flag
-N_STATE = 12
+# onset velocity and height (integrated since |a_up| was last below the onset level), previous at-rest flag, time
+# since the last rest or depth sample
+N_STATE = 13
 (S_V, S_H, S_APREV, S_G, S_REST_T, S_HAVE, S_HREST, S_DEPTH_AGE, S_DEPTH_SEEN, S_VON, S_HON,
- S_WAS_REST) = range(N_STATE)
-# per-sample output columns: H, V_z, at rest (0/1), aided (0 none, 1 rest, 2 depth)
-AIDED_NAMES: tuple[str, ...] = ("none", "rest", "depth")
+ S_WAS_REST, S_FREE_T) = range(N_STATE)
+# per-sample output columns: H, V_z, at rest (0/1), aided (0 none, 1 rest, 2 depth, 3 highpass)
+AIDED_NAMES: tuple[str, ...] = ("none", "rest", "depth", "highpass")
 DEPTH_DAMPING = 0.7
 
 
@@ -71,14 +75,20 @@ class HeaveSettings:
     """Crossover of the depth observer (rad/s): above it the accelerometer, below it the depth sensor."""
     depth_max_age_s: float = 1.0
     """A depth sample older than this no longer counts as aiding."""
-    velocity_leak_tau_s: float = 0.0
-    height_leak_tau_s: float = 0.0
+    leak_after_s: float = 10.0
+    """Free-running (no rest, no depth) this long (s), the leaks below apply; 0: always; inf: never."""
+    velocity_leak_tau_s: float = 2.0
+    """Velocity leak time constant once free-running (s); 0: none."""
+    height_leak_tau_s: float = 5.0
+    """Height leak towards the last rest height once free-running (s); 0: none."""
+    gravity_tau_moving_s: float = 30.0
+    """Once free-running, g follows f_up with this time constant (s); 0: g only learnt at rest."""
 
     def as_array(self) -> FloatArray:
         return np.array([self.rest_gyr_rad_s, self.rest_acc_m_s2, self.rest_time_s, self.gravity_tau_s,
                          self.depth_crossover_rad_s, self.depth_max_age_s, _rate(self.velocity_leak_tau_s),
                          _rate(self.height_leak_tau_s), self.rest_speed_m_s, self.rest_time_moving_s,
-                         self.onset_acc_m_s2])  # fmt: skip
+                         self.onset_acc_m_s2, self.leak_after_s, self.gravity_tau_moving_s])  # fmt: skip
 
 
 def _rate(tau_s: float) -> float:
@@ -95,10 +105,16 @@ def initial_state(gravity_m_s2: float = quat.GRAVITY_M_S2, height_m: float = 0.0
 @njit
 def heave_step(state: FloatArray, f_up_m_s2: float, gyr_norm_rad_s: float, acc_norm_m_s2: float, depth_m: float,
                dt_s: float, params: FloatArray) -> tuple[float, float, float, float]:  # fmt: skip
-    """Advance `state` by one sample in place; returns (H m, V_z m/s, at rest 0/1, aided 0/1/2)."""
+    """Advance `state` by one sample in place; returns (H m, V_z m/s, at rest 0/1, aided index)."""
     rest_gyr, rest_acc, rest_time, g_tau, w_c, depth_age_max, kv, kh = (
         params[0], params[1], params[2], params[3], params[4], params[5], params[6], params[7])
-    rest_speed, rest_time_moving, onset = params[8], params[9], params[10]
+    rest_speed, rest_time_moving, onset, leak_after, g_tau_moving = params[8], params[9], params[10], params[11], \
+        params[12]
+    free = state[S_FREE_T] >= leak_after
+    if not free:
+        kv, kh = 0.0, 0.0
+    elif g_tau_moving > 0.0:
+        state[S_G] += min(1.0, dt_s / g_tau_moving) * (f_up_m_s2 - state[S_G])
     a_up = f_up_m_s2 - state[S_G]
     if state[S_HAVE] > 0.0:
         v, h = state[S_V], state[S_H]
@@ -150,6 +166,9 @@ def heave_step(state: FloatArray, f_up_m_s2: float, gyr_norm_rad_s: float, acc_n
     state[S_WAS_REST] = 1.0 if at_rest else 0.0
     if state[S_DEPTH_SEEN] > 0.0 and state[S_DEPTH_AGE] <= depth_age_max:
         aided = 2.0
+    state[S_FREE_T] = 0.0 if aided > 0.0 else state[S_FREE_T] + dt_s
+    if aided == 0.0 and free:
+        aided = 3.0
     return state[S_H], state[S_V], 1.0 if at_rest else 0.0, aided
 
 
