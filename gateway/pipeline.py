@@ -341,6 +341,13 @@ class Pipeline:
             dev.hook.set_thresholds(th)
             dev.rest_heading_set_rad = None if th.rest_heading_deg is None else math.radians(th.rest_heading_deg)
 
+    def restart(self, device_id: str) -> None:
+        """Forget a device's fusion and rules state (its next packets start a new warm-up), e.g. when its clock
+        jumped to a new timeline. Alarms stay with the engine; settings stay."""
+        self._warmup.pop(device_id, None)
+        if device_id in self.devices:
+            self._drop(device_id)
+
     def _drop(self, device_id: str) -> None:
         dev = self.devices.pop(device_id)
         if dev.filt is None and self._batch is not None:
@@ -478,25 +485,25 @@ class Pipeline:
         fused: dict[str, list[schemas.ImuPacket]] = {}  # per device: the packets behind its block
         for dev_id, pkts in imu.items():
             dev = self.devices.get(dev_id)
-            if dev is None:  # warm-up: collect, start the filter once the window is full
-                warm = self._warmup.setdefault(dev_id, [])
-                warm.extend(pkts)
-                self.kinds[dev_id] = pkts[0].kind
-                if sum(p.n / p.rate_hz for p in warm) < self.settings.warmup_s - 1e-9:  # 10 x 0.05 s is 0.4999…
-                    continue
-                pkts = self._warmup.pop(dev_id)
-                gyr, acc, mag, t_s = self._gather(dev_id, pkts)
-                if (cal := self._cal.get(dev_id)) is not None:  # before `_device` takes the warm-up means
-                    acc, mag = cal.apply(acc, mag)
-                try:
-                    dev = self._device(pkts[0], gyr, acc, mag)
-                except Exception as exc:  # a filter that cannot start: count it, warm up again
-                    self._fail(pkts[0].kind, dev_id, exc, out)
-                    continue
-            else:
-                gyr, acc, mag, t_s = self._gather(dev_id, pkts)
-                if (cal := self._cal.get(dev_id)) is not None:
-                    acc, mag = cal.apply(acc, mag)
+            try:  # one device's bad data (or a bug it triggers) costs only its own output: it restarts
+                if dev is None:  # warm-up: collect, start the filter once the window is full
+                    warm = self._warmup.setdefault(dev_id, [])
+                    warm.extend(pkts)
+                    self.kinds[dev_id] = pkts[0].kind
+                    if sum(p.n / p.rate_hz for p in warm) < self.settings.warmup_s - 1e-9:  # 10 x 0.05 s is 0.4999…
+                        continue
+                    pkts = self._warmup.pop(dev_id)
+                    gyr, acc, mag, t_s = self._gather(dev_id, pkts)
+                    if (cal := self._cal.get(dev_id)) is not None:  # before `_device` takes the warm-up means
+                        acc, mag = cal.apply(acc, mag)
+                    dev = self._device(pkts[0], gyr, acc, mag)  # a filter that cannot start: counted, warms up again
+                else:
+                    gyr, acc, mag, t_s = self._gather(dev_id, pkts)
+                    if (cal := self._cal.get(dev_id)) is not None:
+                        acc, mag = cal.apply(acc, mag)
+            except Exception as exc:
+                self._fail(pkts[0].kind, dev_id, exc, out)
+                continue
             if abs(1.0 / pkts[-1].rate_hz - dev.dt_s) > 1e-12:
                 dev.dt_s = 1.0 / pkts[-1].rate_hz
                 if dev.filt is None:
@@ -514,11 +521,17 @@ class Pipeline:
         quats = self._step_filters(blocks, out)
         for dev_id, q in quats.items():
             dev = self.devices[dev_id]
-            self._post(dev, q, blocks[dev_id], ends[dev_id], now, out, conds)
-            if self.settings.height_interval_s > 0:
-                out.heights += self._heights(dev, q, blocks[dev_id], fused[dev_id], ends[dev_id])
-            if self.settings.attitude_blocks:
-                out.attitude_blocks += self._attitude_blocks(dev, q, fused[dev_id])
+            mine: list[_Timed] = []
+            try:
+                self._post(dev, q, blocks[dev_id], ends[dev_id], now, out, mine)
+                if self.settings.height_interval_s > 0:
+                    out.heights += self._heights(dev, q, blocks[dev_id], fused[dev_id], ends[dev_id])
+                if self.settings.attitude_blocks:
+                    out.attitude_blocks += self._attitude_blocks(dev, q, fused[dev_id])
+            except Exception as exc:  # e.g. an output time out of range: only this device restarts
+                self._fail(dev.kind, dev_id, exc, out)
+                continue
+            conds += mine
 
     def _heights(
         self, dev: ImuDevice, q: FloatArray, block: tuple[FloatArray, FloatArray, FloatArray | None, FloatArray],
@@ -665,10 +678,8 @@ class Pipeline:
             reel = self.reel.get(dev.device_id)
             if reel is not None and reel[0].tension_n is not None and now - reel[1] <= self.settings.reel_max_age_s:
                 tension = np.full(t_s.shape, reel[0].tension_n)
-            for a, b in _chunks(ends, t_s, self.settings.rule_block_s):  # streaming: one chunk; bursts: several
-                rod_block, c = dev.rod.update(t_s[a:b], eul[a:b, 1], eul[a:b, 0], eul[a:b, 2], acc_up[a:b],
-                                              None if tension is None else tension[a:b])  # fmt: skip
-                new += c
+            # The rod rules decide sample by sample: a burst gives the same alarms in one call as packet by packet.
+            rod_block, new = dev.rod.update(t_s, eul[:, 1], eul[:, 0], eul[:, 2], acc_up, tension)
             dev.baseline_rad = rod_block.baseline_rad
             if dev.auto_reel is not None:
                 self._auto_reel(dev, float(t_s[-1]), float(eul[-1, 1]), reel[0] if reel else None, now, out)

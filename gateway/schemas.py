@@ -90,8 +90,13 @@ class DecodeError(Exception):
 # ---------------------------------------------------------------------------------------------------------------
 
 
+def valid_device_id(device_id: str) -> bool:
+    """True when `device_id` matches DEVICE_ID_PATTERN (1-64 of A-Z a-z 0-9 _ -)."""
+    return _DEVICE_ID_RE.fullmatch(device_id) is not None
+
+
 def _check_id(device_id: str) -> str:
-    if not _DEVICE_ID_RE.match(device_id):
+    if not _DEVICE_ID_RE.fullmatch(device_id):
         raise ValueError(f"device id {device_id!r} does not match {DEVICE_ID_PATTERN}")
     return device_id
 
@@ -204,7 +209,7 @@ def parse_key(key: str) -> ParsedKey:
         raise DecodeError("unknown_key", key[:200])
     kind, device_id, topic = parts[1], parts[2], "/".join(parts[3:])
     kinds = _TOPICS.get(topic)
-    if kinds is None or kind not in kinds or not _DEVICE_ID_RE.match(device_id):
+    if kinds is None or kind not in kinds or not _DEVICE_ID_RE.fullmatch(device_id):
         raise DecodeError("unknown_key", key[:200])
     return ParsedKey(kind, device_id, topic)
 
@@ -749,7 +754,7 @@ def decode(key: str, payload: bytes | bytearray | memoryview) -> Packet:
 # Sequence tracking
 # ---------------------------------------------------------------------------------------------------------------
 
-SeqStatus: TypeAlias = Literal["first", "ok", "lost", "duplicate", "reordered", "reboot"]
+SeqStatus: TypeAlias = Literal["first", "ok", "lost", "duplicate", "reordered", "reboot", "conflict", "rival"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -761,25 +766,45 @@ class SeqResult:
 
     @property
     def accept(self) -> bool:
-        """True when the packet carries new data (everything except a duplicate)."""
-        return self.status != "duplicate"
+        """True when the packet carries new data of the followed stream (not a duplicate, not the rival's)."""
+        return self.status not in ("duplicate", "rival")
+
+    @property
+    def conflict(self) -> bool:
+        """True when the packet shows a second publisher on the key (`conflict` or `rival`)."""
+        return self.status in ("conflict", "rival")
+
+
+CONFLICT_EVIDENCE: Final = 2
+"""New packets of the boot left behind, after a reboot, that prove it still publishes (one can be a late packet)."""
 
 
 @dataclass
 class SequenceTracker:
-    """Classifies each packet's (boot_id, seq) of ONE device stream: ok, lost(n), duplicate, reordered, reboot.
+    """Classifies each packet's (boot_id, seq) of ONE device stream: ok, lost(n), duplicate, reordered, reboot, and
+    conflict / rival when two publishers share the key.
 
     Arithmetic is modulo 2**32 so the wrap 0xFFFFFFFF -> 0 is ordinary. A seq ahead of the newest by d
     (0 < d < 2**31) is new; d - 1 packets were lost. A seq behind the newest within `window` is `reordered`
     if unseen (one previously lost packet arrived late: the counters subtract it from `lost`), else `duplicate`;
     further behind is counted as duplicate (too old to tell). A new boot_id restarts the stream (`reboot`);
     late packets of the boot before are stale and counted as duplicates.
-    Counters accumulate in `ok`, `lost`, `duplicates`, `reordered`, `reboots`.
+
+    Two publishers: a real reboot silences the boot before it. When that boot instead goes on with new seqs
+    (`CONFLICT_EVIDENCE` of them) another publisher is using the key (a spoofer, or two devices with one id). The
+    tracker then goes back to the boot it followed first (`conflict`: this packet is accepted) and from then on
+    classifies the newcomer's boot as `rival` (dropped, counted in `conflicts`): a forged boot_id can no longer
+    make the real stream look stale. Which of the two is genuine cannot be known without authentication (zenoh
+    access control, docs/security.md); the gateway raises a `device_conflict` alarm.
+    Counters accumulate in `ok`, `lost`, `duplicates`, `reordered`, `reboots`, `conflicts`.
     """
 
     window: int = 1024
     boot_id: int | None = None
     previous_boot_id: int | None = None
+    previous_newest: int = 0
+    previous_fresh: int = 0
+    rival_boot_id: int | None = None
     newest: int = 0
     _seen: set[int] = field(default_factory=set)
     ok: int = 0
@@ -787,14 +812,24 @@ class SequenceTracker:
     duplicates: int = 0
     reordered: int = 0
     reboots: int = 0
+    conflicts: int = 0
 
     def update(self, boot_id: int, seq: int) -> SeqResult:
         """Classify one packet and update the counters."""
+        if boot_id == self.rival_boot_id and boot_id != self.boot_id:
+            self.conflicts += 1
+            return SeqResult("rival")
         if boot_id == self.previous_boot_id and boot_id != self.boot_id:
+            ahead = (seq - self.previous_newest) % UINT32
+            if 0 < ahead < UINT32 // 2:  # the boot left behind goes on: is it a second publisher?
+                self.previous_newest = seq
+                self.previous_fresh += 1
+                if self.previous_fresh >= CONFLICT_EVIDENCE:
+                    return self._resume_previous(seq)
             self.duplicates += 1  # a straggler from before the reboot: stale, not a second reboot
             return SeqResult("duplicate")
         if self.boot_id is None or boot_id != self.boot_id:
-            self.previous_boot_id = self.boot_id
+            self.previous_boot_id, self.previous_newest, self.previous_fresh = self.boot_id, self.newest, 0
             status: SeqStatus = "first" if self.boot_id is None else "reboot"
             if status == "reboot":
                 self.reboots += 1
@@ -822,6 +857,16 @@ class SequenceTracker:
             return SeqResult("reordered")
         self.duplicates += 1
         return SeqResult("duplicate")
+
+    def _resume_previous(self, seq: int) -> SeqResult:
+        """Two publishers: follow the boot seen first again; the newcomer's boot becomes the rival."""
+        self.rival_boot_id = self.boot_id
+        self.boot_id, self.previous_boot_id, self.previous_fresh = self.previous_boot_id, None, 0
+        self.newest, self._seen = seq, {seq}
+        self.reboots = max(0, self.reboots - 1)  # it was not a reboot
+        self.conflicts += 1
+        self.ok += 1
+        return SeqResult("conflict")
 
     def _remember(self, seq: int) -> None:
         self._seen.add(seq)

@@ -2,8 +2,8 @@
 
 Geometry is pure (`rod_curve`, `hook_geometry`, `raw_attitude`); `View3D` owns a `viser.ViserServer` bound to
 `Settings.viser_host:viser_port` (127.0.0.1 by default; viser takes the next free port if that one is busy) and
-a 20 Hz update thread. It is started on demand by `GET /view3d` (the dashboard's link), so gateways and tests
-that never open it pay nothing; the app's lifespan stops it.
+a 20 Hz update thread. `python -m gateway` starts it with the gateway (`start_view3d`); in-process apps start it on
+the first `GET /view3d` (the dashboard's link), so tests that never open it pay nothing; the lifespan stops it.
 
 Inputs: fused attitude and swing from the hub (listener on the ingest task, stores the latest values only), raw
 IMU and ground truth (`rig/{kind}/{id}/truth`) from bus subscriptions whose callbacks only keep the latest bytes.
@@ -12,6 +12,7 @@ Scene frames are ENU (viser's z is up, as ours). Quaternions are wxyz body->eart
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import json
 import logging
@@ -153,10 +154,16 @@ class View3D:
             }  # fmt: skip
 
     def on_raw(self, key: str, payload: bytes) -> None:
-        self._raw[key.rsplit("/", 2)[1]] = payload
+        self._keep(self._raw, key, payload)
 
     def on_truth(self, key: str, payload: bytes) -> None:
-        self._truth[key.rsplit("/", 2)[1]] = payload
+        self._keep(self._truth, key, payload)
+
+    def _keep(self, store: dict[str, bytes], key: str, payload: bytes) -> None:
+        """Latest payload per device, only for devices with a fused attitude (anyone may publish on these keys)."""
+        device_id = key.rsplit("/", 2)[1]
+        if device_id in self.devices:
+            store[device_id] = payload
 
     def attach(self, service: GatewayService) -> None:
         service.hub.listeners.append(self.on_hub)
@@ -275,6 +282,22 @@ def ensure_view3d(app: Any) -> View3D:
             app.state.view3d = view
             log.info("3-D view on http://%s:%d", service.settings.viser_host, view.port)
         return view
+
+
+async def start_view3d(app: Any) -> View3D:
+    """Start the 3-D view with the gateway: the viser server is built off the event loop (importing and starting
+    it takes a second or two), then attached to the service on the loop."""
+    service: GatewayService = app.state.service
+    view = await asyncio.to_thread(View3D, service.settings)
+    with _lock:
+        if getattr(app.state, "view3d", None) is not None:  # a `GET /view3d` was faster
+            view.stop()
+            existing: View3D = app.state.view3d
+            return existing
+        view.attach(service)
+        view.start()
+        app.state.view3d = view
+    return view
 
 
 def stop_view3d(app: Any) -> None:
