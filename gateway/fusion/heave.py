@@ -173,21 +173,22 @@ def heave_step(state: FloatArray, f_up_m_s2: float, gyr_norm_rad_s: float, acc_n
 
 
 @njit
-def heave_run(state: FloatArray, f_up_m_s2: FloatArray, gyr_norm_rad_s: FloatArray, acc_norm_m_s2: FloatArray,
-              depth_m: FloatArray, dt_s: float, params: FloatArray) -> FloatArray:  # fmt: skip
-    """`heave_step` over arrays (N,); returns (N, 4): H, V_z, at rest, aided."""
-    n = f_up_m_s2.shape[0]
+def heave_run(state: FloatArray, q: FloatArray, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, depth_m: FloatArray,
+              dt_s: float, params: FloatArray) -> FloatArray:  # fmt: skip
+    """`heave_step` over a block: q (N, 4), gyro and specific force (N, 3), depth (N,) with NaN where none, or (0,)
+    for no depth sensor. Returns (N, 4): H, V_z, at rest, aided. One call per block, no temporaries."""
+    n = acc_m_s2.shape[0]
     out = np.empty((n, 4))
     for i in range(n):
-        h, v, r, a = heave_step(state, f_up_m_s2[i], gyr_norm_rad_s[i], acc_norm_m_s2[i], depth_m[i], dt_s, params)
+        w, x, y, z = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+        ax, ay, az = acc_m_s2[i, 0], acc_m_s2[i, 1], acc_m_s2[i, 2]
+        f_up = 2.0 * (x * z - w * y) * ax + 2.0 * (y * z + w * x) * ay + (1.0 - 2.0 * (x * x + y * y)) * az
+        g_norm = np.sqrt(gyr_rad_s[i, 0] ** 2 + gyr_rad_s[i, 1] ** 2 + gyr_rad_s[i, 2] ** 2)
+        a_norm = np.sqrt(ax * ax + ay * ay + az * az)
+        d = depth_m[i] if depth_m.shape[0] > 0 else np.nan
+        h, v, r, a = heave_step(state, f_up, g_norm, a_norm, d, dt_s, params)
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = h, v, r, a
     return out
-
-
-def vertical_specific_force(q: ArrayLike, acc_m_s2: ArrayLike) -> FloatArray:
-    """f_up (m/s²): up component of the specific force rotated to ENU by the attitude (a level device at rest: +g)."""
-    f: FloatArray = np.ascontiguousarray(quat.rotate(q, acc_m_s2)[..., 2])
-    return f
 
 
 def run_heave(q: ArrayLike, gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float,
@@ -197,12 +198,20 @@ def run_heave(q: ArrayLike, gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: flo
     where there is no sample. Returns (N, 4): H (m), V_z (m/s), at rest (0/1), aided (index into AIDED_NAMES).
     `state` (from `initial_state`) is advanced in place when given."""
     s = settings or HeaveSettings()
-    acc = np.asarray(acc_m_s2, dtype=np.float64)
-    n = acc.shape[0]
     st = initial_state(s.gravity_m_s2) if state is None else state
-    depth = np.full(n, np.nan) if depth_m is None else np.ascontiguousarray(depth_m, dtype=np.float64)
-    return heave_run(st, vertical_specific_force(q, acc), np.linalg.norm(np.asarray(gyr_rad_s, dtype=np.float64),
-                     axis=1), np.linalg.norm(acc, axis=1), depth, float(dt_s), s.as_array())  # fmt: skip
+    return _run(st, q, gyr_rad_s, acc_m_s2, dt_s, depth_m, s.as_array())
+
+
+_NO_DEPTH = np.zeros(0)
+
+
+def _run(state: FloatArray, q: ArrayLike, gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float,
+         depth_m: ArrayLike | None, params: FloatArray) -> FloatArray:  # fmt: skip
+    def f64(a: ArrayLike) -> FloatArray:
+        return np.ascontiguousarray(a, dtype=np.float64)
+
+    depth = _NO_DEPTH if depth_m is None else f64(depth_m)
+    return heave_run(state, f64(q), f64(gyr_rad_s), f64(acc_m_s2), depth, float(dt_s), params)
 
 
 class HeaveEstimator:
@@ -211,11 +220,12 @@ class HeaveEstimator:
     def __init__(self, settings: HeaveSettings | None = None, gravity_m_s2: float | None = None) -> None:
         self.settings = settings or HeaveSettings()
         self.state = initial_state(self.settings.gravity_m_s2 if gravity_m_s2 is None else gravity_m_s2)
+        self._params = self.settings.as_array()
 
     def update(self, q: ArrayLike, gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float,
                depth_m: ArrayLike | None = None) -> FloatArray:  # fmt: skip
         """(N, 4) rows of H, V_z, at rest, aided for the block's samples."""
-        return run_heave(q, gyr_rad_s, acc_m_s2, dt_s, self.settings, depth_m, self.state)
+        return _run(self.state, q, gyr_rad_s, acc_m_s2, dt_s, depth_m, self._params)
 
     @property
     def gravity_m_s2(self) -> float:
