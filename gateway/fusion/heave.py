@@ -5,14 +5,14 @@ Per sample (attitude q from the device's filter, specific force f in m/s², dt i
     f_up  = (q ⊗ f ⊗ q*)_z                   vertical specific force (eq. 6-7, Coriolis/transport terms left out)
     a_up  = f_up − g                         g learnt at rest (below), so the accelerometer's vertical offset and
                                              scale error do not integrate
-    V_z  += ∫ a_up − V_z / tau_v  dt         trapezoidal (eq. 8 integrand), optional velocity leak
-    H    += ∫ V_z − H / tau_h     dt         eq. 8, optional height leak towards the last rest height
+    V_z  += ∫ a_up − V_z / tau_v  dt         trapezoidal (eq. 8 integrand); the leak only once free-running
+    H    += ∫ V_z − H / tau_h     dt         eq. 8; H leaks towards the last rest height only once free-running
 
 Drift is held by three things:
 - **rest detection**: |ω| < `rest_gyr_rad_s` and | |f| − g | < `rest_acc_m_s2` for `rest_time_s` → V_z = 0 (zero
   velocity update), H held, and g follows f_up with time constant `gravity_tau_s` (on samples with |a_up| below
-  `onset_acc_m_s2`, so a starting motion does not leak into g). An IMU cannot tell rest from
-  steady motion, so while |V_z| ≥ `rest_speed_m_s` the quiet spell must last `rest_time_moving_s` instead: a steady
+  `onset_acc_m_s2`, so a starting motion does not leak into g). An IMU cannot tell rest from steady motion, so
+  while |V_z| ≥ `rest_speed_m_s` the quiet spell must last `rest_time_moving_s` instead: a steady
   hoist shorter than that keeps its velocity, and a velocity that drifted is still reset after a longer rest. The
   detector notices a start only once |a| passes its threshold, so the motion integrated since |a_up| last was below
   `onset_acc_m_s2` is handed back to V_z and H when rest ends;
