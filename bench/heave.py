@@ -30,10 +30,12 @@ from gateway.fusion.base import FloatArray
 from gateway.fusion.registry import make_filter
 
 TRANSLATION = "*translation*.mat"
+NEVER = float("inf")
 SETTINGS: dict[str, heave.HeaveSettings] = {
-    "free (no rest, no leak)": heave.HeaveSettings(rest_gyr_rad_s=0.0),
-    "rest (default)": heave.HeaveSettings(),
-    "rest + leaks 2 s / 5 s": heave.HeaveSettings(velocity_leak_tau_s=2.0, height_leak_tau_s=5.0),
+    "free (no rest, no high-pass)": heave.HeaveSettings(rest_gyr_rad_s=0.0, leak_after_s=NEVER),
+    "rest only": heave.HeaveSettings(leak_after_s=NEVER),
+    "default (rest; high-pass after 10 s free)": heave.HeaveSettings(),
+    "rest + high-pass always": heave.HeaveSettings(leak_after_s=0.0),
 }
 
 
@@ -122,7 +124,7 @@ def sim_rows(filter_name: str, seeds: Sequence[int]) -> list[str]:
         ok = np.ones(d["z"].shape[0], dtype=bool)
         depth = np.full(ok.shape[0], np.nan)
         depth[:: int(0.1 / dt)] = -d["z"][:: int(0.1 / dt)] + 3.0 + rng.normal(0, 0.02, depth[:: int(0.1 / dt)].shape)
-        runs = {**SETTINGS, "rest + depth sensor (10 Hz, 2 cm)": heave.HeaveSettings()}
+        runs = {**SETTINGS, "default + depth sensor (10 Hz, 2 cm)": heave.HeaveSettings()}
         for label, s in runs.items():
             dep = depth if "depth" in label else None
             out = heave.run_heave(q, g, a, dt, replace(s, gravity_m_s2=g0), dep)

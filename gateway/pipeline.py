@@ -545,10 +545,12 @@ class Pipeline:
             g0 = float(np.linalg.norm(acc[: min(acc.shape[0], 50)].mean(axis=0)))
             level = abs(g0 - G_M_S2) < self.settings.rest_acc_tol_m_s2
             dev.heave = HeaveEstimator(gravity_m_s2=g0 if level else G_M_S2)
-        depth = np.full(t_s.shape[0], np.nan)
-        for (i, _, _), p in zip(ends, pkts, strict=True):
-            if p.depth_m is not None:
-                depth[i - p.n + 1] = p.depth_m
+        depth = None
+        if any(p.depth_m is not None for p in pkts):
+            depth = np.full(t_s.shape[0], np.nan)
+            for (i, _, _), p in zip(ends, pkts, strict=True):
+                if p.depth_m is not None:
+                    depth[i - p.n + 1] = p.depth_m
         bias = self.bias_rad_s(dev.device_id)  # the rest detector sees the rate without the filter's bias estimate
         rows = dev.heave.update(q, gyr if bias is None else gyr - np.asarray(bias), acc, dev.dt_s, depth)
         out = []

@@ -557,7 +557,8 @@ class Swing(WireModel):
 class Height(WireModel):
     """Vertical velocity and height of an IMU device from its fused attitude (seed 002 eq. 6-8): gravity removed from
     the specific force rotated to ENU, integrated twice; drift held by rest detection (velocity to zero, height
-    pulled to its rest value) and by the device's depth sensor where it has one (`aided` says which held it)."""
+    held) and by the device's depth sensor where it has one; free-running without either for 10 s it becomes heave
+    about the last rest height (`aided` says which held it)."""
 
     v: Version = 1
     device_id: DeviceId
@@ -568,7 +569,7 @@ class Height(WireModel):
     vz_m_s: Finite
     height_m: Finite
     at_rest: bool
-    aided: Literal["rest", "depth", "none"]
+    aided: Literal["rest", "depth", "highpass", "none"]
 
 
 AlarmState: TypeAlias = Literal["raised", "cleared"]
@@ -1023,7 +1024,8 @@ FIELD_NOTES: Final[dict[str, str]] = {
     "vz_m_s": "vertical velocity, ENU up, m/s",
     "height_m": "height above the device's first rest position (ENU up), m; minus the depth when depth-aided",
     "at_rest": "the rest detector holds the device still (velocity zeroed)",
-    "aided": "what held the drift on this sample: rest detection, the depth sensor, or nothing (free integration)",
+    "aided": "what held the drift on this sample: rest detection, the depth sensor, the high-pass of a device free-"
+             "running for 10 s (heave about the last rest height), or nothing yet (free integration)",
 }
 
 # Notes that differ from FIELD_NOTES for one model: (model name, field) -> note.

@@ -5,22 +5,25 @@ Per sample (attitude q from the device's filter, specific force f in m/s², dt i
     f_up  = (q ⊗ f ⊗ q*)_z                   vertical specific force (eq. 6-7, Coriolis/transport terms left out)
     a_up  = f_up − g                         g learnt at rest (below), so the accelerometer's vertical offset and
                                              scale error do not integrate
-    V_z  += ∫ a_up − V_z / tau_v  dt         trapezoidal (eq. 8 integrand), optional velocity leak
-    H    += ∫ V_z − H / tau_h     dt         eq. 8, optional height leak towards the last rest height
+    V_z  += ∫ a_up − V_z / tau_v  dt         trapezoidal (eq. 8 integrand); the leak only once free-running
+    H    += ∫ V_z − H / tau_h     dt         eq. 8; H leaks towards the last rest height only once free-running
 
 Drift is held by three things:
 - **rest detection**: |ω| < `rest_gyr_rad_s` and | |f| − g | < `rest_acc_m_s2` for `rest_time_s` → V_z = 0 (zero
   velocity update), H held, and g follows f_up with time constant `gravity_tau_s` (on samples with |a_up| below
-  `onset_acc_m_s2`, so a starting motion does not leak into g). An IMU cannot tell rest from
-  steady motion, so while |V_z| ≥ `rest_speed_m_s` the quiet spell must last `rest_time_moving_s` instead: a steady
+  `onset_acc_m_s2`, so a starting motion does not leak into g). An IMU cannot tell rest from steady motion, so
+  while |V_z| ≥ `rest_speed_m_s` the quiet spell must last `rest_time_moving_s` instead: a steady
   hoist shorter than that keeps its velocity, and a velocity that drifted is still reset after a longer rest. The
   detector notices a start only once |a| passes its threshold, so the motion integrated since |a_up| last was below
   `onset_acc_m_s2` is handed back to V_z and H when rest ends;
 - **the depth sensor** where the device has one (`depth_m` samples, NaN between): a second-order complementary
   observer pulls H towards −depth and V_z along with it (crossover `depth_crossover_rad_s`, damping 0.7), so the
   height is then "minus the depth" and its drift is bounded by the sensor;
-- optional leaks (`velocity_leak_tau_s`, `height_leak_tau_s`; 0 = off): a high-pass that turns open-loop height into
-  heave about the last rest height for long runs without rest or depth.
+- **a high-pass once free-running**: after `leak_after_s` without rest or depth (a hook that keeps swinging, minutes
+  of hand-held motion) velocity and height leak (`velocity_leak_tau_s`, `height_leak_tau_s`) towards the last rest
+  height and g follows f_up slowly (`gravity_tau_moving_s`: over a swing or a ride the mean vertical acceleration is
+  zero), so the output becomes heave about that height instead of a drift without bound; `aided` says `highpass`.
+  Moves between rests shorter than `leak_after_s` (hoisting) are integrated without leaks.
 
 `run_heave` is the batch form (numba), `HeaveEstimator` the streaming one the gateway calls per device and block;
 both run the same step.
@@ -38,12 +41,13 @@ from gateway.fusion.base import FloatArray
 from gateway.fusion.quaternion import njit
 
 # state: V_z, H, previous a_up, g, rest timer, have-previous, rest height, time since the last depth sample, depth seen,
-# onset velocity and height (integrated since |a_up| was last below the onset level), previous at-rest flag
-N_STATE = 12
+# onset velocity and height (integrated since |a_up| was last below the onset level), previous at-rest flag, time
+# since the last rest or depth sample
+N_STATE = 13
 (S_V, S_H, S_APREV, S_G, S_REST_T, S_HAVE, S_HREST, S_DEPTH_AGE, S_DEPTH_SEEN, S_VON, S_HON,
- S_WAS_REST) = range(N_STATE)
-# per-sample output columns: H, V_z, at rest (0/1), aided (0 none, 1 rest, 2 depth)
-AIDED_NAMES: tuple[str, ...] = ("none", "rest", "depth")
+ S_WAS_REST, S_FREE_T) = range(N_STATE)
+# per-sample output columns: H, V_z, at rest (0/1), aided (0 none, 1 rest, 2 depth, 3 highpass)
+AIDED_NAMES: tuple[str, ...] = ("none", "rest", "depth", "highpass")
 DEPTH_DAMPING = 0.7
 
 
@@ -71,14 +75,20 @@ class HeaveSettings:
     """Crossover of the depth observer (rad/s): above it the accelerometer, below it the depth sensor."""
     depth_max_age_s: float = 1.0
     """A depth sample older than this no longer counts as aiding."""
-    velocity_leak_tau_s: float = 0.0
-    height_leak_tau_s: float = 0.0
+    leak_after_s: float = 10.0
+    """Free-running (no rest, no depth) this long (s), the leaks below apply; 0: always; inf: never."""
+    velocity_leak_tau_s: float = 2.0
+    """Velocity leak time constant once free-running (s); 0: none."""
+    height_leak_tau_s: float = 5.0
+    """Height leak towards the last rest height once free-running (s); 0: none."""
+    gravity_tau_moving_s: float = 30.0
+    """Once free-running, g follows f_up with this time constant (s); 0: g only learnt at rest."""
 
     def as_array(self) -> FloatArray:
         return np.array([self.rest_gyr_rad_s, self.rest_acc_m_s2, self.rest_time_s, self.gravity_tau_s,
                          self.depth_crossover_rad_s, self.depth_max_age_s, _rate(self.velocity_leak_tau_s),
                          _rate(self.height_leak_tau_s), self.rest_speed_m_s, self.rest_time_moving_s,
-                         self.onset_acc_m_s2])  # fmt: skip
+                         self.onset_acc_m_s2, self.leak_after_s, self.gravity_tau_moving_s])  # fmt: skip
 
 
 def _rate(tau_s: float) -> float:
@@ -95,10 +105,16 @@ def initial_state(gravity_m_s2: float = quat.GRAVITY_M_S2, height_m: float = 0.0
 @njit
 def heave_step(state: FloatArray, f_up_m_s2: float, gyr_norm_rad_s: float, acc_norm_m_s2: float, depth_m: float,
                dt_s: float, params: FloatArray) -> tuple[float, float, float, float]:  # fmt: skip
-    """Advance `state` by one sample in place; returns (H m, V_z m/s, at rest 0/1, aided 0/1/2)."""
+    """Advance `state` by one sample in place; returns (H m, V_z m/s, at rest 0/1, aided index)."""
     rest_gyr, rest_acc, rest_time, g_tau, w_c, depth_age_max, kv, kh = (
         params[0], params[1], params[2], params[3], params[4], params[5], params[6], params[7])
-    rest_speed, rest_time_moving, onset = params[8], params[9], params[10]
+    rest_speed, rest_time_moving, onset, leak_after, g_tau_moving = params[8], params[9], params[10], params[11], \
+        params[12]
+    free = state[S_FREE_T] >= leak_after
+    if not free:
+        kv, kh = 0.0, 0.0
+    elif g_tau_moving > 0.0:
+        state[S_G] += min(1.0, dt_s / g_tau_moving) * (f_up_m_s2 - state[S_G])
     a_up = f_up_m_s2 - state[S_G]
     if state[S_HAVE] > 0.0:
         v, h = state[S_V], state[S_H]
@@ -150,25 +166,29 @@ def heave_step(state: FloatArray, f_up_m_s2: float, gyr_norm_rad_s: float, acc_n
     state[S_WAS_REST] = 1.0 if at_rest else 0.0
     if state[S_DEPTH_SEEN] > 0.0 and state[S_DEPTH_AGE] <= depth_age_max:
         aided = 2.0
+    state[S_FREE_T] = 0.0 if aided > 0.0 else state[S_FREE_T] + dt_s
+    if aided == 0.0 and free:
+        aided = 3.0
     return state[S_H], state[S_V], 1.0 if at_rest else 0.0, aided
 
 
 @njit
-def heave_run(state: FloatArray, f_up_m_s2: FloatArray, gyr_norm_rad_s: FloatArray, acc_norm_m_s2: FloatArray,
-              depth_m: FloatArray, dt_s: float, params: FloatArray) -> FloatArray:  # fmt: skip
-    """`heave_step` over arrays (N,); returns (N, 4): H, V_z, at rest, aided."""
-    n = f_up_m_s2.shape[0]
+def heave_run(state: FloatArray, q: FloatArray, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, depth_m: FloatArray,
+              dt_s: float, params: FloatArray) -> FloatArray:  # fmt: skip
+    """`heave_step` over a block: q (N, 4), gyro and specific force (N, 3), depth (N,) with NaN where none, or (0,)
+    for no depth sensor. Returns (N, 4): H, V_z, at rest, aided. One call per block, no temporaries."""
+    n = acc_m_s2.shape[0]
     out = np.empty((n, 4))
     for i in range(n):
-        h, v, r, a = heave_step(state, f_up_m_s2[i], gyr_norm_rad_s[i], acc_norm_m_s2[i], depth_m[i], dt_s, params)
+        w, x, y, z = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+        ax, ay, az = acc_m_s2[i, 0], acc_m_s2[i, 1], acc_m_s2[i, 2]
+        f_up = 2.0 * (x * z - w * y) * ax + 2.0 * (y * z + w * x) * ay + (1.0 - 2.0 * (x * x + y * y)) * az
+        g_norm = np.sqrt(gyr_rad_s[i, 0] ** 2 + gyr_rad_s[i, 1] ** 2 + gyr_rad_s[i, 2] ** 2)
+        a_norm = np.sqrt(ax * ax + ay * ay + az * az)
+        d = depth_m[i] if depth_m.shape[0] > 0 else np.nan
+        h, v, r, a = heave_step(state, f_up, g_norm, a_norm, d, dt_s, params)
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = h, v, r, a
     return out
-
-
-def vertical_specific_force(q: ArrayLike, acc_m_s2: ArrayLike) -> FloatArray:
-    """f_up (m/s²): up component of the specific force rotated to ENU by the attitude (a level device at rest: +g)."""
-    f: FloatArray = np.ascontiguousarray(quat.rotate(q, acc_m_s2)[..., 2])
-    return f
 
 
 def run_heave(q: ArrayLike, gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float,
@@ -178,12 +198,20 @@ def run_heave(q: ArrayLike, gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: flo
     where there is no sample. Returns (N, 4): H (m), V_z (m/s), at rest (0/1), aided (index into AIDED_NAMES).
     `state` (from `initial_state`) is advanced in place when given."""
     s = settings or HeaveSettings()
-    acc = np.asarray(acc_m_s2, dtype=np.float64)
-    n = acc.shape[0]
     st = initial_state(s.gravity_m_s2) if state is None else state
-    depth = np.full(n, np.nan) if depth_m is None else np.ascontiguousarray(depth_m, dtype=np.float64)
-    return heave_run(st, vertical_specific_force(q, acc), np.linalg.norm(np.asarray(gyr_rad_s, dtype=np.float64),
-                     axis=1), np.linalg.norm(acc, axis=1), depth, float(dt_s), s.as_array())  # fmt: skip
+    return _run(st, q, gyr_rad_s, acc_m_s2, dt_s, depth_m, s.as_array())
+
+
+_NO_DEPTH = np.zeros(0)
+
+
+def _run(state: FloatArray, q: ArrayLike, gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float,
+         depth_m: ArrayLike | None, params: FloatArray) -> FloatArray:  # fmt: skip
+    def f64(a: ArrayLike) -> FloatArray:
+        return np.ascontiguousarray(a, dtype=np.float64)
+
+    depth = _NO_DEPTH if depth_m is None else f64(depth_m)
+    return heave_run(state, f64(q), f64(gyr_rad_s), f64(acc_m_s2), depth, float(dt_s), params)
 
 
 class HeaveEstimator:
@@ -192,11 +220,12 @@ class HeaveEstimator:
     def __init__(self, settings: HeaveSettings | None = None, gravity_m_s2: float | None = None) -> None:
         self.settings = settings or HeaveSettings()
         self.state = initial_state(self.settings.gravity_m_s2 if gravity_m_s2 is None else gravity_m_s2)
+        self._params = self.settings.as_array()
 
     def update(self, q: ArrayLike, gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float,
                depth_m: ArrayLike | None = None) -> FloatArray:  # fmt: skip
         """(N, 4) rows of H, V_z, at rest, aided for the block's samples."""
-        return run_heave(q, gyr_rad_s, acc_m_s2, dt_s, self.settings, depth_m, self.state)
+        return _run(self.state, q, gyr_rad_s, acc_m_s2, dt_s, depth_m, self._params)
 
     @property
     def gravity_m_s2(self) -> float:

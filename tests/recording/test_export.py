@@ -133,3 +133,21 @@ def test_live_export_from_zenoh(tmp_path: Path) -> None:
     imp = read_sensor_csv(files[0])
     assert imp.stream.gyr_rad_s.shape[0] >= 140  # 30 packets of 5, minus at most a lost one or two
     assert imp.stream.rate_hz == pytest.approx(100.0, rel=1e-3)
+
+
+def test_import_csv_command_reads_an_exported_log_as_its_device(tmp_path: Path) -> None:
+    """`python -m gateway.recording.import_csv LOG -o DIR` on an exported log: the device id comes from the file
+    name, and the packets decode with their GNSS fixes."""
+    from gateway.recording import import_csv
+    from gateway.recording.format import read_recording
+
+    path, _ = _recording(tmp_path, None)
+    with export.CsvExporter(tmp_path / "out") as ex:
+        export.export_recording(path, ex)
+    assert import_csv.device_id_from_name(ex.files[0]) == "log-1"
+    assert import_csv.device_id_from_name(Path("phone.csv")) is None
+    assert import_csv.main([str(ex.files[0]), "-o", str(tmp_path / "rec"), "--no-progress"]) == 0
+    recs = list(read_recording(next((tmp_path / "rec").iterdir())))
+    pkts = [schemas.decode(r.key, r.payload) for r in recs]
+    assert {r.key for r in recs} == {"rig/rod/log-1/imu"}
+    assert sum(isinstance(p, schemas.ImuPacket) and p.gnss is not None for p in pkts) == 5
