@@ -159,12 +159,14 @@ class LineGuard:
         self.tension_n = th.tension_warn_fraction * th.line_breaking_n
         self.tension_hyst_n = TENSION_HYSTERESIS_FRACTION * th.line_breaking_n
 
-    def update(self, device_id: str, t_s: FloatArray, drop_deg: FloatArray, tension_n: FloatArray | None
+    def update(self, device_id: str, t_s: FloatArray, block: RodBlock, tension_n: FloatArray | None
                ) -> list[Condition]:  # fmt: skip
         """Conditions for every level change in the block, at the sample that caused it."""
-        quiet = self.level == 0 and not (np.fmax.reduce(drop_deg) >= self.angle_deg[0] - LINE_HYSTERESIS_DEG)
+        peak_drop_deg = -math.degrees(block.min_deviation_rad)  # nan (warm-up) counts as quiet
+        quiet = self.level == 0 and not peak_drop_deg >= self.angle_deg[0] - LINE_HYSTERESIS_DEG
         if quiet and (tension_n is None or not np.fmax.reduce(tension_n) >= self.tension_n - self.tension_hyst_n):
             return []
+        drop_deg = np.degrees(-block.deviation_rad)
         by_angle = hysteresis_levels(drop_deg, self._angle_level, self.angle_deg, LINE_HYSTERESIS_DEG)
         by_tension = (np.zeros(t_s.size, dtype=np.int64) if tension_n is None
                       else hysteresis_levels(tension_n, self._tension_level, (self.tension_n,), self.tension_hyst_n))
@@ -229,7 +231,7 @@ class RodAlarms:
         """One block (shapes (n,)) -> detector summary and the conditions for the engine, in time order."""
         block = self.detector.update(t_s, pitch_rad, roll_rad, yaw_rad, acc_up_m_s2)
         out = [_event_condition(self.device_id, e) for e in block.events]
-        line = self.line.update(self.device_id, t_s, np.degrees(-block.deviation_rad), tension_n)
+        line = self.line.update(self.device_id, t_s, block, tension_n)
         if line:
             out = sorted(out + line, key=lambda c: c.t_s)
         return block, out
