@@ -184,10 +184,10 @@ class LineGuard:
                    tension_n: float | None) -> Condition:  # fmt: skip
         """Message with the measured value and the threshold it passed (or fell back under)."""
         if new == 0:
-            thr = self.angle_deg[0] - LINE_HYSTERESIS_DEG
-            return Condition(device_id, "line_tension", None, t_s, drop_deg, self.angle_deg[0],
-                             f"line: rod drop back to {drop_deg:.1f}° < {thr:.1f}°",
-                             {"level": 0})  # fmt: skip
+            msg = f"line: rod drop back to {drop_deg:.1f}° < {self.angle_deg[0] - LINE_HYSTERESIS_DEG:.1f}°"
+            if tension_n is not None:
+                msg += f", tension {tension_n:.1f} N < {self.tension_n - self.tension_hyst_n:.1f} N"
+            return Condition(device_id, "line_tension", None, t_s, drop_deg, self.angle_deg[0], msg, {"level": 0})
         severity = SPECS["line_tension"].severities[new - 1]
         if by_tension and tension_n is not None:
             msg = f"line: tension {tension_n:.1f} N ≥ {self.tension_n:.1f} N (near breaking)"
