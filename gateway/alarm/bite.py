@@ -144,6 +144,8 @@ class BiteState:
     frame_pitch: list[FloatArray] = field(default_factory=list)  # the open frame's samples, as fed
     frame_acc: list[FloatArray] = field(default_factory=list)
     frame_t0_s: float = math.nan
+    frame_lo_rad: float = math.inf  # lowest and highest deviation of the open frame's samples (after the warm-up)
+    frame_hi_rad: float = -math.inf
 
 
 def tip_acc_up(quat_wxyz: FloatArray, acc_m_s2: FloatArray, g_m_s2: float = 9.81) -> FloatArray:
@@ -298,25 +300,38 @@ class BiteDetector:
             return RodBlock((), s.baseline_rad, np.zeros(0), math.nan, math.nan)
         if math.isnan(s.origin_s):
             s.origin_s = float(t_s[0])
-        k = np.floor((t_s - s.origin_s) / FRAME_S + _FRAME_EPS).astype(np.int64)
-        cuts = [0, *(np.flatnonzero(k[1:] != k[:-1]) + 1).tolist(), n]
         events: list[RodEvent] = []
-        dev = np.empty(n)
-        for a, b in zip(cuts[:-1], cuts[1:], strict=True):
-            if int(k[a]) != s.frame_k:
+        k_first, k_last = self._frame_of(float(t_s[0])), self._frame_of(float(t_s[-1]))
+        if k_first == k_last:  # the common case: the block lies in one frame
+            if k_first != s.frame_k:
                 self._close_frame()
-                s.frame_k, s.frame_t0_s = int(k[a]), float(t_s[a])
+                s.frame_k, s.frame_t0_s = k_first, float(t_s[0])
+            dev, lo, i_lo = self._segment(t_s, pitch_rad, acc_up_m_s2, events)
+            return RodBlock(tuple(events), s.baseline_rad, dev, lo, float(t_s[i_lo]) if i_lo >= 0 else math.nan)
+        # frame j starts at the first sample with (t - origin) / FRAME_S + _FRAME_EPS >= j (as `_frame_of`)
+        starts = s.origin_s + (np.arange(k_first + 1, k_last + 1) - _FRAME_EPS) * FRAME_S
+        cuts = np.unique(np.r_[0, np.searchsorted(t_s, starts), n]).tolist()
+        dev = np.empty(n)
+        lo, t_lo = math.nan, math.nan
+        for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+            k = self._frame_of(float(t_s[a]))
+            if k != s.frame_k:
+                self._close_frame()
+                s.frame_k, s.frame_t0_s = k, float(t_s[a])
             acc = None if acc_up_m_s2 is None else acc_up_m_s2[a:b]
-            dev[a:b] = self._segment(t_s[a:b], pitch_rad[a:b], acc, events)
-        finite = np.isfinite(dev)
-        if not finite.any():
-            return RodBlock(tuple(events), s.baseline_rad, dev, math.nan, math.nan)
-        i_min = int(np.argmin(np.where(finite, dev, np.inf)))
-        return RodBlock(tuple(events), s.baseline_rad, dev, float(dev[i_min]), float(t_s[i_min]))
+            dev[a:b], seg_lo, i_lo = self._segment(t_s[a:b], pitch_rad[a:b], acc, events)
+            if i_lo >= 0 and not seg_lo >= lo:
+                lo, t_lo = seg_lo, float(t_s[a + i_lo])
+        return RodBlock(tuple(events), s.baseline_rad, dev, lo, t_lo)
+
+    def _frame_of(self, t_s: float) -> int:
+        """Index of the frame holding a sample at device time t_s."""
+        return math.floor((t_s - self.state.origin_s) / FRAME_S + _FRAME_EPS)
 
     def _segment(self, t_s: FloatArray, pitch_rad: FloatArray, acc: FloatArray | None, events: list[RodEvent]
-                 ) -> FloatArray:  # fmt: skip
-        """Samples of one frame (all of it or a part): judged against the state the earlier frames left."""
+                 ) -> tuple[FloatArray, float, int]:  # fmt: skip
+        """Samples of one frame (all of it or a part), judged against the state the earlier frames left; returns
+        their deviations, the lowest and its index (-1: none, e.g. in the warm-up)."""
         s = self.state
         s.frame_pitch.append(pitch_rad)
         if acc is not None:
@@ -324,17 +339,22 @@ class BiteDetector:
         if not s.warmed:
             if acc is not None:
                 s.acc_tail = keep_tail(s.acc_tail, acc, ACC_WINDOW - 1)
-            return np.full(t_s.size, math.nan)
+            return np.full(t_s.size, math.nan), math.nan, -1
         return self._detect(t_s, pitch_rad, acc, events)
 
     def _detect(self, t_s: FloatArray, pitch_rad: FloatArray, acc_up_m_s2: FloatArray | None,
-                events: list[RodEvent]) -> FloatArray:  # fmt: skip
-        """Latches and events for samples after the warm-up; returns their deviations from rest."""
+                events: list[RodEvent]) -> tuple[FloatArray, float, int]:  # fmt: skip
+        """Latches and events for samples after the warm-up; returns their deviations from rest, the lowest and
+        its index (-1 if all are nan)."""
         p, s = self.params, self.state
         n = t_s.size
         dev = pitch_rad - s.baseline_rad
-        with np.errstate(invalid="ignore"):
+        i_lo = int(dev.argmin())  # nan wins argmin: then fall back to the nan-skipping reductions
+        lo, hi = float(dev[i_lo]), float(dev.max())
+        if math.isnan(lo):
             lo, hi = float(np.fmin.reduce(dev)), float(np.fmax.reduce(dev))
+            i_lo = -1 if math.isnan(lo) else int(np.argmax(dev == lo))
+        s.frame_lo_rad, s.frame_hi_rad = min(s.frame_lo_rad, lo), max(s.frame_hi_rad, hi)
         # Quiet segments (the common case) skip every mask: only min and max are computed.
         fast = None
         if acc_up_m_s2 is not None:
@@ -407,7 +427,7 @@ class BiteDetector:
                 events.append(RodEvent("drop_back", float(t_s[k]), float(dev[k]), p.drop_back_rad, "pitch"))
         if len(events) > 1:
             events.sort(key=lambda e: e.t_s)
-        return dev
+        return dev, lo, i_lo
 
     def _close_frame(self) -> None:
         """End of the open frame: its samples move the warm-up sums, vibration level and rest baseline."""
@@ -417,6 +437,8 @@ class BiteDetector:
         pitch = s.frame_pitch[0] if len(s.frame_pitch) == 1 else np.concatenate(s.frame_pitch)
         acc = None if not s.frame_acc else s.frame_acc[0] if len(s.frame_acc) == 1 else np.concatenate(s.frame_acc)
         s.frame_pitch, s.frame_acc = [], []
+        lo, hi = s.frame_lo_rad, s.frame_hi_rad
+        s.frame_lo_rad, s.frame_hi_rad = math.inf, -math.inf
         gap_frames = s.frame_k - s.closed_k if s.closed_k >= 0 else 1
         s.closed_k = s.frame_k
         if acc is not None:
@@ -432,10 +454,9 @@ class BiteDetector:
         mean = float(np.add.reduce(pitch)) / pitch.size
         if not math.isfinite(mean):
             return  # a frame with gaps (nan) never moves the baseline
-        dev = pitch - s.baseline_rad
         if s.bite_armed and s.drop_armed:
             s.steady_since_s = math.nan
-            if dev.min() > -REARM_FRACTION * p.bite_rad and dev.max() < REARM_FRACTION * p.drop_back_rad:
+            if lo > -REARM_FRACTION * p.bite_rad and hi < REARM_FRACTION * p.drop_back_rad:
                 dt_s = gap_frames * FRAME_S
                 s.baseline_rad += (1.0 - math.exp(-dt_s / p.baseline_tau_s)) * (mean - s.baseline_rad)
             return

@@ -161,12 +161,14 @@ class LineGuard:
         self.tension_n = th.tension_warn_fraction * th.line_breaking_n
         self.tension_hyst_n = TENSION_HYSTERESIS_FRACTION * th.line_breaking_n
 
-    def update(self, device_id: str, t_s: FloatArray, drop_deg: FloatArray, tension_n: FloatArray | None
+    def update(self, device_id: str, t_s: FloatArray, block: RodBlock, tension_n: FloatArray | None
                ) -> list[Condition]:  # fmt: skip
         """Conditions for every level change in the block, at the sample that caused it."""
-        quiet = self.level == 0 and not (np.fmax.reduce(drop_deg) >= self.angle_deg[0] - LINE_HYSTERESIS_DEG)
+        peak_drop_deg = -math.degrees(block.min_deviation_rad)  # nan (warm-up) counts as quiet
+        quiet = self.level == 0 and not peak_drop_deg >= self.angle_deg[0] - LINE_HYSTERESIS_DEG
         if quiet and (tension_n is None or not np.fmax.reduce(tension_n) >= self.tension_n - self.tension_hyst_n):
             return []
+        drop_deg = np.degrees(-block.deviation_rad)
         by_angle = hysteresis_levels(drop_deg, self._angle_level, self.angle_deg, LINE_HYSTERESIS_DEG)
         by_tension = (np.zeros(t_s.size, dtype=np.int64) if tension_n is None
                       else hysteresis_levels(tension_n, self._tension_level, (self.tension_n,), self.tension_hyst_n))
@@ -184,10 +186,10 @@ class LineGuard:
                    tension_n: float | None) -> Condition:  # fmt: skip
         """Message with the measured value and the threshold it passed (or fell back under)."""
         if new == 0:
-            thr = self.angle_deg[0] - LINE_HYSTERESIS_DEG
-            return Condition(device_id, "line_tension", None, t_s, drop_deg, self.angle_deg[0],
-                             f"line: rod drop back to {drop_deg:.1f}° < {thr:.1f}°",
-                             {"level": 0})  # fmt: skip
+            msg = f"line: rod drop back to {drop_deg:.1f}° < {self.angle_deg[0] - LINE_HYSTERESIS_DEG:.1f}°"
+            if tension_n is not None:
+                msg += f", tension {tension_n:.1f} N < {self.tension_n - self.tension_hyst_n:.1f} N"
+            return Condition(device_id, "line_tension", None, t_s, drop_deg, self.angle_deg[0], msg, {"level": 0})
         severity = SPECS["line_tension"].severities[new - 1]
         if by_tension and tension_n is not None:
             msg = f"line: tension {tension_n:.1f} N ≥ {self.tension_n:.1f} N (near breaking)"
@@ -231,7 +233,7 @@ class RodAlarms:
         """One block (shapes (n,)) -> detector summary and the conditions for the engine, in time order."""
         block = self.detector.update(t_s, pitch_rad, roll_rad, yaw_rad, acc_up_m_s2)
         out = [_event_condition(self.device_id, e) for e in block.events]
-        line = self.line.update(self.device_id, t_s, np.degrees(-block.deviation_rad), tension_n)
+        line = self.line.update(self.device_id, t_s, block, tension_n)
         if line:
             out = sorted(out + line, key=lambda c: c.t_s)
         return block, out

@@ -118,3 +118,40 @@ def test_alarms_do_not_depend_on_packets_bursts_or_co_batched_devices(
         batches.append(arrivals[i : i + n])
         i += n
     assert alarms(batches) == reference()
+
+
+def rule_stream() -> tuple[np.ndarray, ...]:
+    """60 s at 100 Hz: bites (one fast, one slow), a drop-back, a pull past theta2 and theta3, tension spikes;
+    with accelerometer noise and spikes so the cue and its vibration bar move too."""
+    from tests.alarm.scenarios import noisy, pulse, times, tip_acc_up
+
+    rng = np.random.default_rng(11)
+    t = times(60.0)
+    rel = (-pulse(t, 5.0, 0.1, 1.0, 15.0) + pulse(t, 14.0, 0.4, 3.0, 9.0) - pulse(t, 25.0, 0.8, 2.0, 12.0)
+           - pulse(t, 36.0, 1.0, 3.0, 52.0))  # fmt: skip
+    acc = tip_acc_up(t, rel, 0.3, rng)
+    acc[rng.integers(0, t.size, 40)] += rng.normal(0.0, 20.0, 40)  # knocks
+    tension = 2.0 + 35.0 * ((t > 48.0) & (t < 50.0)) + rng.normal(0.0, 0.5, t.size)
+    return t, np.radians(noisy(t, rel, 0.2, rng)), acc, tension
+
+
+@settings(max_examples=60, deadline=None)
+@given(cuts=st.lists(st.integers(1, 400), min_size=1, max_size=200))
+def test_rod_rules_do_not_depend_on_block_cuts(cuts: list[int]) -> None:
+    """RodAlarms alone, many more cuts: the same conditions (time, type, severity, value, message, details)."""
+    from gateway.alarm.rules import RodAlarms
+
+    t, pitch, acc, tension = rule_stream()
+
+    def conditions(sizes: list[int]) -> list[tuple[object, ...]]:
+        rod, out, i, k = RodAlarms("rod-1"), [], 0, 0
+        while i < t.size:
+            j = min(i + sizes[k % len(sizes)], t.size)
+            _, conds = rod.update(t[i:j], pitch[i:j], None, None, acc[i:j], tension[i:j])
+            out += [(c.t_s, c.type, c.severity, c.value, c.message, dict(c.details)) for c in conds]
+            i, k = j, k + 1
+        return out
+
+    ref = conditions([t.size])
+    assert {c[1] for c in ref} == {"bite", "drop_back", "line_tension"}
+    assert conditions(cuts) == ref
