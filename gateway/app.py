@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import asyncio
 import logging
 import sqlite3
 import sys
-import time
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -48,12 +46,10 @@ def create_app(
         service = GatewayService(settings, bus, store)
         app.state.service = service
         try:
-            if warm_up:  # compile before the first packet, not on it; cached in __pycache__ after the first start
-                log.info("preparing fusion kernels (the first start after install compiles them: up to a minute)")
-                t0 = time.perf_counter()
-                await asyncio.to_thread(service.pipeline.warm_up)
-                log.info("fusion kernels ready in %.1f s", time.perf_counter() - t0)
-            await service.start()
+            # Kernels compile before the first packet is processed, not on it (cached in __pycache__ after the first
+            # start), but in the background: REST and presence answer meanwhile (a SIGKILLed gateway is back in
+            # seconds), packets wait in the bounded inbox.
+            await service.start(warm_up=warm_up)
             ws.start_live(app, service)
             yield
         finally:
