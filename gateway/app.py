@@ -56,13 +56,14 @@ def create_app(
     async def start(app: FastAPI, service: GatewayService) -> None:
         t0 = time.perf_counter()
         view_task = asyncio.create_task(view3d.start_view3d(app)) if start_view3d else None
-        if warm_up:  # compile before the first packet, not on it; cached in __pycache__ (scripts/env.sh does it)
-            log.info("warming up: loading the fusion kernels (compiled once after install)")
-            await asyncio.to_thread(service.pipeline.warm_up)
-            log.info("fusion kernels ready in %.1f s", time.perf_counter() - t0)
-        await service.start()
+        # Subscriptions, presence and REST work at once (a SIGKILLed gateway sees its devices again in seconds);
+        # with `warm_up` the ingest task first loads the fusion kernels in a thread (compiled once after install,
+        # cached in __pycache__; scripts/env.sh does it) and packets wait in the bounded inbox meanwhile.
+        await service.start(warm_up=warm_up)
         ws.start_live(app, service)
         history.start_history(app, service)
+        while service.warming_since_s is not None:
+            await asyncio.sleep(0.1)
         if view_task is not None:
             try:
                 await view_task

@@ -118,8 +118,13 @@ class GatewayService:
         self._rejected_window = (0, 0)  # (second, published in it)
         self.batch_failures = 0
         self._batch_fail_logged_s = -math.inf
+        self.warming_since_s: float | None = None  # set while the fusion kernels are being prepared
 
-    async def start(self) -> None:
+    async def start(self, warm_up: bool = False) -> None:
+        """Subscribe, watch presence, serve the config queryable and start the tasks. With `warm_up` the ingest
+        task first compiles the fusion kernels (`Pipeline.warm_up`, in a thread): REST and presence work at once,
+        packets wait in the inbox meanwhile (a restart answers in seconds; a cold first compile shows in /health)."""
+        self.warming_since_s = time.time() if warm_up else None
         loop = asyncio.get_running_loop()
         self.inbox = Inbox(loop, self.settings.ingest_queue_size)
         for sel in schemas.SEL_DEVICE_DATA:
@@ -149,6 +154,15 @@ class GatewayService:
 
     async def _ingest_loop(self) -> None:
         assert self.inbox is not None
+        if self.warming_since_s is not None:
+            log.info("preparing fusion kernels (the first start after install compiles them: up to a minute)")
+            t0 = time.perf_counter()
+            try:
+                await asyncio.to_thread(self.pipeline.warm_up)
+                log.info("fusion kernels ready in %.1f s", time.perf_counter() - t0)
+            except Exception:  # the first packets will compile what is missing
+                log.exception("fusion kernel warm-up failed")
+            self.warming_since_s = None
         while True:
             items = await self.inbox.drain(self.max_batch)
             try:

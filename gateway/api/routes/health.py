@@ -20,8 +20,13 @@ def health(service: ServiceDep, request: Request) -> dict[str, Any]:
     s = service.settings
     store = service.writer.status()
     reasons = [store["reason"]] if store["reason"] else []
+    status = "degraded" if reasons else "ok"
+    if service.warming_since_s is not None:  # packets are queued, not yet processed
+        reasons.append(f"preparing fusion kernels for {time.time() - service.warming_since_s:.0f} s "
+                       "(the first start after install compiles them)")  # fmt: skip
+        status = "starting"
     return {
-        "status": "degraded" if reasons else "ok",
+        "status": status,
         "reasons": reasons,
         "ready": bool(getattr(request.app.state, "ready", False)),
         "store": {k: v for k, v in store.items() if k != "reason"},
