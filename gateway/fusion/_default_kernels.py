@@ -575,7 +575,8 @@ def _bearing_steady(s: np.ndarray, prm: np.ndarray, c: np.ndarray, bearing: floa
         return True
     # a magnetometer sampled a few ms apart from the gyro sees the bearing shifted by rate × lag in fast rotation
     g2 = s[S_REST_GYR] ** 2 + s[S_REST_GYR + 1] ** 2 + s[S_REST_GYR + 2] ** 2
-    return dev < th + math.sqrt(g2) * prm[P_MAG_BEAR_LAG]
+    allowed: float = th + math.sqrt(g2) * prm[P_MAG_BEAR_LAG]
+    return dev < allowed
 
 
 @njit(cache=True, error_model="numpy")
