@@ -346,8 +346,10 @@ def _step_sample(
     if not math.isfinite(ax + ay + az):
         ax = ay = az = 0.0
     spike = prm[P_ACC_SPIKE_TH]
-    if spike > 0.0 and abs(math.sqrt(ax * ax + ay * ay + az * az) - GRAVITY_M_S2) > spike:
-        ax = ay = az = 0.0  # a shock: its clipped, asymmetric peak would not average out in the low-pass
+    if spike > 0.0:  # | |a| - g | > spike, without a square root
+        a2 = ax * ax + ay * ay + az * az
+        if a2 > (GRAVITY_M_S2 + spike) ** 2 or (spike < GRAVITY_M_S2 and a2 < (GRAVITY_M_S2 - spike) ** 2):
+            ax = ay = az = 0.0  # a shock: the structure rings, and aliased samples of it do not average out
     rest_on = prm[P_REST_BIAS_ON] != 0.0
     # -- rest detection, gyro half: deviation from its own low-pass, and a low-pass that must look like a bias
     if rest_on or prm[P_MAG_REJECT_ON] != 0.0:
@@ -485,6 +487,7 @@ def _mag_step(s: np.ndarray, prm: np.ndarray, c: np.ndarray, mx: float, my: floa
     norm = math.sqrt(hx * hx + hy * hy + hz * hz)
     if not norm > 1e-9:
         return  # no usable field
+    bearing = math.atan2(hx, hy)  # ENU: the horizontal field points North (+y)
     if prm[P_MAG_REJECT_ON] != 0.0:
         dip = -math.asin(max(-1.0, min(1.0, hz / norm)))
         norm = _lowpass(norm, c, C_MAG, s, S_MAG_CUR + 2)
@@ -496,7 +499,7 @@ def _mag_step(s: np.ndarray, prm: np.ndarray, c: np.ndarray, mx: float, my: floa
         ref_n = s[S_MAG_REF_NORM]
         # a homogeneous field keeps its bearing in the gyro-propagated frame E6; a magnet fixed to the body turns
         # it with the body, a magnet in the room changes it along the path, often with little change of norm or dip
-        steady = _bearing_steady(s, prm, c, math.atan2(hx, hy))
+        steady = _bearing_steady(s, prm, c, bearing)
         if abs(norm - ref_n) < th_n * ref_n and abs(dip - s[S_MAG_REF_DIP]) < th_d and steady:
             s[S_MAG_UNDIST_T] += dt_s
             if s[S_MAG_UNDIST_T] >= prm[P_MAG_MIN_UNDIST_T]:
@@ -526,7 +529,7 @@ def _mag_step(s: np.ndarray, prm: np.ndarray, c: np.ndarray, mx: float, my: floa
             s[S_MAG_CAND_T] = 0.0
             s[S_MAG_CAND_NORM] = norm
             s[S_MAG_CAND_DIP] = dip
-    err = _wrap(math.atan2(hx, hy) - s[S_DELTA])  # ENU: the horizontal field points North (+y)
+    err = _wrap(bearing - s[S_DELTA])
     k = c[C_K_MAG]
     if prm[P_MAG_REJECT_ON] != 0.0:
         if s[S_MAG_DIST] != 0.0:
