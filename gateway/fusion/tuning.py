@@ -63,11 +63,13 @@ class TuningSpec:
             seen.setdefault(json.dumps(reduced, sort_keys=True), reduced)
         return tuple(seen.values())
 
+    def settings(self, params: Params) -> Any:
+        """The settings object for a candidate (all other settings at their defaults)."""
+        return _load(self.settings_path)(**params)
+
     def make(self, params: Params, mode: broad.Mode) -> AttitudeFilter:
-        """A fresh filter with these settings (all other settings at their defaults)."""
-        cls = _load(self.filter_path)
-        settings = _load(self.settings_path)(**params)
-        instance: AttitudeFilter = cls(settings, use_mag=mode == "9D")
+        """A fresh filter with these settings."""
+        instance: AttitudeFilter = _load(self.filter_path)(self.settings(params), use_mag=mode == "9D")
         return instance
 
 
@@ -132,7 +134,10 @@ def trial_key(trial: broad.Trial) -> str:
 
 
 class ScoreCache:
-    """Scores keyed by (filter, mode, candidate, trial); `path=None` keeps them in memory only."""
+    """Scores keyed by (filter, mode, full settings, trial data); `path=None` keeps them in memory only.
+
+    The key holds every setting, so changed defaults are new entries; a change of the filter's *code* is not seen:
+    delete the file after one."""
 
     def __init__(self, path: Path | None = None) -> None:
         self.path = path
@@ -141,8 +146,8 @@ class ScoreCache:
             self._data = json.loads(path.read_text())
 
     @staticmethod
-    def key(name: str, mode: str, params: Params, trial: str) -> str:
-        return json.dumps([name, mode, params, trial], sort_keys=True)
+    def key(name: str, mode: str, settings: object, trial: str) -> str:
+        return json.dumps([name, mode, repr(settings), trial])
 
     def get(self, key: str) -> broad.Score | None:
         v = self._data.get(key)
@@ -171,7 +176,7 @@ def score_matrix(
     out = np.empty((len(candidates), len(trials), 3))
     for i, params in enumerate(candidates):
         for j, (trial, tk) in enumerate(zip(trials, keys, strict=True)):
-            key = ScoreCache.key(name, mode, params, tk)
+            key = ScoreCache.key(name, mode, spec.settings(params), tk)
             s = cache.get(key)
             if s is None:
                 if progress is not None:
