@@ -272,6 +272,8 @@ function lowerBound(a, x) { let lo = 0, hi = a.length; while (lo < hi) { const m
 // Devices: fleet rows (one per device, scales to 100) and collapsible plot panels (built when opened)
 // ---------------------------------------------------------------------------------------------------------
 const Devices = new Map();
+/** Device ids in natural order: rod-2 before rod-10. */
+const byId = (a, b) => a.localeCompare(b, "en", { numeric: true });
 const KEY_METRIC = { rod: ["att", "pitch_deg", "pitch", "°"], hook: ["att", "swing_deg", "swing", "°"], ball: ["env", "water_temp_c", "water", "°C"] };
 
 function ensureDevice(c) {
@@ -296,20 +298,20 @@ function buildRow(d) {
     d.cells.status, el("td", {}, el("b", {}, d.id), " ", el("span", { class: "muted" }, d.kind)), d.cells.now,
     el("td", { class: "spark-col" }, d.sparkCanvas), d.cells.alarm, d.cells.age);
   const rows = [...body.children];
-  const after = rows.find((r) => r.dataset.testid > `fleet-${d.id}`);
+  const after = rows.find((r) => r.dataset.testid && byId(r.dataset.testid.slice(6), d.id) > 0);
   body.insertBefore(d.row, after || null);
   $("#fleet-count").textContent = `(${Devices.size})`;
 }
 
 function buildPanel(d) {
-  const open = Devices.size <= 4; // a big fleet starts folded: open what you need
+  const open = Math.max(Devices.size, View.fleetSize || 0) <= 4; // a big fleet starts folded: open what you need
   d.facts = el("div", { class: "facts", "data-testid": `facts-${d.id}` });
   d.body = el("div", {});
   d.panel = el("details", { class: "device-panel", "data-testid": `panel-${d.id}`, "data-id": d.id },
     el("summary", {}, `${d.id} `, el("span", { class: "muted small" }, d.kind)), d.facts, d.body);
   d.panel.addEventListener("toggle", () => { if (d.panel.open) openPanel(d); });
   const panels = [...$("#plots").children];
-  $("#plots").insertBefore(d.panel, panels.find((p) => p.dataset.id > d.id) || null);
+  $("#plots").insertBefore(d.panel, panels.find((p) => byId(p.dataset.id, d.id) > 0) || null);
   if (open) d.panel.open = true;
 }
 
@@ -479,6 +481,7 @@ const Live = { down: true, ready: false };
 function onTick(f) {
   const now = f.wall_s;
   View.clockSkew = Date.now() / 1000 - now;
+  View.fleetSize = f.devices.length;
   for (const c of f.devices) {
     const d = ensureDevice(c);
     const keep = d.panel.open; // closed panels keep no live series: their history comes when opened
