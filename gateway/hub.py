@@ -1,6 +1,6 @@
 """Fan-out of pipeline results: zenoh outputs, the store (alarm history), and in-process listeners (websocket,
-3-D view later). Alarms, reel commands and (opt-in) attitude blocks are published with CongestionControl.BLOCK;
-attitude and swing with DROP (a newer sample follows shortly)."""
+3-D view later). Alarms, reel commands, hook swing (at most 20 Hz per hook) and (opt-in) attitude blocks are published
+with CongestionControl.BLOCK; attitude with DROP (a newer sample follows shortly)."""
 
 from __future__ import annotations
 
@@ -71,8 +71,8 @@ class Hub:
             self._put(schemas.attitude_key(a.kind, a.device_id), "attitude", a)
         for b in out.attitude_blocks:
             self._put(schemas.attitude_block_key(b.kind, b.device_id), "attitude_block", b, block=True)
-        for s in out.swings:
-            self._put(schemas.swing_key(s.device_id), "swing", s)
+        for s in out.swings:  # BLOCK: at <= 20 Hz per hook, a crane app must not lose any (docs/protocol.md)
+            self._put(schemas.swing_key(s.device_id), "swing", s, block=True)
         if out.spots is not None:
             self._put(schemas.SPOTS_KEY, "spots", out.spots)
 
