@@ -63,6 +63,7 @@ class PipelineSettings:
     default_filter: str = DEFAULT_FILTER
     hook_filter: str = HOOK_FILTER  # hooks not configured otherwise use the rope-aware EKF
     attitude_interval_s: float = 0.02  # at most 50 Hz of attitude per device (0: the end of every packet)
+    swing_interval_s: float = 0.05  # hook: at most 20 Hz of Swing per hook (docs/protocol.md "Hook angles")
     attitude_blocks: bool = False  # also every sample's attitude, one AttitudeBlock per IMU packet
     spots_interval_s: float = 1.0
     reel_max_age_s: float = 1.0  # reel tension older than this is not fed to the line guard
@@ -94,6 +95,7 @@ class ImuDevice:
     hook: HookAlarms | None = None
     rest_heading_rad: float | None = None  # hook: heading at the first fused sample (torsion reference)
     rest_heading_set_rad: float | None = None  # hook: configured rest heading (HookThresholds), wins when set
+    last_swing_t_s: float = -math.inf  # hook: device time of the last Swing published
     yaw_last: float = math.nan
     yaw_turns: int = 0
     quat: FloatArray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0, 0.0]))
@@ -421,7 +423,10 @@ class Pipeline:
             except KeyError:
                 log.warning("device %s: filter %r not available, using %r", p.device_id, name, DEFAULT_FILTER)
                 name = DEFAULT_FILTER
-        if filt is not None:
+        hook_start = getattr(filt, "start", None) if p.kind == "hook" else None  # HookFilter: its own warm-up
+        if hook_start is not None:
+            hook_start(gyr, acc, mag, 1.0 / p.rate_hz, seed_bias=self.settings.warmup_bias_seed)
+        elif filt is not None:
             filt.initialise(acc0, mag0)
         else:
             if self._batch is None:
@@ -433,14 +438,8 @@ class Pipeline:
         g_std = gyr.std(axis=0) if gyr.shape[0] > 1 else np.full(3, math.inf)
         quiet = g_std < self.settings.rest_gyr_std_rad_s
         level = abs(float(np.linalg.norm(acc0)) - G_M_S2) < self.settings.rest_acc_tol_m_s2
-        if p.kind == "hook" and hasattr(filt, "assume_moving"):
-            # A hook can hang still yet twist in gusts: x/y quiet is rest for the swing (seed the x/y bias), z too
-            # seeds the z bias. Swinging at start: the filter must not assume plumb.
-            if level and quiet[0] and quiet[1]:
-                if self.settings.warmup_bias_seed:
-                    filt.seed_gyro_bias(gyr.mean(axis=0), axes=(0, 1, 2) if quiet[2] else (0, 1))  # type: ignore[union-attr]
-            else:
-                filt.assume_moving()  # type: ignore[union-attr]
+        if hook_start is not None:
+            pass  # rest, bias seeding and "already swinging" are decided by HookFilter.start
         elif level and quiet.all() and self.settings.warmup_bias_seed:
             self._seed_bias(dev, gyr.mean(axis=0))
         if p.kind == "rod":
@@ -692,11 +691,17 @@ class Pipeline:
             ref = dev.rest_heading_rad if dev.rest_heading_set_rad is None else dev.rest_heading_set_rad
             tors = hook_geo.torsion(q, ref)
             new = dev.hook.update(t_s, swing, tors)
+            rope = getattr(dev.filt, "rope_length_m", None)  # the hook filter's estimate at the batch's end
             for i, seq, t_us in ends:
+                if t_s[i] - dev.last_swing_t_s < self.settings.swing_interval_s - 1e-9:
+                    continue
+                dev.last_swing_t_s = float(t_s[i])
                 dev.swing = schemas.Swing(
                     device_id=dev.device_id, seq=seq, t_us=t_us, wall_t_us=t_us + dev.wall_offset_us,
                     swing_angle_rad=float(swing[i]), swing_direction_rad=float(hook_geo.displacement_bearing(q[i])),
-                    torsion_rad=float(tors[i]),
+                    torsion_rad=float(tors[i]), swing_phi_rad=float(hook_geo.swing_direction_paper(q[i], ref)),
+                    rest_heading_rad=math.remainder(ref, 2.0 * math.pi),
+                    rope_length_m=None if rope is None else float(rope),
                 )  # fmt: skip
                 out.swings.append(dev.swing)
         for cond in new:
@@ -847,7 +852,10 @@ def _make_filter(name: str, use_mag: bool, rope_length_m: float | None = None) -
     if name == HOOK_FILTER:
         from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
 
-        settings = HookFilterSettings() if rope_length_m is None else HookFilterSettings(rope_length_m=rope_length_m)
+        # The hook setting's length (configured, or the 10 m default) is a prior the pendulum frequency corrects: a
+        # wrong one is found within seconds of swinging, while a wide prior would let a trolley jerk read as a rope.
+        settings = HookFilterSettings() if rope_length_m is None else HookFilterSettings(
+            rope_length_m=rope_length_m, rope_length_known=True)
         return HookFilter(settings, use_mag=use_mag)
     if name in registry.FILTERS:
         return registry.make_filter(name, use_mag=use_mag)

@@ -542,7 +542,10 @@ class AttitudeBlock(WireModel):
 
 
 class Swing(WireModel):
-    """Hook swing from the fused attitude (paper 001 eq. 4-7): angle Θ, direction Φ (ENU bearing), torsion φ."""
+    """Hook swing from the fused attitude at the last sample of IMU packet `seq` (paper 001 eq. 4-7); the angles are
+    defined in section 3.5 "Hook angles": swing angle Θ, displacement bearing, the paper's swing-plane direction Φ,
+    torsion φ, all from the gateway's heading frame. At most one per IMU packet, at most `swing_rate_hz` (20 Hz by
+    default) per hook; published with BLOCK (see the key table)."""
 
     v: Version = 1
     device_id: DeviceId
@@ -552,6 +555,9 @@ class Swing(WireModel):
     swing_angle_rad: _Angle
     swing_direction_rad: _Angle
     torsion_rad: Finite
+    swing_phi_rad: _Angle | None = None
+    rest_heading_rad: _Angle | None = None
+    rope_length_m: Annotated[float, Field(gt=0.0, le=1000.0, allow_inf_nan=False)] | None = None
 
 
 class Height(WireModel):
@@ -942,7 +948,8 @@ def examples() -> dict[str, tuple[str, WireModel]]:
     height = Height(device_id="hook-1", kind="hook", seq=7, t_us=80_000, wall_t_us=wall + 86_000, vz_m_s=-0.12,
                     height_m=1.84, at_rest=False, aided="rest")
     swing = Swing(device_id="hook-1", seq=7, t_us=80_000, wall_t_us=wall + 86_000, swing_angle_rad=0.087,
-                  swing_direction_rad=1.2, torsion_rad=0.15)
+                  swing_direction_rad=1.2, torsion_rad=0.15, swing_phi_rad=0.6764, rest_heading_rad=0.5236,
+                  rope_length_m=9.87)  # the worked example of section 3.5
     alarm = AlarmEvent(
         alarm_id="3f2b9c0d5e8a4b7c9d1e2f3a4b5c6d7e", device_id="rod-1", kind="rod", alarm="bite", state="raised",
         severity="major", t_us=10_425_000, wall_t_us=wall + 10_436_000, source_wall_us=wall + 10_425_000, value=-12.0,
@@ -1013,7 +1020,7 @@ FIELD_NOTES: Final[dict[str, str]] = {
     "yaw_unwrapped_rad": "yaw without the ±π jumps",
     "filter_restarts": "fusion restarted from a fresh warm-up, by reason: the filter's exception class (e.g. "
                        "`LinAlgError`) or `non_finite` (it returned NaN/inf)",
-    "swing_direction_rad": "bearing of the swing plane, counter-clockwise from East",
+    "swing_direction_rad": "bearing of the hook's horizontal displacement, counter-clockwise from East",
     "gnss": "GNSS fix at sample 0 (ImuPacket) or at the reading (EnvPacket: where the ball lies); absent without a "
             "receiver",
     "lat_deg": "WGS-84 latitude, degrees north",
@@ -1039,6 +1046,19 @@ MODEL_FIELD_NOTES: Final[dict[tuple[str, str], str]] = {
     ("SpotScore", "lat_deg"): "where the spot's ball last reported its GNSS fix (WGS-84), absent without one",
     ("SpotScore", "lon_deg"): "as `lat_deg`",
     ("Height", "t_us"): "device monotonic clock (µs) of the sample",
+    ("Swing", "swing_angle_rad"): "Θ ∈ [0, π/2): angle between the rope and the vertical (section 3.5)",
+    ("Swing", "swing_direction_rad"): "displacement bearing ∈ (-π, π]: direction of the hook's horizontal "
+                                      "displacement from below the boom tip, CCW from East in the heading frame; "
+                                      "0 when Θ = 0 (section 3.5)",
+    ("Swing", "torsion_rad"): "φ ∈ (-π, π]: twist about the rope from the rest heading, right-handed about the rope "
+                              "(CCW seen from above); 0 = body x at the rest heading (section 3.5)",
+    ("Swing", "swing_phi_rad"): "paper 001 eq. 7 Φ ∈ [-π/2, π/2] relative to the rest heading ψ: sin Φ = sin θy / "
+                                "sin Θ; the bearing is ψ + Φ or ψ + π - Φ (section 3.5); absent from old gateways",
+    ("Swing", "rest_heading_rad"): "ψ: the rest heading torsion and Φ are taken from, CCW from East in the heading "
+                                   "frame (configured `rest_heading_deg`, else the first fused heading)",
+    ("Swing", "rope_length_m"): "the hook filter's estimate of the pendulum length (boom tip to the hook and load's "
+                                "centre), m; absent with other filters",
+    ("HookTruth", "swing_direction_rad"): "bearing of the hook's horizontal displacement, CCW from East (ENU)",
 }
 
 
