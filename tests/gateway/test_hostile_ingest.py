@@ -93,6 +93,22 @@ def test_a_spoofed_boot_id_does_not_silence_the_device(tmp_path: Path) -> None:
         assert store.counts("rod-1")["active"] == 0
 
 
+def test_a_spoofed_seq_jump_in_the_same_boot_does_not_silence_the_device(tmp_path: Path) -> None:
+    """Anyone who can subscribe sees a device's boot_id; 3 packets with it and seq far ahead made every real packet
+    a duplicate ('too old'). Now the real sequence wins back and the spoofer's is the rival."""
+    real = fleet_imu(4.0)
+    boot = json.loads(real[0][1])["boot_id"]
+    spoof = [edit(m, seq=10**6 + i) for i, m in enumerate(real[40:43])]
+    with service(tmp_path) as (svc, bus, _):
+        run(svc, real[:40])
+        before = len(attitudes(bus, "rod-1"))
+        run(svc, spoof + real[40:60] + [edit(real[60], boot_id=boot, seq=10**6 + 9)] + real[61:])
+        assert len(attitudes(bus, "rod-1")) - before >= 35
+        stats = svc.counters.snapshot(0)
+        assert stats.rejected["device_conflict"] >= 2 and stats.devices[0].lost < 10  # not the 10**6 jump
+        assert [a["state"] for a in alarms(bus, "rod-1", "device_conflict")] == ["raised"]
+
+
 def test_a_real_reboot_is_not_a_conflict(tmp_path: Path) -> None:
     msgs = fleet_imu(2.0)
     rebooted = [edit(m, boot_id=777, seq=i) for i, m in enumerate(msgs[20:])]
