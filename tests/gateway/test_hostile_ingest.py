@@ -174,3 +174,22 @@ def test_a_device_clock_that_really_jumped_resyncs(tmp_path: Path) -> None:
     assert stats.rejected["time_jump"] == 2 and stats.rejected["time_resync"] == 1
     late = [a for a in attitudes(bus, "rod-1") if int(a["t_us"]) > 7200 * 10**6]  # type: ignore[call-overload]
     assert len(late) >= 30
+
+
+def test_a_resumed_alarm_without_its_cause_clears(tmp_path: Path) -> None:
+    """An alarm left active in the store (its clear lost with a full disk or a kill) used to stay active for good:
+    the rules restart from scratch and never clear what they did not raise. Now it clears after 10 s of the
+    device's data without its condition."""
+    from gateway.alarm.engine import Alarm, AlarmStatus, Severity
+
+    stale = Alarm(id="stale1", device_id="rod-1", type="bite", severity=Severity.MAJOR, status=AlarmStatus.ACTIVE,
+                  started_at=1.0, updated_at=1.0, value=20.0, threshold=15.0, message="bite")  # fmt: skip
+    with Store(tmp_path / "gw.db") as store:
+        store.upsert_alarm(stale)
+    with service(tmp_path) as (svc, bus, store):
+        assert [a.id for a in svc.pipeline.engine.active("rod-1")] == ["stale1"]
+        run(svc, fleet_imu(30.0))  # a quiet rod, 15 s of gateway time at this pace
+        events = alarms(bus, "rod-1", "bite")
+        assert [(e["alarm_id"], e["state"]) for e in events] == [("stale1", "cleared")]
+        assert svc.writer.flush()
+        assert store.counts("rod-1")["active"] == 0
