@@ -32,7 +32,7 @@ from gateway import schemas
 from gateway.alarm.bite import tip_acc_up
 from gateway.alarm.engine import Alarm, AlarmChange, AlarmEngine, Condition
 from gateway.alarm.hook import HookAlarms
-from gateway.alarm.rules import RodAlarms
+from gateway.alarm.rules import SPECS, RodAlarms
 from gateway.calibrate import DeviceCalibration
 from gateway.config import (
     DeviceSettings,
@@ -221,10 +221,12 @@ class Pipeline:
         self.engine = AlarmEngine(active)
         # Alarms resumed from the store: the rules restart from scratch, so one whose clear was lost (a full disk, a
         # kill) would stay active for good. Each is confirmed by any condition of its type, else cleared once its
-        # device's fresh rules have run for `resume_confirm_s` (device_conflict clears itself in the service).
+        # device's fresh rules have run for `resume_confirm_s`. Only the rules' own types (rod, hook): ingest and
+        # presence alarms (device_conflict, ...) clear themselves.
         self._resumed: dict[tuple[str, str], float | None] = {
-            (a.device_id, a.type): None for a in active if a.active and a.type != "device_conflict"
-        }
+            (a.device_id, a.type): None for a in active
+            if a.active and (spec := SPECS.get(a.type)) is not None and spec.kind in ("rod", "hook")
+        }  # fmt: skip
         self.devices: dict[str, ImuDevice] = {}
         self.kinds: dict[str, str] = {}  # every device ever seen or configured -> wire kind
         self.kinds.update({d: k for d, (k, _) in self.device_settings.items()})
