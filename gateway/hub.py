@@ -18,7 +18,7 @@ from gateway.store import StoreWriter
 log = logging.getLogger("gateway.hub")
 
 Listener = Callable[[str, schemas.WireModel], None]
-"""(topic, model): topic is `attitude`, `attitude_block`, `swing`, `alarm`, `spots` or `reel_cmd`."""
+"""(topic, model): topic is `attitude`, `attitude_block`, `swing`, `height`, `alarm`, `spots` or `reel_cmd`."""
 
 
 def alarm_event(out: AlarmOut, now_us: int) -> schemas.AlarmEvent:
@@ -57,7 +57,7 @@ class Hub:
 
     def emit(self, out: Output) -> None:
         """Alarms first (they matter most and are rare), then reel commands, attitude, attitude blocks (BLOCK: a
-        scoring run or a full-rate recording must not lose samples), swing, spots."""
+        scoring run or a full-rate recording must not lose samples), swing, height, spots."""
         now_us = int(self.clock() * 1e6)
         for al in out.alarms:
             # Publish first, then hand the row to the writer thread: a failing disk must cost no alarm (it retries
@@ -77,6 +77,8 @@ class Hub:
             self._put(schemas.attitude_block_key(b.kind, b.device_id), "attitude_block", b, block=True)
         for s in out.swings:
             self._put(schemas.swing_key(s.device_id), "swing", s)
+        for h in out.heights:
+            self._put(schemas.height_key(h.kind, h.device_id), "height", h)
         if out.spots is not None:
             self._put(schemas.SPOTS_KEY, "spots", out.spots)
 

@@ -19,6 +19,7 @@ Key layout (`{kind}` in `rod`, `hook`, `ball`; `{device_id}` matches `DEVICE_ID_
     gw/{rod|hook}/{id}/attitude    Attitude          gateway -> apps
     gw/{rod|hook}/{id}/attitude/block  AttitudeBlock  gateway -> apps (opt-in `--attitude-blocks`, BLOCK)
     gw/hook/{id}/swing             Swing             gateway -> apps
+    gw/{rod|hook}/{id}/height      Height            gateway -> apps (vertical velocity and heave, seed 002)
     gw/{kind}/{id}/alarm           AlarmEvent        gateway -> apps (BLOCK)
     gw/spots                       SpotRanking       gateway -> apps
     gw/diag/ingest                 IngestStats       gateway -> apps
@@ -145,6 +146,11 @@ def attitude_block_key(kind: str, device_id: str) -> str:
     return f"gw/{kind}/{_check_id(device_id)}/attitude/block"
 
 
+def height_key(kind: str, device_id: str) -> str:
+    """Gateway height / heave of an IMU device (seed 002 eq. 8)."""
+    return f"gw/{kind}/{_check_id(device_id)}/height"
+
+
 def swing_key(device_id: str) -> str:
     """`gw/hook/{device_id}/swing`."""
     return f"gw/hook/{_check_id(device_id)}/swing"
@@ -266,6 +272,16 @@ def _check_unit_quats(quats: list[tuple[float, float, float, float]]) -> None:
 # ---------------------------------------------------------------------------------------------------------------
 
 
+class GnssFix(WireModel):
+    """A position fix from the device's GNSS receiver (seed 004's BeiDou module), for devices that carry one."""
+
+    lat_deg: Annotated[float, Field(ge=-90.0, le=90.0, allow_inf_nan=False)]
+    lon_deg: Annotated[float, Field(ge=-180.0, le=180.0, allow_inf_nan=False)]
+    alt_m: Annotated[float, Field(ge=-1000.0, le=20_000.0, allow_inf_nan=False)] | None = None
+    speed_m_s: Annotated[float, Field(ge=0.0, le=500.0, allow_inf_nan=False)] | None = None
+    fix_quality: Annotated[int, Field(ge=0, le=8)] = 1
+
+
 class ImuPacket(WireModel):
     """A batch of n IMU samples at `rate_hz`; sample i was taken at `t0_us + i * 1e6 / rate_hz` (device clock)."""
 
@@ -283,6 +299,8 @@ class ImuPacket(WireModel):
     battery_v: BatteryV | None = None
     rssi_dbm: RssiDbm | None = None
     wall_t0_us: TimeUs | None = None
+    gnss: GnssFix | None = None
+    depth_m: Annotated[float, Field(ge=0.0, le=1000.0, allow_inf_nan=False)] | None = None
 
     @model_validator(mode="after")
     def _equal_lengths(self) -> ImuPacket:
@@ -334,6 +352,7 @@ class EnvPacket(WireModel):
     profile: list[ProfilePoint] | None = Field(default=None, min_length=1, max_length=200)
     battery_v: BatteryV | None = None
     rssi_dbm: RssiDbm | None = None
+    gnss: GnssFix | None = None
 
 
 ReelAction: TypeAlias = Literal["in", "out", "stop", "speed"]
@@ -535,6 +554,24 @@ class Swing(WireModel):
     torsion_rad: Finite
 
 
+class Height(WireModel):
+    """Vertical velocity and height of an IMU device from its fused attitude (seed 002 eq. 6-8): gravity removed from
+    the specific force rotated to ENU, integrated twice; drift held by rest detection (velocity to zero, height
+    held) and by the device's depth sensor where it has one; free-running without either for 10 s it becomes heave
+    about the last rest height (`aided` says which held it)."""
+
+    v: Version = 1
+    device_id: DeviceId
+    kind: ImuKind
+    seq: Uint32
+    t_us: TimeUs
+    wall_t_us: TimeUs | None = None
+    vz_m_s: Finite
+    height_m: Finite
+    at_rest: bool
+    aided: Literal["rest", "depth", "highpass", "none"]
+
+
 AlarmState: TypeAlias = Literal["raised", "cleared"]
 Severity: TypeAlias = Literal["critical", "major", "minor", "warning", "indeterminate"]
 SEVERITIES: Final[tuple[str, ...]] = ("critical", "major", "minor", "warning", "indeterminate")  # most severe first
@@ -574,6 +611,8 @@ class SpotScore(WireModel):
     device_id: DeviceId | None = None
     last_seen_wall_us: TimeUs | None = None
     reasons: list[Annotated[str, Field(max_length=200)]] = Field(default_factory=list, max_length=20)
+    lat_deg: Annotated[float, Field(ge=-90.0, le=90.0, allow_inf_nan=False)] | None = None
+    lon_deg: Annotated[float, Field(ge=-180.0, le=180.0, allow_inf_nan=False)] | None = None
 
 
 class SpotRanking(WireModel):
@@ -882,6 +921,7 @@ def examples() -> dict[str, tuple[str, WireModel]]:
         acc_m_s2=[(5.312, 0.021, 8.247), (5.309, 0.018, 8.251)],
         mag_uT=[(-14.3, 18.1, -39.2), (-14.2, 18.0, -39.3)],
         temp_c=24.5, battery_v=4.08, rssi_dbm=-61.0, wall_t0_us=wall + 10_420_000,
+        gnss=GnssFix(lat_deg=30.2741, lon_deg=120.1551, alt_m=7.5, speed_m_s=0.0, fix_quality=1),
     )
     hook_imu = ImuPacket(
         v=1, device_id="hook-1", kind="hook", boot_id=99, seq=7, t0_us=70_000, rate_hz=100.0,
@@ -893,7 +933,7 @@ def examples() -> dict[str, tuple[str, WireModel]]:
         probe_depth_m=6.0, bottom_depth_m=12.0,
         profile=[ProfilePoint(depth_m=0.0, water_temp_c=19.9, oxygen_mg_l=8.9),
                  ProfilePoint(depth_m=6.0, water_temp_c=10.1, oxygen_mg_l=1.2)],
-        battery_v=3.9, rssi_dbm=-70.0,
+        battery_v=3.9, rssi_dbm=-70.0, gnss=GnssFix(lat_deg=30.2746, lon_deg=120.1559, fix_quality=1),
     )
     reel = ReelStatus(
         v=1, device_id="rod-1", boot_id=2_882_400_001, seq=208, t_us=10_420_000, wall_t_us=wall + 10_420_000,
@@ -929,6 +969,8 @@ def examples() -> dict[str, tuple[str, WireModel]]:
         device_id="rod-1", kind="rod", boot_id=2_882_400_001, seq=1042, t0_us=10_420_000, rate_hz=100.0,
         wall_t0_us=wall + 10_420_000, quat_wxyz=[quat, quat], filter="default",
     )
+    height = Height(device_id="hook-1", kind="hook", seq=7, t_us=80_000, wall_t_us=wall + 86_000, vz_m_s=-0.12,
+                    height_m=1.84, at_rest=False, aided="rest")
     swing = Swing(device_id="hook-1", seq=7, t_us=80_000, wall_t_us=wall + 86_000, swing_angle_rad=0.087,
                   swing_direction_rad=1.2, torsion_rad=0.15)
     alarm = AlarmEvent(
@@ -938,7 +980,7 @@ def examples() -> dict[str, tuple[str, WireModel]]:
     )
     spots = SpotRanking(wall_t_us=wall + 12_100_000, spots=[
         SpotScore(spot="inlet", rank=1, score=0.82, device_id="ball-2", last_seen_wall_us=wall + 12_000_000,
-                  reasons=["oxygen 9.1 mg/L", "water 16 °C"]),
+                  reasons=["oxygen 9.1 mg/L", "water 16 °C"], lat_deg=30.2751, lon_deg=120.1548),
         SpotScore(spot="deep_hole", rank=2, score=0.41, device_id="ball-1", last_seen_wall_us=wall + 12_000_000,
                   reasons=["low oxygen at probe depth"]),
     ])
@@ -963,6 +1005,7 @@ def examples() -> dict[str, tuple[str, WireModel]]:
         "ball_cmd": (ball_cmd_key("ball-1"), ball_cmd),
         "attitude": (attitude_key("rod", "rod-1"), att),
         "attitude_block": (attitude_block_key("rod", "rod-1"), att_block),
+        "height": (height_key("hook", "hook-1"), height),
         "swing": (swing_key("hook-1"), swing),
         "alarm": (alarm_key("rod", "rod-1"), alarm),
         "spots": (SPOTS_KEY, spots),
@@ -1001,6 +1044,18 @@ FIELD_NOTES: Final[dict[str, str]] = {
     "filter_restarts": "fusion restarted from a fresh warm-up, by reason: the filter's exception class (e.g. "
                        "`LinAlgError`) or `non_finite` (it returned NaN/inf)",
     "swing_direction_rad": "bearing of the swing plane, counter-clockwise from East",
+    "gnss": "GNSS fix at sample 0 (ImuPacket) or at the reading (EnvPacket: where the ball lies); absent without a "
+            "receiver",
+    "lat_deg": "WGS-84 latitude, degrees north",
+    "lon_deg": "WGS-84 longitude, degrees east",
+    "alt_m": "altitude above mean sea level, m",
+    "fix_quality": "NMEA GGA fix quality: 0 invalid, 1 GNSS, 2 differential, 4 RTK fixed, 5 RTK float, 6 estimated",
+    "depth_m": "pressure depth below the water surface at sample 0, m; absent without a depth sensor",
+    "vz_m_s": "vertical velocity, ENU up, m/s",
+    "height_m": "height above the device's first rest position (ENU up), m; minus the depth when depth-aided",
+    "at_rest": "the rest detector holds the device still (velocity zeroed)",
+    "aided": "what held the drift on this sample: rest detection, the depth sensor, the high-pass of a device free-"
+             "running for 10 s (heave about the last rest height), or nothing yet (free integration)",
 }
 
 # Notes that differ from FIELD_NOTES for one model: (model name, field) -> note.
@@ -1010,6 +1065,10 @@ MODEL_FIELD_NOTES: Final[dict[tuple[str, str], str]] = {
     ("AttitudeBlock", "quat_wxyz"): "n unit quaternions body -> ENU, scalar first, one per sample of the packet",
     ("AlarmEvent", "t_us"): "device monotonic clock (µs) of the sample that raised, updated or cleared the alarm",
     ("AlarmEvent", "wall_t_us"): "gateway realtime clock (unix µs) when the event was published",
+    ("GnssFix", "speed_m_s"): "ground speed, m/s",
+    ("SpotScore", "lat_deg"): "where the spot's ball last reported its GNSS fix (WGS-84), absent without one",
+    ("SpotScore", "lon_deg"): "as `lat_deg`",
+    ("Height", "t_us"): "device monotonic clock (µs) of the sample",
 }
 
 
@@ -1057,9 +1116,9 @@ def fields_markdown(model: type[WireModel]) -> str:
 _FIELDS_BEGIN = "<!-- fields:begin (generated) -->"
 _FIELDS_END = "<!-- fields:end -->"
 DOC_MODELS: Final[tuple[type[WireModel], ...]] = (
-    ImuPacket, EnvPacket, ProfilePoint, ReelStatus, RodTruth, HookTruth, BallTruth, TruthEvent, ReelCommand,
-    BallCommand, Attitude, AttitudeBlock, Swing, AlarmEvent, SpotRanking, SpotScore, IngestStats, DeviceIngestCounters,
-    RejectedPacket, DeviceConfig,
+    ImuPacket, GnssFix, EnvPacket, ProfilePoint, ReelStatus, RodTruth, HookTruth, BallTruth, TruthEvent, ReelCommand,
+    BallCommand, Attitude, AttitudeBlock, Height, Swing, AlarmEvent, SpotRanking, SpotScore, IngestStats,
+    DeviceIngestCounters, RejectedPacket, DeviceConfig,
 )
 
 

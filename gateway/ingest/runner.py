@@ -19,7 +19,7 @@ import time
 from typing import Any
 
 from gateway import schemas
-from gateway.alarm.engine import Condition, Severity
+from gateway.alarm.engine import Condition, Severity, presence_condition
 from gateway.config import Settings
 from gateway.hub import Hub
 from gateway.ingest.bus import Bus, key_matches
@@ -44,12 +44,14 @@ class Inbox:
         self.loop = loop
         self.maxsize = maxsize
         self.drops = 0
+        self.offered = 0
         self._items: collections.deque[Received] = collections.deque()
         self._ready = asyncio.Event()
         self._wake_pending = False
 
     def offer(self, key: str, payload: bytes) -> None:
         """Called on a bus thread: enqueue or count a drop; never blocks."""
+        self.offered += 1
         if len(self._items) >= self.maxsize:
             self.drops += 1
             return
@@ -326,6 +328,15 @@ class GatewayService:
         self.writer.log_event(change.since_s, "online" if alive else "offline", change.device_id, {"kind": change.kind})
         if not alive:
             self._emit_reel(self.pipeline.reel_offline(change.device_id, change.since_s))
+        # device-offline alarm: raised when the token goes, cleared when it is back (one row per outage)
+        cond = presence_condition(change.device_id, alive, change.since_s)
+        t_us = int(change.since_s * 1e6)
+        alarms = [AlarmOut(change.kind, c, t_us, None) for c in self.pipeline.engine.evaluate([cond])]
+        if alarms:
+            try:
+                self.hub.emit(Output(alarms=alarms))
+            except Exception:
+                log.exception("offline alarm publish failed")
 
     def device_config(self, kind: str, device_id: str) -> schemas.DeviceConfig:
         """Current thresholds of a device (the kind defaults when it has no override)."""

@@ -37,6 +37,8 @@ def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dic
         }  # fmt: skip
         if dev.swing is not None:
             out["swing"] = dev.swing.model_dump()
+        if dev.height is not None:
+            out["height"] = dev.height.model_dump()
         if kind == "rod":
             out["auto_reel"] = pl.auto_reel.get(device_id, False)
     if device_id in pl.env:

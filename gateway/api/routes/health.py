@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 
 from gateway.api.deps import ServiceDep
 
@@ -13,9 +13,10 @@ router = APIRouter(tags=["health"])
 
 
 @router.get("/health")
-def health(service: ServiceDep) -> dict[str, Any]:
+def health(service: ServiceDep, request: Request) -> dict[str, Any]:
     """Liveness: `ok`, or `degraded` with `reasons` (e.g. store writes failing: alarms are still published and their
-    rows wait in the writer's journal); uptime, devices online, zenoh mode and endpoints, the store writer's state."""
+    rows wait in the writer's journal); `ready` is false while the gateway warms up (fusion kernels loading, ingest
+    not started yet); uptime, devices online, zenoh mode and endpoints, the store writer's state."""
     s = service.settings
     store = service.writer.status()
     reasons = [store["reason"]] if store["reason"] else []
@@ -27,6 +28,7 @@ def health(service: ServiceDep) -> dict[str, Any]:
     return {
         "status": status,
         "reasons": reasons,
+        "ready": bool(getattr(request.app.state, "ready", False)),
         "store": {k: v for k, v in store.items() if k != "reason"},
         "uptime_s": round(time.time() - service.started_s, 3),
         "devices_online": sum(p.online for p in service.presence.devices.values()),
@@ -41,6 +43,7 @@ def stats(service: ServiceDep) -> dict[str, Any]:
     if service.inbox is not None:
         snap["queue_drops"] = service.inbox.drops
         snap["queue_depth"] = len(service.inbox)
+        snap["offered"] = service.inbox.offered
     snap["batches"] = service.batches
     delays = sorted(service.batch_delay_s)
     if delays:  # arrival of a batch's oldest packet -> its results handed to zenoh, last 2000 batches
