@@ -32,7 +32,7 @@ from gateway import schemas
 from gateway.alarm.bite import tip_acc_up
 from gateway.alarm.engine import Alarm, AlarmChange, AlarmEngine, Condition
 from gateway.alarm.hook import HookAlarms
-from gateway.alarm.rules import RodAlarms
+from gateway.alarm.rules import SPECS, RodAlarms
 from gateway.calibrate import DeviceCalibration
 from gateway.config import (
     DeviceSettings,
@@ -78,6 +78,9 @@ class PipelineSettings:
     # Auto reel watchdog: every rod in auto mode has its controller stepped at least this often (gateway clock), so
     # the controller's data timeout stops the reel when the rod's packets stop (`Pipeline.tick_reel`).
     reel_watchdog_s: float = 0.1
+    # An alarm resumed from the store after a restart is cleared when its device's fresh rules have run this long
+    # (gateway wall time) without a condition of its type (its clear may have been lost with the old process).
+    resume_confirm_s: float = 10.0
     height_interval_s: float = 0.1  # at most 10 Hz of Height (heave) per IMU device; <= 0: none computed
 
 
@@ -226,7 +229,16 @@ class Pipeline:
         self.defaults: dict[str, ThresholdModel] = {k: default_thresholds(k) for k in ("rod", "hook", "ball")}
         self.defaults.update(defaults or {})
         self.device_settings: dict[str, tuple[str, DeviceSettings]] = dict(device_settings or {})
-        self.engine = AlarmEngine(active_alarms)
+        active = list(active_alarms)
+        self.engine = AlarmEngine(active)
+        # Alarms resumed from the store: the rules restart from scratch, so one whose clear was lost (a full disk, a
+        # kill) would stay active for good. Each is confirmed by any condition of its type, else cleared once its
+        # device's fresh rules have run for `resume_confirm_s`. Only the rules' own types (rod, hook): ingest and
+        # presence alarms (device_conflict, ...) clear themselves.
+        self._resumed: dict[tuple[str, str], float | None] = {
+            (a.device_id, a.type): None for a in active
+            if a.active and (spec := SPECS.get(a.type)) is not None and spec.kind in ("rod", "hook")
+        }  # fmt: skip
         self.devices: dict[str, ImuDevice] = {}
         self.kinds: dict[str, str] = {}  # every device ever seen or configured -> wire kind
         self.kinds.update({d: k for d, (k, _) in self.device_settings.items()})
@@ -400,12 +412,30 @@ class Pipeline:
         conditions: list[_Timed] = []
         if imu:
             self._fuse(imu, now, out, conditions)
+        if self._resumed:
+            self._settle_resumed(conditions, now)
         for kind, t_us, src_us, c in conditions:
             out.alarms += [AlarmOut(kind, change, t_us, src_us) for change in self.engine.evaluate([c])]
         if self._spots_dirty and now - self._last_spots_s >= self.settings.spots_interval_s:
             out.spots = self.rank_spots(now)
             self._last_spots_s, self._spots_dirty = now, False
         return out
+
+    def _settle_resumed(self, conditions: list[_Timed], now: float) -> None:
+        """Confirm resumed alarms by their rules' conditions; clear the ones unconfirmed after `resume_confirm_s`
+        of their device's fused data (wall time)."""
+        for _, _, _, c in conditions:
+            self._resumed.pop((c.device_id, c.type), None)
+        for (device_id, alarm_type), since in list(self._resumed.items()):
+            dev = self.devices.get(device_id)
+            if dev is None:  # not fused yet (or restarting): its rules have not looked
+                continue
+            if since is None:
+                self._resumed[(device_id, alarm_type)] = now
+            elif now - since >= self.settings.resume_confirm_s:
+                del self._resumed[(device_id, alarm_type)]
+                msg = f"cleared: not confirmed within {self.settings.resume_confirm_s:g} s of data after a restart"
+                conditions.append((dev.kind, dev.t_us, None, Condition(device_id, alarm_type, None, now, message=msg)))
 
     def _device(self, p: schemas.ImuPacket, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None) -> ImuDevice:
         """Create a device after its warm-up window: the filter starts from the window's mean acc (+ mag), and

@@ -800,7 +800,9 @@ class SequenceTracker:
     (`CONFLICT_EVIDENCE` of them) another publisher is using the key (a spoofer, or two devices with one id). The
     tracker then goes back to the boot it followed first (`conflict`: this packet is accepted) and from then on
     classifies the newcomer's boot as `rival` (dropped, counted in `conflicts`): a forged boot_id can no longer
-    make the real stream look stale. Which of the two is genuine cannot be known without authentication (zenoh
+    make the real stream look stale. The same holds within one boot: after a jump ahead by `window` or more, when
+    the sequence left behind goes on (`CONFLICT_EVIDENCE` packets), the tracker follows it again and packets near
+    the jumped-to sequence are `rival`. Which of the two is genuine cannot be known without authentication (zenoh
     access control, docs/security.md); the gateway raises a `device_conflict` alarm.
     Counters accumulate in `ok`, `lost`, `duplicates`, `reordered`, `reboots`, `conflicts`.
     """
@@ -811,6 +813,10 @@ class SequenceTracker:
     previous_newest: int = 0
     previous_fresh: int = 0
     rival_boot_id: int | None = None
+    jumped_from: int | None = None  # newest seq before the last jump ahead by >= window (same boot)
+    jump_lost: int = 0
+    jump_fresh: int = 0
+    rival_seq: tuple[int, int] | None = None  # (boot, newest seq) of a second publisher using the same boot_id
     newest: int = 0
     _seen: set[int] = field(default_factory=set)
     ok: int = 0
@@ -834,7 +840,15 @@ class SequenceTracker:
                     return self._resume_previous(seq)
             self.duplicates += 1  # a straggler from before the reboot: stale, not a second reboot
             return SeqResult("duplicate")
+        if self.rival_seq is not None and boot_id == self.rival_seq[0]:
+            d = (seq - self.rival_seq[1]) % UINT32
+            if d < self.window or UINT32 - d < self.window:  # near the rival's sequence, not ours
+                if 0 < d < self.window:
+                    self.rival_seq = (boot_id, seq)
+                self.conflicts += 1
+                return SeqResult("rival")
         if self.boot_id is None or boot_id != self.boot_id:
+            self.jumped_from = None
             self.previous_boot_id, self.previous_newest, self.previous_fresh = self.boot_id, self.newest, 0
             status: SeqStatus = "first" if self.boot_id is None else "reboot"
             if status == "reboot":
@@ -847,6 +861,8 @@ class SequenceTracker:
             self.duplicates += 1
             return SeqResult("duplicate")
         if ahead < UINT32 // 2:
+            if ahead >= self.window:  # a big jump: remember where from, in case that sequence goes on
+                self.jumped_from, self.jump_lost, self.jump_fresh = self.newest, ahead - 1, 0
             self.newest = seq
             self._remember(seq)
             self.ok += 1
@@ -861,8 +877,22 @@ class SequenceTracker:
             self.lost = max(0, self.lost - 1)
             self.ok += 1
             return SeqResult("reordered")
+        if self.jumped_from is not None and 0 < (seq - self.jumped_from) % UINT32 < self.window:
+            self.jumped_from = seq  # the sequence left behind by the jump goes on: a second publisher?
+            self.jump_fresh += 1
+            if self.jump_fresh >= CONFLICT_EVIDENCE:
+                return self._resume_sequence(boot_id, seq)
         self.duplicates += 1
         return SeqResult("duplicate")
+
+    def _resume_sequence(self, boot_id: int, seq: int) -> SeqResult:
+        """Two publishers with one boot_id (one jumped the seq ahead): follow the sequence seen first again."""
+        self.rival_seq = (boot_id, self.newest)
+        self.lost = max(0, self.lost - self.jump_lost)  # the jump's gap was not loss
+        self.newest, self._seen, self.jumped_from = seq, {seq}, None
+        self.conflicts += 1
+        self.ok += 1
+        return SeqResult("conflict")
 
     def _resume_previous(self, seq: int) -> SeqResult:
         """Two publishers: follow the boot seen first again; the newcomer's boot becomes the rival."""
