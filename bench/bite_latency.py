@@ -1,21 +1,23 @@
-"""Bite-alarm latency end to end over zenoh: simulated rod process -> gateway process -> alarm on `gw/rod/*/alarm`.
+"""Bite-alarm figures end to end over zenoh: simulated rod process -> gateway process -> alarm on `gw/rod/*/alarm`.
 
-The rod (devices.sim_rod) runs a script of bites with distractors (rod handling: roll/yaw; wind; waves) between
-them and publishes ground truth. An observer session here records truth and alarms with its own wall clock;
-all three processes share the machine's clock. Printed per bite:
+Default (issue 10): the rod scenario suite through zenoh. One `devices.sim_rod --scenario SEED --count N` process
+plays N recordings of `devices.rod_scenarios` at once in real time (5 samples per packet); an observer session
+records the alarms and the truth packets. Printed: the same table as `python -m bench.bite_suite` (scored in
+device time: the alarm's sample against the true theta1 crossing), a check that the alarms equal those of the
+offline pipeline on the same recordings, and the wall-clock latency from the true crossing to the alarm's
+arrival at the observer (adds packetising, transport and the gateway's batching).
 
-- from fish pull onset: truth `bite/start` event (device wall clock) -> alarm received here;
-- from true θ1 crossing: first truth sample whose pitch is θ1 below the true rest pitch -> alarm received here.
+    python -m bench.bite_latency                          # seeds 1000-1023: 24 rods x 5 min = 2 rod-hours
+    python -m bench.bite_latency --rods 4 --minutes 2     # quicker
 
-p50 / p99 / max over all bites, plus misses (a bite without a bite alarm) and false alarms (any alarm outside
-a bite window). Target: p99 <= 100 ms from the θ1 crossing.
-
-    python -m bench.bite_latency --bites 12
+`--scripted`: the older run of one physics rod (devices.rod_physics) with a script of bites and distractors
+(handling, wind, waves), scored on its truth windows.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -126,11 +128,11 @@ class Recorder:
 
 
 def run_rod(zenoh_port: int, script: Sequence[dict[str, Any]], duration_s: float, seed: int,
-            extra: Sequence[str] = ()) -> subprocess.CompletedProcess[bytes]:  # fmt: skip
-    """Run one simulated rod process to completion."""
+            extra: Sequence[str] = (), start_s: float = 60.0) -> subprocess.CompletedProcess[bytes]:  # fmt: skip
+    """Run one simulated rod process to completion (`start_s`: allowance for its start-up)."""
     cmd = [sys.executable, "-m", "devices.sim_rod", "--connect", f"tcp/127.0.0.1:{zenoh_port}", "--seed", str(seed),
            "--duration", str(duration_s), "--no-progress", "--script", json.dumps(list(script)), *extra]  # fmt: skip
-    return subprocess.run(cmd, cwd=REPO, capture_output=True, timeout=duration_s + 60)
+    return subprocess.run(cmd, cwd=REPO, capture_output=True, timeout=duration_s + start_s)
 
 
 def bite_script(
@@ -198,7 +200,8 @@ def analyse(rec: Recorder, theta1_rad: float, grace_s: float = 1.0) -> BiteRepor
     truths = [p for _, p in rec.decoded("/truth") if isinstance(p, schemas.RodTruth)]
     windows = truth_windows(truths, theta1_rad)
     bites = [w for w in windows if w.label == "bite"]
-    alarms = [(t, a) for t, a in rec.decoded("/alarm") if a["state"] == "raised"]
+    # presence alarms are not judged here: the rod process ending raises device_offline by design
+    alarms = [(t, a) for t, a in rec.decoded("/alarm") if a["state"] == "raised" and a["alarm"] != "device_offline"]
     onset, cross, missed, used = [], [], 0, set()
     pipe: list[float] = []
     cues: list[str] = []
@@ -214,7 +217,7 @@ def analyse(rec: Recorder, theta1_rad: float, grace_s: float = 1.0) -> BiteRepor
         a = alarms[i][1]
         if a.get("source_wall_us") is not None:
             pipe.append(1e3 * t - a["source_wall_us"] * 1e-3)
-        cues.append("accel" if "by accel" in a["message"] else "pitch")
+        cues.append("accel" if "accel cue" in a["message"] else "pitch")
         if w.cross_wall_s is not None:
             cross.append(1e3 * (t - w.cross_wall_s))
     false = []
@@ -226,7 +229,8 @@ def analyse(rec: Recorder, theta1_rad: float, grace_s: float = 1.0) -> BiteRepor
 
 
 def run_session(script: list[dict[str, Any]], duration_s: float, seed: int, work: Path,
-                rod_args: Sequence[str] = ()) -> tuple[Recorder, subprocess.CompletedProcess[bytes]]:  # fmt: skip
+                rod_args: Sequence[str] = (), start_s: float = 60.0
+                ) -> tuple[Recorder, subprocess.CompletedProcess[bytes]]:  # fmt: skip
     """Gateway + rod processes with an observer; returns what the observer recorded."""
     zport, hport = free_port(), free_port()
     gw = start_gateway(work / "data", zport, hport, work / "gateway.log")
@@ -236,7 +240,7 @@ def run_session(script: list[dict[str, Any]], duration_s: float, seed: int, work
         with zenoh.open(observer_config(zport)) as session:
             subs = [session.declare_subscriber(sel, rec) for sel in ("gw/rod/*/alarm", "rig/rod/*/truth")]
             time.sleep(0.5)
-            rod = run_rod(zport, script, duration_s, seed, rod_args)
+            rod = run_rod(zport, script, duration_s, seed, rod_args, start_s)
             time.sleep(1.0)
             rec.gateway_stats = _stats(hport)
             for s in subs:
@@ -250,15 +254,110 @@ def pct(xs: list[float], q: float) -> float:
     return float(np.percentile(xs, q)) if xs else math.nan
 
 
+@dataclass
+class SuiteReport:
+    """The suite through zenoh: device-time score, offline agreement, wall latency from the true crossing."""
+
+    score: Any  # bench.bite_suite.Score
+    same_as_offline: int  # rods whose raised alarms equal the offline pipeline's
+    rods: int
+    wall_ms: list[float]
+    differences: list[str]
+
+
+def analyse_suite(rec: Recorder, first_seed: int, n_rods: int, samples_per_packet: int, offline: bool,
+                  played_s: float) -> SuiteReport:  # fmt: skip
+    """Score each rod's raised alarms against its recording (device time); compare with the offline pipeline.
+    Only the first `played_s` of each recording count (events that end 3 s before, alarms before)."""
+    from bench.bite_suite import Score, run_gateway, score
+    from devices.rod_scenarios import make_scenario
+
+    truths = [p for _, p in rec.decoded("/truth") if isinstance(p, schemas.RodTruth)]
+    alarms = [(t, a) for t, a in rec.decoded("/alarm") if a["state"] == "raised"]
+    total, same, wall, diffs = Score(), 0, [], []
+    for i in range(n_rods):
+        dev, sc = f"rod-{i + 1}", make_scenario(first_seed + i)
+        cut_s = min([played_s - 0.5] + [e.t_start_s for e in sc.events if e.t_end_s + 3.0 >= played_s])
+        sc = dataclasses.replace(sc, events=tuple(e for e in sc.events if e.t_start_s < cut_s))
+        mine = [p for p in truths if p.device_id == dev]
+        if not mine:
+            diffs.append(f"{dev}: no truth received")
+            continue
+        p0 = mine[0]
+        offset_us = p0.t0_us - int(round(sc.t_s[p0.seq * samples_per_packet] * 1e6))  # device clock at recording 0
+        wall_offset_us = (p0.wall_t0_us or 0) - p0.t0_us
+        got = [(t, a["alarm"], (a["t_us"] - offset_us) * 1e-6, a["message"])
+               for t, a in alarms if a["device_id"] == dev and (a["t_us"] - offset_us) * 1e-6 < cut_s]  # fmt: skip
+        bite_s = [t for _, kind, t, _ in got if kind == "bite"]
+        drop_s = [t for _, kind, t, _ in got if kind == "drop_back"]
+        s = score(sc, bite_s, drop_s)
+        total.add(s)
+        for e in sc.events:
+            if e.family in ("bite", "run"):
+                hit = next((rx for rx, kind, t, _ in got if kind == "bite" and e.t_start_s <= t <= e.t_end_s + 1), None)
+                if hit is not None:
+                    wall.append(1e3 * (hit - (offset_us + wall_offset_us) * 1e-6 - e.cross_s))
+        if offline:
+            ref = run_gateway(sc)
+            mine_msgs = sorted((round(t, 2), kind, m) for _, kind, t, m in got if kind in ("bite", "drop_back"))
+            ref_msgs = sorted((round(float(x.split(" s ")[0]), 2), "bite" if " bite: " in x else "drop_back",
+                               x.split(" s ", 1)[1]) for x in ref.messages
+                              if (" bite: " in x or " drop-back: " in x) and float(x.split(" s ")[0]) < cut_s)
+            if mine_msgs == ref_msgs:
+                same += 1
+            else:
+                diffs.append(f"{dev}: through zenoh {mine_msgs[:6]} vs offline {ref_msgs[:6]}")
+    return SuiteReport(total, same, n_rods, wall, diffs)
+
+
+def main_suite(first_seed: int, n_rods: int, minutes: float, offline: bool) -> int:
+    """Run the rod scenario suite through zenoh and print its table."""
+    from bench.bite_suite import row
+
+    spp = 5
+    duration = 60.0 * minutes
+    with tempfile.TemporaryDirectory() as tmp:
+        rec, rod = run_session([], duration, first_seed, Path(tmp), ["--scenario", str(first_seed), "--count",
+                               str(n_rods), "--samples-per-packet", str(spp)], start_s=60.0 + 6.0 * n_rods)  # fmt: skip
+    if rod.returncode != 0:
+        print(rod.stderr.decode()[-2000:])
+    r = analyse_suite(rec, first_seed, n_rods, spp, offline, duration)
+    d = rec.gateway_stats.get("batch_delay_ms")
+    print(f"rod scenario suite through zenoh: seeds {first_seed}-{first_seed + n_rods - 1}, {n_rods} rods x "
+          f"{minutes:g} min in real time, {spp} samples per packet ({r.score.hours:.2f} rod-hours)")  # fmt: skip
+    if d:
+        print(f"gateway batch delay (packet arrival -> results to zenoh): p50 {d['p50']:.2f} ms, "
+              f"p99 {d['p99']:.2f} ms, max {d['max']:.2f} ms over {d['n']} batches")
+    print(f"{'':34s} {'bites':7s} {'runs':7s} {'latency from true θ1 ms (device time)':38s} false bite alarms, "
+          "drop-backs, false")
+    print(f"{'':34s} {'':7s} {'':7s} {'p50':>5s} {'p99':>5s} {'max':>5s}")
+    print(row("gateway through zenoh", r.score, True))
+    w = r.wall_ms
+    print(f"true θ1 crossing -> alarm received by the observer (wall clock): p50 {pct(w, 50):.0f} ms, "
+          f"p99 {pct(w, 99):.0f} ms, max {max(w, default=math.nan):.0f} ms (n={len(w)})")
+    if offline:
+        print(f"raised alarms equal to the offline pipeline's (bench.bite_suite): {r.same_as_offline}/{r.rods} rods")
+    for line in (r.score.notes + r.differences)[:20]:
+        print("  ", line)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.bite_latency", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    p.add_argument("--bites", type=int, default=12, help="bites per session (default: 12)")
+    p.add_argument("--first-seed", type=int, default=1000, help="suite: first recording (default 1000, untuned)")
+    p.add_argument("--rods", type=int, default=24, help="suite: rods, one recording each (default 24)")
+    p.add_argument("--minutes", type=float, default=5.0, help="suite: minutes played (default 5, the whole recording)")
+    p.add_argument("--no-offline", action="store_true", help="suite: skip the comparison with the offline pipeline")
+    p.add_argument("--scripted", action="store_true", help="the older scripted physics-rod run instead of the suite")
+    p.add_argument("--bites", type=int, default=12, help="scripted: bites per session (default: 12)")
     p.add_argument("--sessions", type=int, default=1, help="sessions (fresh processes each), default 1")
     p.add_argument("--spacing", type=float, default=12.0, help="seconds between bites (default: 12)")
     p.add_argument("--depth-deg", type=float, default=15.0, help="bite depth, degrees (default: 15)")
     p.add_argument("--seed", type=int, default=1)
     args = p.parse_args(argv)
+    if not args.scripted:
+        return main_suite(args.first_seed, args.rods, args.minutes, not args.no_offline)
     theta1 = math.radians(RodThresholds().effective_bite_deg)
     onset: list[float] = []
     cross: list[float] = []

@@ -11,6 +11,11 @@ Examples:
     python -m devices.sim_rod --script '[{"type": "bite", "t_s": 5, "depth_deg": 20, "duration_s": 2}]'
     python -m devices.sim_rod --script events.json --duration 60
     python -m devices.sim_rod --imu uncalibrated                 # raw IMU: hard iron tens of µT, heading far off
+    python -m devices.sim_rod --scenario 1000 --count 24 --duration 300   # play the rod scenario suite
+
+With `--scenario SEED`, rod i plays the recording `devices.rod_scenarios.make_scenario(SEED + i)` (bites, runs,
+nibbles, knocks, wind, handling, drop-backs; MPU-6050 errors at ±2 g) instead of the physics: its IMU samples,
+and truth packets with the true attitude and the events as `<family>` start/end labels. No reel.
 
 Script items: `{"type": bite|drop_back|fight|handling|wind|waves, "t_s": ..., <fields of the event class in
 devices.rod_physics, angles as *_rad or *_deg>, "device": "rod-2" (optional; default all rods)}`.
@@ -22,9 +27,10 @@ import argparse
 import dataclasses
 import json
 import math
+import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -39,6 +45,9 @@ from devices.rod_physics import (
     reel_speed_for,
 )
 from gateway import schemas
+
+if TYPE_CHECKING:
+    from devices.rod_scenarios import Scenario
 
 REEL_STATUS_HZ = 10.0
 
@@ -168,6 +177,67 @@ class RodFleet:
         return Message(self._truth_keys[i], common.encode_json(d), schemas.ENCODING_TRUTH)
 
 
+class ScenarioFleet:
+    """`count` rods playing rod-scenario recordings (rod i: seed first_seed + i); implements `devices.common.Fleet`.
+
+    Device time of sample k is the clock's boot offset + the recording time of sample k; after the recording the
+    rods fall silent. Reel commands are accepted and ignored (the recordings have no reel)."""
+
+    kind = "rod"
+
+    def __init__(self, fleet: FleetSettings, first_seed: int) -> None:
+        from devices.rod_scenarios import make_scenario  # scipy: only when scenarios are played
+
+        if fleet.rate_hz != 100.0:
+            raise ValueError("rod scenarios are recorded at 100 Hz")
+        self.fleet, self.ids = fleet, fleet.ids
+        self.command_selectors: tuple[str, ...] = ()
+        rng = np.random.default_rng(first_seed)
+        self.scenarios: list[Scenario] = [make_scenario(first_seed + i) for i in range(fleet.count)]
+        self.clocks = [common.DeviceClock.start(rng) for _ in self.ids]
+        self.boot_ids = [common.new_boot_id(rng) for _ in self.ids]
+        self._imu_keys = [schemas.imu_key("rod", d) for d in self.ids]
+        self._truth_keys = [schemas.truth_key("rod", d) for d in self.ids]
+        self._labels = [sorted((t, e.family, phase) for e in sc.events
+                               for t, phase in ((e.t_start_s, "start"), (e.t_end_s, "end")))
+                        for sc in self.scenarios]  # fmt: skip
+
+    def on_command(self, key: str, payload: bytes) -> None:
+        """No reel: commands are ignored."""
+
+    def tick(self, k: int) -> tuple[list[list[Message]], list[Message]]:
+        """The next `samples_per_packet` samples of every recording (none once it has ended)."""
+        n = self.fleet.samples_per_packet
+        if k == 0:  # the first packet goes out as its last sample is taken: the device's wall clock says so
+            now_us = time.time_ns() // 1000
+            self.clocks = [common.DeviceClock(c.boot_offset_us, now_us - c.boot_offset_us - int(round(
+                sc.t_s[min(n, sc.t_s.size) - 1] * 1e6))) for c, sc in zip(self.clocks, self.scenarios, strict=True)]
+        data: list[list[Message]] = []
+        extra: list[Message] = []
+        for i, (dev, sc) in enumerate(zip(self.ids, self.scenarios, strict=True)):
+            a, b = k * n, min((k + 1) * n, sc.t_s.size)
+            if a >= b:
+                data.append([])
+                continue
+            t0_us = self.clocks[i].boot_offset_us + int(round(sc.t_s[a] * 1e6))
+            wall = self.clocks[i].wall_us(t0_us)
+            data.append([Message(self._imu_keys[i], common.imu_payload(
+                device_id=dev, kind="rod", boot_id=self.boot_ids[i], seq=k, t0_us=t0_us, rate_hz=100.0,
+                gyr_rad_s=sc.gyr_rad_s[a:b], acc_m_s2=sc.acc_m_s2[a:b], mag_uT=sc.mag_uT[a:b], wall_t0_us=wall,
+            ), schemas.ENCODING_IMU)])  # fmt: skip
+            if self.fleet.truth:
+                t_end = float(sc.t_s[b - 1])
+                events = [{"label": lab, "phase": ph, "t_us": self.clocks[i].boot_offset_us + int(round(t * 1e6))}
+                          for t, lab, ph in self._labels[i] if float(sc.t_s[a]) - 0.01 < t <= t_end]  # fmt: skip
+                truth = {"v": 1, "device_id": dev, "kind": "rod", "boot_id": self.boot_ids[i], "seq": k,
+                         "t0_us": t0_us, "rate_hz": 100.0, "wall_t0_us": wall, "events": events,
+                         "quat_wxyz": common.rows(sc.quat_wxyz[a:b], 9), "tension_n": [0.0] * (b - a),
+                         "breaking_strength_n": 40.0, "line_out_m": 30.0, "fish_state": "none",
+                         "rest_pitch_rad": round(sc.rest_pitch_rad, 9)}  # fmt: skip
+                extra.append(Message(self._truth_keys[i], common.encode_json(truth), schemas.ENCODING_TRUTH))
+        return data, extra
+
+
 def load_script(text: str | None) -> list[dict[str, Any]]:
     """A script from inline JSON or a JSON file path (a list of event dicts)."""
     if not text:
@@ -194,11 +264,15 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--breaking-strength-n", type=float, default=40.0, help="line breaking strength, N")
     g.add_argument("--drag-n", type=float, default=25.0, help="initial reel drag, N")
     g.add_argument("--no-mag", action="store_true", help="no magnetometer (6-axis IMU)")
+    g.add_argument("--scenario", type=int, default=None, metavar="SEED",
+                   help="play rod-scenario recordings SEED, SEED+1, .. (devices.rod_scenarios) instead of physics")
     return p
 
 
-def make_fleet(args: argparse.Namespace, fleet: FleetSettings) -> RodFleet:
-    """RodFleet from parsed CLI options."""
+def make_fleet(args: argparse.Namespace, fleet: FleetSettings) -> RodFleet | ScenarioFleet:
+    """RodFleet (or ScenarioFleet with --scenario) from parsed CLI options."""
+    if args.scenario is not None:
+        return ScenarioFleet(fleet, args.scenario)
     rates = RandomEventRates.lively() if args.random_events else RandomEventRates()
     if args.bite_per_h is not None:
         rates = dataclasses.replace(rates, bite_per_h=args.bite_per_h)

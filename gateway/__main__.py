@@ -36,6 +36,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="endpoint to connect to, repeatable (default: none)")  # fmt: skip
     z.add_argument("--multicast", dest="zenoh_multicast_scouting", action="store_true", default=None,
                    help="enable multicast scouting (default: off)")  # fmt: skip
+    z.add_argument("--zenoh-config", dest="zenoh_config_file", type=Path, metavar="FILE",
+                   help="zenoh JSON5 config file (TLS/mTLS, user/password auth, access control: docs/security.md); "
+                        "with it, only the zenoh options given explicitly override its keys")  # fmt: skip
+    s = p.add_argument_group("browser access (DNS-rebinding and cross-site guards)")
+    s.add_argument("--allowed-host", dest="allowed_hosts", action="append", metavar="NAME",
+                   help="a host name the server answers to, besides IP addresses, localhost, dotless and .local "
+                        "names; repeatable")  # fmt: skip
+    s.add_argument("--allowed-origin", dest="allowed_origins", action="append", metavar="ORIGIN",
+                   help="a browser origin (https://host:port) that may open /ws/stream without the token; repeatable")
     p.add_argument("--filter", dest="default_filter", help="default attitude filter for rods (default: default)")
     o = p.add_argument_group("attitude output (replay scoring, full-rate recording)")
     o.add_argument("--attitude-interval-s", type=float, metavar="S",
@@ -68,7 +77,7 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
     """Settings from the environment (RIG_*) with the given options on top."""
     names = ("data_dir", "http_host", "http_port", "zenoh_mode", "zenoh_listen", "zenoh_connect",
              "zenoh_multicast_scouting", "default_filter", "attitude_interval_s", "attitude_blocks",
-             "warmup_bias_seed")  # fmt: skip
+             "warmup_bias_seed", "zenoh_config_file", "allowed_hosts", "allowed_origins")  # fmt: skip
     overrides: dict[str, Any] = {n: getattr(args, n) for n in names if getattr(args, n) is not None}
     return Settings(**overrides)
 

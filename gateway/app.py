@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import sqlite3
 import sys
 import time
 from collections.abc import AsyncIterator, Callable
@@ -20,6 +21,7 @@ from gateway import view3d
 from gateway.api import api_router, ws
 from gateway.api.routes import history, metrics
 from gateway.api.routes.docs import API_DESCRIPTION, install_openapi, install_redoc
+from gateway.api.security import BrowserGuard
 from gateway.config import Settings
 from gateway.errors import BadSettings, UnknownDevice
 from gateway.ingest.bus import Bus, ZenohBus
@@ -54,13 +56,14 @@ def create_app(
     async def start(app: FastAPI, service: GatewayService) -> None:
         t0 = time.perf_counter()
         view_task = asyncio.create_task(view3d.start_view3d(app)) if start_view3d else None
-        if warm_up:  # compile before the first packet, not on it; cached in __pycache__ (scripts/env.sh does it)
-            log.info("warming up: loading the fusion kernels (compiled once after install)")
-            await asyncio.to_thread(service.pipeline.warm_up)
-            log.info("fusion kernels ready in %.1f s", time.perf_counter() - t0)
-        await service.start()
+        # Subscriptions, presence and REST work at once (a SIGKILLed gateway sees its devices again in seconds);
+        # with `warm_up` the ingest task first loads the fusion kernels in a thread (compiled once after install,
+        # cached in __pycache__; scripts/env.sh does it) and packets wait in the bounded inbox meanwhile.
+        await service.start(warm_up=warm_up)
         ws.start_live(app, service)
         history.start_history(app, service)
+        while service.warming_since_s is not None:
+            await asyncio.sleep(0.1)
         if view_task is not None:
             try:
                 await view_task
@@ -105,6 +108,7 @@ def create_app(
 
     # Swagger UI and ReDoc from the files fastapi-offline ships (no CDN): the docs work on a rig without internet
     app = FastAPIOffline(title="rig-gateway", lifespan=lifespan, description=API_DESCRIPTION, redoc_url=None)
+    app.add_middleware(BrowserGuard, allowed_hosts=settings.allowed_hosts)  # Host check, CSP, frame options
     app.include_router(api_router, prefix="/api")
     app.include_router(ws.router)
     app.include_router(metrics.router)
@@ -113,6 +117,11 @@ def create_app(
     @app.exception_handler(BadSettings)
     async def bad_settings(_: Request, exc: BadSettings) -> JSONResponse:
         return JSONResponse({"detail": exc.errors}, status_code=422)
+
+    @app.exception_handler(sqlite3.Error)
+    async def store_failed(_: Request, exc: sqlite3.Error) -> JSONResponse:  # e.g. disk full on a REST write
+        log.error("store error on a REST request: %s", exc)
+        return JSONResponse({"detail": f"storage unavailable: {exc}"[:300]}, status_code=503)
 
     @app.exception_handler(UnknownDevice)
     async def unknown_device(_: Request, exc: UnknownDevice) -> JSONResponse:

@@ -77,6 +77,7 @@ class PipelineSettings:
     # Auto reel watchdog: every rod in auto mode has its controller stepped at least this often (gateway clock), so
     # the controller's data timeout stops the reel when the rod's packets stop (`Pipeline.tick_reel`).
     reel_watchdog_s: float = 0.1
+    height_interval_s: float = 0.1  # at most 10 Hz of Height (heave) per IMU device; <= 0: none computed
 
 
 @dataclass
@@ -107,6 +108,9 @@ class ImuDevice:
     baseline_rad: float = math.nan
     auto_reel: Any = None  # FishWalkingController when auto mode is on
     reel_step_t_s: float = -math.inf  # device time the controller was last stepped at (its steps move forward)
+    heave: Any = None  # gateway.fusion.heave.HeaveEstimator, made on the first fused block
+    height: schemas.Height | None = None  # the last one published
+    last_height_t_s: float = -math.inf
 
 
 class AlarmOut(NamedTuple):
@@ -158,6 +162,7 @@ class Output:
     attitudes: list[schemas.Attitude] = field(default_factory=list)
     attitude_blocks: list[schemas.AttitudeBlock] = field(default_factory=list)
     swings: list[schemas.Swing] = field(default_factory=list)
+    heights: list[schemas.Height] = field(default_factory=list)
     alarms: list[AlarmOut] = field(default_factory=list)
     spots: schemas.SpotRanking | None = None
     reel_commands: list[tuple[str, dict[str, Any]]] = field(default_factory=list)  # (device id, ReelCommand fields)
@@ -175,6 +180,11 @@ def _thermocline_m(profile: list[schemas.ProfilePoint] | None) -> float | None:
     ]
     i = int(np.argmax(grads))
     return 0.5 * (pts[i].depth_m + pts[i + 1].depth_m)
+
+
+def _position(fix: schemas.GnssFix | None) -> dict[str, float]:
+    """A spot's `lat_deg`/`lon_deg` from its ball's GNSS fix (none without a fix or with fix quality 0)."""
+    return {} if fix is None or fix.fix_quality == 0 else {"lat_deg": fix.lat_deg, "lon_deg": fix.lon_deg}
 
 
 def _chunks(ends: list[tuple[int, int, int]], t_s: FloatArray, max_s: float) -> list[tuple[int, int]]:
@@ -331,6 +341,13 @@ class Pipeline:
             dev.hook.set_thresholds(th)
             dev.rest_heading_set_rad = None if th.rest_heading_deg is None else math.radians(th.rest_heading_deg)
 
+    def restart(self, device_id: str) -> None:
+        """Forget a device's fusion and rules state (its next packets start a new warm-up), e.g. when its clock
+        jumped to a new timeline. Alarms stay with the engine; settings stay."""
+        self._warmup.pop(device_id, None)
+        if device_id in self.devices:
+            self._drop(device_id)
+
     def _drop(self, device_id: str) -> None:
         dev = self.devices.pop(device_id)
         if dev.filt is None and self._batch is not None:
@@ -356,6 +373,10 @@ class Pipeline:
             f.initialise(acc, mag)
             step = getattr(f, "update_block", None) or f.run
             step(np.zeros((n, 3)), np.tile(acc, (n, 1)), np.tile(mag, (n, 1)), 0.01)
+        if self.settings.height_interval_s > 0:
+            from gateway.fusion.heave import HeaveEstimator
+
+            HeaveEstimator().update(np.tile([1.0, 0, 0, 0], (n, 1)), np.zeros((n, 3)), np.tile(acc, (n, 1)), 0.01)
 
     # -- processing -----------------------------------------------------------------------------------------
 
@@ -464,25 +485,25 @@ class Pipeline:
         fused: dict[str, list[schemas.ImuPacket]] = {}  # per device: the packets behind its block
         for dev_id, pkts in imu.items():
             dev = self.devices.get(dev_id)
-            if dev is None:  # warm-up: collect, start the filter once the window is full
-                warm = self._warmup.setdefault(dev_id, [])
-                warm.extend(pkts)
-                self.kinds[dev_id] = pkts[0].kind
-                if sum(p.n / p.rate_hz for p in warm) < self.settings.warmup_s - 1e-9:  # 10 x 0.05 s is 0.4999…
-                    continue
-                pkts = self._warmup.pop(dev_id)
-                gyr, acc, mag, t_s = self._gather(dev_id, pkts)
-                if (cal := self._cal.get(dev_id)) is not None:  # before `_device` takes the warm-up means
-                    acc, mag = cal.apply(acc, mag)
-                try:
-                    dev = self._device(pkts[0], gyr, acc, mag)
-                except Exception as exc:  # a filter that cannot start: count it, warm up again
-                    self._fail(pkts[0].kind, dev_id, exc, out)
-                    continue
-            else:
-                gyr, acc, mag, t_s = self._gather(dev_id, pkts)
-                if (cal := self._cal.get(dev_id)) is not None:
-                    acc, mag = cal.apply(acc, mag)
+            try:  # one device's bad data (or a bug it triggers) costs only its own output: it restarts
+                if dev is None:  # warm-up: collect, start the filter once the window is full
+                    warm = self._warmup.setdefault(dev_id, [])
+                    warm.extend(pkts)
+                    self.kinds[dev_id] = pkts[0].kind
+                    if sum(p.n / p.rate_hz for p in warm) < self.settings.warmup_s - 1e-9:  # 10 x 0.05 s is 0.4999…
+                        continue
+                    pkts = self._warmup.pop(dev_id)
+                    gyr, acc, mag, t_s = self._gather(dev_id, pkts)
+                    if (cal := self._cal.get(dev_id)) is not None:  # before `_device` takes the warm-up means
+                        acc, mag = cal.apply(acc, mag)
+                    dev = self._device(pkts[0], gyr, acc, mag)  # a filter that cannot start: counted, warms up again
+                else:
+                    gyr, acc, mag, t_s = self._gather(dev_id, pkts)
+                    if (cal := self._cal.get(dev_id)) is not None:
+                        acc, mag = cal.apply(acc, mag)
+            except Exception as exc:
+                self._fail(pkts[0].kind, dev_id, exc, out)
+                continue
             if abs(1.0 / pkts[-1].rate_hz - dev.dt_s) > 1e-12:
                 dev.dt_s = 1.0 / pkts[-1].rate_hz
                 if dev.filt is None:
@@ -500,9 +521,51 @@ class Pipeline:
         quats = self._step_filters(blocks, out)
         for dev_id, q in quats.items():
             dev = self.devices[dev_id]
-            self._post(dev, q, blocks[dev_id], ends[dev_id], now, out, conds)
-            if self.settings.attitude_blocks:
-                out.attitude_blocks += self._attitude_blocks(dev, q, fused[dev_id])
+            mine: list[_Timed] = []
+            try:
+                self._post(dev, q, blocks[dev_id], ends[dev_id], now, out, mine)
+                if self.settings.height_interval_s > 0:
+                    out.heights += self._heights(dev, q, blocks[dev_id], fused[dev_id], ends[dev_id])
+                if self.settings.attitude_blocks:
+                    out.attitude_blocks += self._attitude_blocks(dev, q, fused[dev_id])
+            except Exception as exc:  # e.g. an output time out of range: only this device restarts
+                self._fail(dev.kind, dev_id, exc, out)
+                continue
+            conds += mine
+
+    def _heights(
+        self, dev: ImuDevice, q: FloatArray, block: tuple[FloatArray, FloatArray, FloatArray | None, FloatArray],
+        pkts: list[schemas.ImuPacket], ends: list[tuple[int, int, int]],
+    ) -> list[schemas.Height]:  # fmt: skip
+        """Height / heave of the block (gateway.fusion.heave) at packet ends, at most every `height_interval_s`."""
+        from gateway.fusion.heave import AIDED_NAMES, HeaveEstimator
+
+        gyr, acc, _, t_s = block
+        if dev.heave is None:
+            g0 = float(np.linalg.norm(acc[: min(acc.shape[0], 50)].mean(axis=0)))
+            level = abs(g0 - G_M_S2) < self.settings.rest_acc_tol_m_s2
+            dev.heave = HeaveEstimator(gravity_m_s2=g0 if level else G_M_S2)
+        depth = None
+        if any(p.depth_m is not None for p in pkts):
+            depth = np.full(t_s.shape[0], np.nan)
+            for (i, _, _), p in zip(ends, pkts, strict=True):
+                if p.depth_m is not None:
+                    depth[i - p.n + 1] = p.depth_m
+        bias = self.bias_rad_s(dev.device_id)  # the rest detector sees the rate without the filter's bias estimate
+        rows = dev.heave.update(q, gyr if bias is None else gyr - np.asarray(bias), acc, dev.dt_s, depth)
+        out = []
+        for i, seq, t_us in ends:
+            if t_s[i] - dev.last_height_t_s < self.settings.height_interval_s - 1e-9:
+                continue
+            dev.last_height_t_s = float(t_s[i])
+            h, v, rest, aided = rows[i]
+            out.append(schemas.Height(
+                device_id=dev.device_id, kind=dev.kind, seq=seq, t_us=t_us,  # type: ignore[arg-type]
+                wall_t_us=t_us + dev.wall_offset_us, vz_m_s=float(v), height_m=float(h), at_rest=bool(rest),
+                aided=AIDED_NAMES[int(aided)],  # type: ignore[arg-type]
+            ))  # fmt: skip
+        dev.height = out[-1] if out else dev.height
+        return out
 
     def _step_filters(
         self, blocks: dict[str, tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]], out: Output
@@ -617,10 +680,8 @@ class Pipeline:
             reel = self.reel.get(dev.device_id)
             if reel is not None and reel[0].tension_n is not None and now - reel[1] <= self.settings.reel_max_age_s:
                 tension = np.full(t_s.shape, reel[0].tension_n)
-            for a, b in _chunks(ends, t_s, self.settings.rule_block_s):  # streaming: one chunk; bursts: several
-                rod_block, c = dev.rod.update(t_s[a:b], eul[a:b, 1], eul[a:b, 0], eul[a:b, 2], acc_up[a:b],
-                                              None if tension is None else tension[a:b])  # fmt: skip
-                new += c
+            # The rod rules decide sample by sample: a burst gives the same alarms in one call as packet by packet.
+            rod_block, new = dev.rod.update(t_s, eul[:, 1], eul[:, 0], eul[:, 2], acc_up, tension)
             dev.baseline_rad = rod_block.baseline_rad
             if dev.auto_reel is not None:
                 self._auto_reel(dev, float(t_s[-1]), float(eul[-1, 1]), reel[0] if reel else None, now, out)
@@ -754,9 +815,9 @@ class Pipeline:
         ranked = rank_spots(readings, prefs, lt.tm_hour + lt.tm_min / 60.0)
         spots = [
             schemas.SpotScore(
-                spot=s.spot_id, rank=i + 1, score=min(1.0, max(0.0, s.score / 100.0)),
+                spot=s.spot_id, rank=i + 1, score=min(1.0, max(0.0, s.score)),
                 device_id=latest[s.spot_id].device_id, last_seen_wall_us=latest[s.spot_id].wall_t_us,
-                reasons=[r[:200] for r in s.reasons][:20],
+                reasons=[r[:200] for r in s.reasons][:20], **_position(latest[s.spot_id].gnss),
             )
             for i, s in enumerate(ranked)
         ]  # fmt: skip

@@ -3,11 +3,16 @@
     python -m gateway.replay_view ../shared/data/broad/01_undisturbed_slow_rotation_A.mat
     python -m gateway.replay_view var/recordings/session.rigrec --filter mahony --port 8092
 
-Input: a BROAD `.mat` trial (`gateway.fusion.broad.load_trial`) or a `.rigrec` recording / directory of them
-(`gateway.recording`: the first device's IMU packets, with its optical reference if recorded). The filter runs
-once over the whole trial; then a time slider (and Play) drives the 3-D pose: the estimate as a solid body frame,
-the reference as a grey ghost. A uPlot shows roll, pitch, yaw (unwrapped) of both in a window around the slider
-time, plus the total angle error. Binds 127.0.0.1 by default; the share button is hidden.
+    python -m gateway.replay_view logs/rod-1-20260101T000000.000000Z.csv      # a logger file (recording.export)
+
+Input: a BROAD `.mat` trial (`gateway.fusion.broad.load_trial`), a `.rigrec` recording / directory of them
+(`gateway.recording`: the first device's IMU packets, with its optical reference if recorded) or a sensor CSV/text
+log (`gateway.recording.importers.read_sensor_csv`, e.g. a file of `python -m gateway.recording.export`). The
+filter runs once over the whole trial; then a time slider (and Play) drives the 3-D pose: the estimate as a solid
+body frame, the reference as a grey ghost. Beside it, in a window around the slider time, uPlots show roll, pitch,
+yaw (unwrapped) of both plus the total angle error, and the raw sensor curves as seed 004's desktop program does:
+angular rate (°/s), specific force (m/s²) and magnetic field (µT, when recorded), x/y/z each. Binds 127.0.0.1 by
+default; the share button is hidden.
 """
 
 from __future__ import annotations
@@ -49,6 +54,9 @@ class ReplayData:
     error_deg: FloatArray
     kind: str = "board"  # what the estimate is drawn as: "rod", "hook", or a generic "board" (BROAD trials)
     reference: str = "optical reference"  # where q_ref comes from; "none" when the recording has none
+    gyr_deg_s: FloatArray | None = None
+    acc_m_s2: FloatArray | None = None
+    mag_uT: FloatArray | None = None
 
     def index(self, t_s: float) -> int:
         """Sample nearest to `t_s`, clamped to the trial."""
@@ -78,8 +86,30 @@ def replay_data(trial: broad.Trial, q_est: FloatArray, kind: str = "board", refe
     if ok.any():
         err[ok] = np.degrees(quat.angle_between(q_est[ok], trial.quat_ref[ok]))
     source = reference or ("optical reference" if ok.any() else "none")
+    mag = trial.mag_uT if np.isfinite(trial.mag_uT).any() else None
     return ReplayData(trial.name, np.arange(trial.n) / trial.rate_hz, q_est, trial.quat_ref, euler_deg(q_est),
-                      euler_deg(trial.quat_ref), err, kind, source)  # fmt: skip
+                      euler_deg(trial.quat_ref), err, kind, source, np.degrees(trial.gyr_rad_s), trial.acc_m_s2,
+                      mag)  # fmt: skip
+
+
+SENSORS: tuple[tuple[str, str, str], ...] = (
+    ("gyr_deg_s", "angular rate (°/s)", "gyro"),
+    ("acc_m_s2", "specific force (m/s²)", "acc"),
+    ("mag_uT", "magnetic field (µT)", "mag"),
+)
+AXIS_COLORS = ("#e53e3e", "#2f855a", "#2b6cb0")
+
+
+def sensor_columns(data: ReplayData, sensor: str, t_s: float, half_width_s: float,
+                   max_points: int = 1500) -> tuple[FloatArray, ...] | None:  # fmt: skip
+    """uPlot columns (t, x, y, z) of one raw sensor (`SENSORS` attribute name) around `t_s`, decimated to at most
+    about `max_points`; None when the recording has no such sensor."""
+    arr: FloatArray | None = getattr(data, sensor)
+    if arr is None:
+        return None
+    w = data.window(t_s, half_width_s)
+    step = max(1, (w.stop - w.start) // max_points)
+    return tuple(np.ascontiguousarray(c) for c in (data.t_s[w][::step], *(arr[w, k][::step] for k in range(3))))
 
 
 @dataclass(frozen=True)
@@ -110,10 +140,19 @@ def truth_reference(records: Iterable[Record], kind: str, device_id: str, t0_us:
 
 
 def load(path: Path) -> Loaded:
-    """A BROAD `.mat` trial, or the first device of a `.rigrec` recording (file or directory): its optical
-    reference if recorded, else the simulator's ground truth if recorded."""
+    """A BROAD `.mat` trial, a sensor CSV/text log (seed 004's logger), or the first device of a `.rigrec`
+    recording (file or directory): its optical reference if recorded, else the simulator's ground truth."""
     if path.suffix == ".mat":
         return Loaded(broad.load_trial(path), "board", "optical reference")
+    if path.suffix in (".csv", ".txt"):
+        from gateway.recording.importers import read_sensor_csv
+
+        s = read_sensor_csv(path).stream
+        n = s.gyr_rad_s.shape[0]
+        mag = s.mag_uT if s.mag_uT is not None else np.full((n, 3), np.nan)
+        trial = broad.Trial(path.stem, s.rate_hz, s.gyr_rad_s, s.acc_m_s2, mag, np.full((n, 4), np.nan),
+                            np.full((n, 3), np.nan), np.ones(n, dtype=bool))  # fmt: skip
+        return Loaded(trial, "board", "none")
     from gateway.recording.format import read_recording
     from gateway.recording.score import recorded_trial
 
@@ -245,6 +284,15 @@ def serve(data: ReplayData, host: str, port: int, plot_half_width_s: float = 10.
 
     plot = gui.add_uplot(plot_data(0.0), tuple(series), title="attitude (deg) around the slider time",
                          scales={"x": uplot.Scale(time=False, auto=True)}, aspect=1.4)  # fmt: skip
+    raw_plots = []
+    for attr, title, short in SENSORS:
+        cols = sensor_columns(data, attr, 0.0, plot_half_width_s)
+        if cols is None:
+            continue
+        axes = tuple(uplot.Series(label=f"{short} {a}", stroke=c, width=1.0) for a, c in zip("xyz", AXIS_COLORS,
+                                                                                                 strict=True))
+        raw_plots.append((attr, gui.add_uplot(cols, (uplot.Series(label="t (s)"), *axes), title=title,
+                                               scales={"x": uplot.Scale(time=False, auto=True)}, aspect=2.0)))
 
     def show(t_s: float) -> None:
         i = data.index(t_s)
@@ -258,6 +306,10 @@ def serve(data: ReplayData, host: str, port: int, plot_half_width_s: float = 10.
         readout.content = (f"t = {data.t_s[i]:.2f} s · roll {e[0]:.1f}° pitch {e[1]:.1f}° yaw {e[2]:.1f}°"
                            + ("" if math.isnan(err) else f" · error {err:.2f}°"))  # fmt: skip
         plot.data = plot_data(t_s)
+        for attr, raw in raw_plots:
+            cols = sensor_columns(data, attr, t_s, plot_half_width_s)
+            if cols is not None:
+                raw.data = cols
 
     @slider.on_update
     def _(_: object) -> None:
@@ -283,7 +335,7 @@ def serve(data: ReplayData, host: str, port: int, plot_half_width_s: float = 10.
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m gateway.replay_view", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    p.add_argument("path", type=Path, help="BROAD .mat file, or a .rigrec recording (file or directory)")
+    p.add_argument("path", type=Path, help="BROAD .mat file, .rigrec recording (file or directory) or CSV/text log")
     p.add_argument("--filter", default="default", choices=sorted(FILTERS), help="attitude filter (default: default)")
     p.add_argument("--mode", choices=["6D", "9D"], default="9D", help="use the magnetometer (9D) or not (default 9D)")
     p.add_argument("--host", default="127.0.0.1", help="viser bind address (default: 127.0.0.1)")

@@ -206,10 +206,16 @@ class View3D:
             }  # fmt: skip
 
     def on_raw(self, key: str, payload: bytes) -> None:
-        self._raw[key.rsplit("/", 2)[1]] = payload
+        self._keep(self._raw, key, payload)
 
     def on_truth(self, key: str, payload: bytes) -> None:
-        self._truth[key.rsplit("/", 2)[1]] = payload
+        self._keep(self._truth, key, payload)
+
+    def _keep(self, store: dict[str, bytes], key: str, payload: bytes) -> None:
+        """Latest payload per device, only for devices with a fused attitude (anyone may publish on these keys)."""
+        device_id = key.rsplit("/", 2)[1]
+        if device_id in self.devices:
+            store[device_id] = payload
 
     def attach(self, service: GatewayService) -> None:
         self.swing_limit_deg = lambda: float(getattr(service.pipeline.defaults.get("hook"), "swing_warn_deg", 5.0))

@@ -17,7 +17,7 @@ from gateway.config import Settings
 from gateway.fusion import broad
 from gateway.fusion import quaternion as quat
 from gateway.fusion.registry import make_filter
-from gateway.replay_view import euler_deg, load, replay_data, run
+from gateway.replay_view import euler_deg, load, replay_data, run, sensor_columns
 from gateway.replay_view import main as replay_main
 from gateway.view3d import (
     ALL,
@@ -246,6 +246,41 @@ def test_replay_cli_help_and_missing_file(capsys: pytest.CaptureFixture[str]) ->
         replay_main(["--help"])
     assert exc.value.code == 0 and "BROAD" in capsys.readouterr().out
     assert replay_main(["/nonexistent/file.mat"]) == 2
+
+
+def test_replay_raw_sensor_curves_beside_the_attitude() -> None:
+    """Seed 004's curves: gyro in °/s, acc in m/s², mag in µT, x/y/z columns around the slider time, decimated to
+    about max_points; a recording without a magnetometer (all NaN) has no mag curves."""
+    n = 1000
+    rng = np.random.default_rng(1)
+    gyr, acc = rng.normal(0, 1, (n, 3)), rng.normal(0, 9, (n, 3))
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    trial = broad.Trial("t", 100.0, gyr, acc, np.full((n, 3), np.nan), q, np.zeros((n, 3)), np.ones(n, dtype=bool))
+    d = replay_data(trial, q)
+    t, x, y, z = sensor_columns(d, "gyr_deg_s", 5.0, 1.0)  # type: ignore[misc]
+    w = d.window(5.0, 1.0)
+    assert t == pytest.approx(d.t_s[w]) and x == pytest.approx(np.degrees(gyr[w, 0]), abs=1e-12)
+    assert z == pytest.approx(np.degrees(gyr[w, 2]), abs=1e-12)
+    t2, ax, *_ = sensor_columns(d, "acc_m_s2", 5.0, 100.0, max_points=100)  # type: ignore[misc]
+    assert 100 <= len(t2) <= 200 and ax == pytest.approx(acc[:: n // 100, 0][: len(ax)])
+    assert sensor_columns(d, "mag_uT", 5.0, 1.0) is None
+
+
+def test_replay_opens_an_exported_logger_file(tmp_path: Path) -> None:
+    """A recording exported by `gateway.recording.export` (CSV) replays: same samples, filter run, curves there."""
+    from gateway.recording.export import CsvExporter, export_recording
+    from gateway.recording.format import Record, write_recording
+    from tests.gateway.conftest import rod_messages
+
+    msgs = rod_messages(1.0)
+    path = tmp_path / "rod.rigrec"
+    write_recording(path, [Record(k, p, i * 1000) for i, (k, p) in enumerate(msgs)], {"source": "test"})
+    with CsvExporter(tmp_path / "csv") as ex:
+        export_recording(path, ex)
+    from_rec, from_csv = run(path, "mahony", "6D"), run(ex.files[0], "mahony", "6D")
+    assert from_csv.q_est.shape == from_rec.q_est.shape
+    assert from_csv.gyr_deg_s == pytest.approx(from_rec.gyr_deg_s, abs=1e-6)
+    assert from_csv.euler_est_deg[-1] == pytest.approx(from_rec.euler_est_deg[-1], abs=1e-3)
 
 
 def test_replay_of_a_simulator_recording_uses_its_truth_and_the_rod_model(tmp_path: Path) -> None:

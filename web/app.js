@@ -384,6 +384,7 @@ function updateDevice(d, c) {
   if (link.rssi_dbm != null) facts.push(["link", `${fmt(link.rssi_dbm, 0)} dBm`]);
   if (c.attitude) facts.push(["pitch / roll", `${fmt(c.attitude.pitch_rad * DEG)}° / ${fmt(c.attitude.roll_rad * DEG)}°`], ["yaw", `${fmt(c.attitude.yaw_unwrapped_rad * DEG)}°`]);
   if (c.swing) facts.push(["swing Θ", `${fmt(c.swing.swing_angle_rad * DEG)}°`], ["torsion φ", `${fmt(c.swing.torsion_rad * DEG)}°`]);
+  if (c.height) facts.push(["height / Vz", `${fmt(c.height.height_m, 2)} m / ${fmt(c.height.vz_m_s, 2)} m/s${c.height.at_rest ? " (rest)" : ""}`]);
   if (c.readings) facts.push(["spot", c.readings.spot], ["water", `${fmt(c.readings.water_temp_c)} °C`], ["O₂", `${fmt(c.readings.oxygen_mg_l, 2)} mg/l`]);
   if (c.reel) facts.push(["reel", `${c.reel.mode} / ${c.reel.motor}`], ["line out", `${fmt(c.reel.line_out_m)} m`]);
   if (c.kind === "rod") facts.push(["auto reel", c.auto_reel ? "on" : "off"]);
@@ -539,7 +540,7 @@ async function connect() {
 function renderSpots(spots) {
   if (!spots.length) return;
   $("#spot-rows").replaceChildren(...spots.map((s) => el("tr", { "data-testid": `spot-${s.spot}` }, el("td", {}, s.rank), el("td", {}, s.spot),
-    el("td", {}, el("span", { class: "scorebar", style: `width:${Math.round(60 * s.score)}px` }), fmt(100 * s.score, 0)),
+    el("td", {}, el("span", { class: "scorebar", style: `width:${Math.round(60 * s.score)}px` }), fmt(s.score, 2)),
     el("td", {}, el("ul", {}, ...(s.reasons || []).map((x) => el("li", {}, x)))))));
 }
 

@@ -1,23 +1,26 @@
-"""Bite and drop-back detection from rod-tip pitch (seed 000 §3.3 and §4.2), one block of samples at a time.
+"""Bite and drop-back detection from rod-tip pitch (seed 000 §3.3 and §4.2), sample by sample, fed in blocks.
 
 A bite pulls the tip down: pitch falls by >= theta1 below its rest value (the paper: 10 deg, adjustable).
 A drop-back (fish swims towards the angler) slackens the line: the tip springs up above rest.
 Roll and yaw never alarm (seed 000 Table 2): pitch = elevation of the rod axis, which neither changes.
 
-Per block, all work is vectorised with numpy; Python does O(1) work plus one loop turn per latch change.
+Decisions depend only on the samples and the settings, never on how they were cut into blocks (packet size,
+bursts, batches): every threshold test is per sample, runs and latches carry across blocks, and the slow state
+(rest baseline, vibration level, new-rest search) moves only at the end of fixed FRAME_S frames of device time
+counted from the first sample, from that frame's samples alone. A sample is judged against the state left by
+the frames before its own, so splitting a block anywhere changes nothing.
 
-- Warm-up: the first WARMUP_S seconds only learn the rest pitch (their mean) and the vibration level. A block
-  that spans the end of the warm-up is split there: its head learns, its tail is already checked for bites.
-- Rest baseline: an exponential average (time constant `baseline_tau_s`) of block-mean pitch, updated only
-  while both latches are armed and every sample of the block lies inside the re-arm band. Vibration (wind,
+- Warm-up: the first WARMUP_FRAMES frames (2 s) only learn the rest pitch (their mean) and the vibration level.
+- Rest baseline: an exponential average (time constant `baseline_tau_s`) of frame-mean pitch, updated only
+  while both latches are armed and every sample of the frame lies inside the re-arm band. Vibration (wind,
   waves) averages out; a holder drifting at r deg/s lags by only r * tau, far below theta1 for slow drifts.
-- Bite: deviation <= -theta1 held for `confirm_s` (the sensitivity step), or sooner by the acceleration cue:
-  deviation <= -cue_fraction * theta1 while the 30 ms mean of the tip's upward acceleration is below
-  -max(cue_acc, CUE_NOISE_FACTOR * recent rms). For any free oscillation about rest, displacement and
-  acceleration are in anti-phase (a = -w^2 x): a tip below rest accelerates *upwards*, so zero-mean vibration
-  cannot meet the cue while a bite's onset can. Forced motion (gusts) breaks the anti-phase, hence the rms bar:
-  in wind the cue backs off and the pitch rule alone decides.
-- Drop-back: deviation >= drop_back held for `confirm_s`.
+- Bite (theta1 is a floor): the deviation must reach -theta1; the alarm fires once it has held there for
+  `confirm_s` (the sensitivity step). The acceleration cue can only shorten that confirmation: a sample at or
+  beyond -theta1 fires at once if within the last CUE_HOLD_S the tip, already cue_fraction * theta1 below rest,
+  accelerated downwards by more than max(cue_acc, CUE_NOISE_FACTOR * recent rms) (30 ms mean). For any free
+  oscillation about rest displacement and acceleration are in anti-phase (a = -w^2 x), so a tip below rest
+  accelerates *upwards*: vibration rarely meets the cue, a pull does; either way it never fires below theta1.
+- Drop-back: deviation >= drop_back held for DROP_BACK_HOLD_S (longer than the ringing of a released bite).
 - Hysteresis: each latch fires once, then re-arms only after the deviation has stayed inside the re-arm band
   (REARM_FRACTION of its threshold) for `rearm_quiet_s`. Detection time = time of the triggering sample.
 - If the rod settles at a new rest (e.g. re-cast) while disarmed, the baseline is re-taken after
@@ -27,7 +30,7 @@ Per block, all work is vectorised with numpy; Python does O(1) work plus one loo
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -38,15 +41,19 @@ from gateway.config import SENSITIVITY_STEPS, RodThresholds
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
+FRAME_S = 0.1  # the slow state moves at the end of each frame of this much device time
+WARMUP_FRAMES = 20  # the first 2 s only learn the rest pitch (mean) and the vibration level: no alarms
 REARM_FRACTION = 0.7  # re-arm band: |deviation| below this share of the trigger threshold
 ACC_WINDOW = 3  # samples averaged for the acceleration cue (30 ms at 100 Hz)
 CUE_NOISE_FACTOR = 3.0  # the cue needs a downward acceleration >= this x the recent rms (wind raises the bar)
+CUE_HOLD_S = 0.3  # a cue this recent lets a sample at -theta1 fire without waiting for `confirm_s`
 ACC_RMS_DECAY_S = 3.0  # the rms estimate rises at once and decays with this time constant
-ACC_RMS_LAG_S = 0.5  # the cue uses an rms estimate 0.5-1 s old, so a bite's own onset cannot raise the bar
-WARMUP_S = 2.0  # the first 2 s only learn the rest pitch (mean) and the vibration level: no alarms
+ACC_RMS_LAG_FRAMES = 5  # the cue uses an rms estimate 0.5-1 s old, so a bite's own onset cannot raise the bar
+DROP_BACK_HOLD_S = 0.5  # a drop-back must hold this long: a released bite rings above rest for less
 REBASELINE_FACTOR = 6.0  # steady this many quiet times while disarmed -> new rest baseline
-STEADY_FRACTION = 0.3  # "steady": block mean within this share of theta1 of the candidate rest
+STEADY_FRACTION = 0.3  # "steady": frame mean within this share of theta1 of the candidate rest
 _EPS_S = 1e-9
+_FRAME_EPS = 1e-6  # frame index rounding guard: sample times of the same sample may differ in the last bits
 
 EventKind = Literal["bite", "bite_rearmed", "drop_back", "drop_back_rearmed"]
 
@@ -81,24 +88,28 @@ class BiteParams:
 
 @dataclass(frozen=True, slots=True)
 class RodEvent:
-    """A latch change: the time is that of the sample that caused it."""
+    """A latch change: the time is that of the sample that caused it.
+
+    `deviation_rad` is that sample's deviation from rest; on a re-arm, `peak_rad` is the largest deviation (signed,
+    in the latch's direction) between the firing and the re-arm."""
 
     kind: EventKind
     t_s: float
     deviation_rad: float
     threshold_rad: float
     cue: Literal["pitch", "accel", ""] = ""
+    peak_rad: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
 class RodBlock:
-    """Result of one block: latch events plus the deviation summary the line guard needs."""
+    """Result of one block: latch events plus the per-sample deviations the line guard needs."""
 
     events: tuple[RodEvent, ...]
-    baseline_rad: float  # the rest pitch the block's deviations were measured from
-    min_deviation_rad: float  # most negative deviation (largest drop) in the block
+    baseline_rad: float  # the rest pitch at the block's end
+    deviation_rad: FloatArray  # per sample, from the rest in force at that sample; nan during the warm-up
+    min_deviation_rad: float  # most negative deviation (largest drop) in the block (nan: none yet)
     t_min_s: float  # time of that sample
-    last_deviation_rad: float
 
 
 @dataclass(slots=True)
@@ -110,22 +121,31 @@ class BiteState:
     drop_armed: bool = True
     bite_disarmed_at_s: float = -math.inf
     drop_disarmed_at_s: float = -math.inf
+    bite_peak_rad: float = 0.0  # deepest deviation since the bite latch fired
+    drop_peak_rad: float = 0.0  # highest deviation since the drop-back latch fired
     bite_run_s: float = math.nan  # start of a beyond-theta1 run still open at the last block's end
     drop_run_s: float = math.nan
     near_bite_run_s: float = math.nan  # start of an open in-re-arm-band run
     near_drop_run_s: float = math.nan
-    last_t_s: float = math.nan
+    last_cue_s: float = -math.inf  # time of the latest cue sample
     acc_tail: FloatArray = field(default_factory=lambda: np.zeros(0))
     acc_ms: float = 0.0  # recent mean-square vertical acceleration, (m/s^2)^2: fast attack, slow decay
     acc_ms_snapshot: float = 0.0  # acc_ms at the last checkpoint
     acc_ms_lagged: float = 0.0  # acc_ms at the checkpoint before: what the cue uses
-    acc_checkpoint_s: float = -math.inf
+    acc_checkpoint_k: int = -(10**9)
     steady_ref_rad: float = math.nan
     steady_since_s: float = math.nan
     warmed: bool = False
-    warm_until_s: float = math.nan
     warm_sum_rad: float = 0.0
     warm_n: int = 0
+    origin_s: float = math.nan  # time of the first sample: frame k covers [origin + k FRAME_S, + FRAME_S)
+    frame_k: int = -1  # the open frame
+    closed_k: int = -1  # the last frame closed
+    frame_pitch: list[FloatArray] = field(default_factory=list)  # the open frame's samples, as fed
+    frame_acc: list[FloatArray] = field(default_factory=list)
+    frame_t0_s: float = math.nan
+    frame_lo_rad: float = math.inf  # lowest and highest deviation of the open frame's samples (after the warm-up)
+    frame_hi_rad: float = -math.inf
 
 
 def tip_acc_up(quat_wxyz: FloatArray, acc_m_s2: FloatArray, g_m_s2: float = 9.81) -> FloatArray:
@@ -169,12 +189,17 @@ def held(cond: BoolArray, t_s: FloatArray, carry_s: float, hold_s: float) -> tup
 
 
 def trailing_mean(x: FloatArray, tail: FloatArray, window: int) -> tuple[FloatArray, FloatArray]:
-    """Mean of each sample and the window-1 before it (continuing across blocks via `tail`); returns new tail."""
+    """Mean of each sample and the window-1 before it (continuing across blocks via `tail`); returns new tail.
+
+    Summed term by term in a fixed order, so a sample's mean is bit-identical however the stream is cut. Before
+    `window` samples exist, the first sample stands in for the missing ones."""
     full = np.concatenate((tail, x))
-    c = np.concatenate(([0.0], np.cumsum(full)))
-    k = np.arange(tail.size + 1, full.size + 1)
-    lo = np.maximum(k - window, 0)
-    return (c[k] - c[lo]) / (k - lo), full[-(window - 1) :] if window > 1 else full[:0]
+    if full.size < x.size + window - 1:
+        full = np.concatenate((np.full(x.size + window - 1 - full.size, full[0]), full))
+    total = full[: x.size].copy()
+    for j in range(1, window):
+        total += full[j : j + x.size]
+    return total / window, full[full.size - (window - 1) :]
 
 
 def keep_tail(tail: FloatArray, x: FloatArray, k: int) -> FloatArray:
@@ -184,8 +209,10 @@ def keep_tail(tail: FloatArray, x: FloatArray, k: int) -> FloatArray:
     return x[-k:] if x.size >= k else np.concatenate((tail, x))[-k:]
 
 
-def _or_none(mask: BoolArray | None, n: int) -> BoolArray:
-    return np.zeros(n, dtype=bool) if mask is None else mask
+def last_true_time(cond: BoolArray, t_s: FloatArray, carry_s: float) -> FloatArray:
+    """Time of the latest True sample at or before each sample (`carry_s` before the block; -inf: never)."""
+    stamped = np.where(cond, t_s, -np.inf)
+    return np.maximum.accumulate(np.concatenate(([carry_s], stamped)))[1:]
 
 
 def latch_step(
@@ -222,8 +249,22 @@ def latch_step(
     return armed, disarmed_at_s, out
 
 
+def disarmed_spans(armed_at_start: bool, changes: list[tuple[bool, int]], n: int) -> list[tuple[int, int]]:
+    """Index ranges [a, b) of a block during which a latch was disarmed (from its firing to its re-arm)."""
+    spans, start = [], None if armed_at_start else 0
+    for rearmed, k in changes:
+        if rearmed and start is not None:
+            spans.append((start, k))
+            start = None
+        elif not rearmed:
+            start = k
+    if start is not None:
+        spans.append((start, n))
+    return spans
+
+
 class BiteDetector:
-    """Per-rod bite / drop-back detector; feed consecutive blocks in time order."""
+    """Per-rod bite / drop-back detector; feed consecutive blocks in time order, cut anywhere."""
 
     def __init__(self, thresholds: RodThresholds | None = None) -> None:
         self.params = BiteParams.from_thresholds(thresholds or RodThresholds())
@@ -235,7 +276,9 @@ class BiteDetector:
 
     def rebaseline(self, pitch_rad: float) -> None:
         """Take `pitch_rad` as the new rest (e.g. the angler re-set the rod) and re-arm both latches."""
-        self.state = BiteState(baseline_rad=pitch_rad, warmed=True)
+        old = self.state
+        self.state = BiteState(baseline_rad=pitch_rad, warmed=True, origin_s=old.origin_s, frame_k=old.frame_k,
+                               closed_k=old.closed_k, frame_t0_s=old.frame_t0_s)  # fmt: skip
 
     def update(
         self,
@@ -252,45 +295,78 @@ class BiteDetector:
         about its own axis or turning it in the holder is not a bite (seed 000 Table 2).
         """
         del roll_rad, yaw_rad
-        s = self.state
-        if t_s.size == 0:
-            return RodBlock((), s.baseline_rad, 0.0, math.nan, 0.0)
-        if s.warmed:
-            return self._detect(t_s, pitch_rad, acc_up_m_s2)
-        # Warm-up ends inside this block: learn from its head, detect on the rest (a burst may hold both).
-        if math.isnan(s.warm_until_s):
-            s.warm_until_s = float(t_s[0]) + WARMUP_S
-        end = min(int(np.searchsorted(t_s, s.warm_until_s - _EPS_S)) + 1, t_s.size)
-        head = self._warm_up(t_s[:end], pitch_rad[:end], None if acc_up_m_s2 is None else acc_up_m_s2[:end])
-        if end == t_s.size:
-            return head
-        tail_acc = None if acc_up_m_s2 is None else acc_up_m_s2[end:]
-        if not s.warmed:  # no finite pitch yet: keep learning
-            return self._warm_up(t_s[end:], pitch_rad[end:], tail_acc)
-        rest = self._detect(t_s[end:], pitch_rad[end:], tail_acc)
-        head_dev = pitch_rad[:end] - rest.baseline_rad
-        if np.isfinite(head_dev).any() and float(np.nanmin(head_dev)) < rest.min_deviation_rad:
-            i = int(np.nanargmin(head_dev))
-            return replace(rest, min_deviation_rad=float(head_dev[i]), t_min_s=float(t_s[i]))
-        return rest
+        s, n = self.state, t_s.size
+        if n == 0:
+            return RodBlock((), s.baseline_rad, np.zeros(0), math.nan, math.nan)
+        if math.isnan(s.origin_s):
+            s.origin_s = float(t_s[0])
+        events: list[RodEvent] = []
+        k_first, k_last = self._frame_of(float(t_s[0])), self._frame_of(float(t_s[-1]))
+        if k_first == k_last:  # the common case: the block lies in one frame
+            if k_first != s.frame_k:
+                self._close_frame()
+                s.frame_k, s.frame_t0_s = k_first, float(t_s[0])
+            dev, lo, i_lo = self._segment(t_s, pitch_rad, acc_up_m_s2, events)
+            return RodBlock(tuple(events), s.baseline_rad, dev, lo, float(t_s[i_lo]) if i_lo >= 0 else math.nan)
+        # frame j starts at the first sample with (t - origin) / FRAME_S + _FRAME_EPS >= j (as `_frame_of`)
+        starts = s.origin_s + (np.arange(k_first + 1, k_last + 1) - _FRAME_EPS) * FRAME_S
+        cuts = np.unique(np.r_[0, np.searchsorted(t_s, starts), n]).tolist()
+        dev = np.empty(n)
+        lo, t_lo = math.nan, math.nan
+        for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+            k = self._frame_of(float(t_s[a]))
+            if k != s.frame_k:
+                self._close_frame()
+                s.frame_k, s.frame_t0_s = k, float(t_s[a])
+            acc = None if acc_up_m_s2 is None else acc_up_m_s2[a:b]
+            dev[a:b], seg_lo, i_lo = self._segment(t_s[a:b], pitch_rad[a:b], acc, events)
+            if i_lo >= 0 and not seg_lo >= lo:
+                lo, t_lo = seg_lo, float(t_s[a + i_lo])
+        return RodBlock(tuple(events), s.baseline_rad, dev, lo, t_lo)
 
-    def _detect(self, t_s: FloatArray, pitch_rad: FloatArray, acc_up_m_s2: FloatArray | None) -> RodBlock:
-        """One non-empty block after the warm-up: latches, events, baseline tracking."""
+    def _frame_of(self, t_s: float) -> int:
+        """Index of the frame holding a sample at device time t_s."""
+        return math.floor((t_s - self.state.origin_s) / FRAME_S + _FRAME_EPS)
+
+    def _segment(self, t_s: FloatArray, pitch_rad: FloatArray, acc: FloatArray | None, events: list[RodEvent]
+                 ) -> tuple[FloatArray, float, int]:  # fmt: skip
+        """Samples of one frame (all of it or a part), judged against the state the earlier frames left; returns
+        their deviations, the lowest and its index (-1: none, e.g. in the warm-up)."""
+        s = self.state
+        s.frame_pitch.append(pitch_rad)
+        if acc is not None:
+            s.frame_acc.append(acc)
+        if not s.warmed:
+            if acc is not None:
+                s.acc_tail = keep_tail(s.acc_tail, acc, ACC_WINDOW - 1)
+            return np.full(t_s.size, math.nan), math.nan, -1
+        return self._detect(t_s, pitch_rad, acc, events)
+
+    def _detect(self, t_s: FloatArray, pitch_rad: FloatArray, acc_up_m_s2: FloatArray | None,
+                events: list[RodEvent]) -> tuple[FloatArray, float, int]:  # fmt: skip
+        """Latches and events for samples after the warm-up; returns their deviations from rest, the lowest and
+        its index (-1 if all are nan)."""
         p, s = self.params, self.state
         n = t_s.size
         dev = pitch_rad - s.baseline_rad
-        i_min = int(dev.argmin())
-        lo, hi = float(dev[i_min]), float(dev.max())
-        # Quiet blocks (the common case) skip every mask: only min, max and mean are computed.
-        cue = None
+        i_lo = int(dev.argmin())  # nan wins argmin: then fall back to the nan-skipping reductions
+        lo, hi = float(dev[i_lo]), float(dev.max())
+        if math.isnan(lo):
+            lo, hi = float(np.fmin.reduce(dev)), float(np.fmax.reduce(dev))
+            i_lo = -1 if math.isnan(lo) else int(np.argmax(dev == lo))
+        s.frame_lo_rad, s.frame_hi_rad = min(s.frame_lo_rad, lo), max(s.frame_hi_rad, hi)
+        # Quiet segments (the common case) skip every mask: only min and max are computed.
+        fast = None
         if acc_up_m_s2 is not None:
-            if lo <= -p.cue_rad and s.bite_armed:
+            if lo <= -p.cue_rad:
                 acc_mean, s.acc_tail = trailing_mean(acc_up_m_s2, s.acc_tail, ACC_WINDOW)
                 need = max(p.cue_acc_m_s2, CUE_NOISE_FACTOR * math.sqrt(s.acc_ms_lagged))
-                cue = (dev <= -p.cue_rad) & (acc_mean <= -need)
+                last_cue = last_true_time((dev <= -p.cue_rad) & (acc_mean <= -need), t_s, s.last_cue_s)
+                s.last_cue_s = float(last_cue[-1])
+                if lo <= -p.bite_rad:
+                    fast = (dev <= -p.bite_rad) & (t_s - last_cue <= CUE_HOLD_S + _EPS_S)
             else:
                 s.acc_tail = keep_tail(s.acc_tail, acc_up_m_s2, ACC_WINDOW - 1)
-            self._track_acc(t_s, acc_up_m_s2)
         bite_ok = None
         if lo <= -p.bite_rad:
             bite_ok, s.bite_run_s = held(dev <= -p.bite_rad, t_s, s.bite_run_s, p.confirm_s)
@@ -298,92 +374,110 @@ class BiteDetector:
             s.bite_run_s = math.nan
         drop_ok = None
         if hi >= p.drop_back_rad:
-            drop_ok, s.drop_run_s = held(dev >= p.drop_back_rad, t_s, s.drop_run_s, p.confirm_s)
+            drop_ok, s.drop_run_s = held(dev >= p.drop_back_rad, t_s, s.drop_run_s, DROP_BACK_HOLD_S)
         else:
             s.drop_run_s = math.nan
 
-        events: list[RodEvent] = []
-        bite_trig = bite_ok if cue is None else cue if bite_ok is None else bite_ok | cue
+        bite_trig = fast if bite_ok is None else bite_ok if fast is None else bite_ok | fast
         near_lo = -REARM_FRACTION * p.bite_rad
         if not s.bite_armed and hi <= near_lo:
-            s.near_bite_run_s = math.nan  # still pulled down: nothing can re-arm in this block
+            s.near_bite_run_s = math.nan  # still pulled down: nothing can re-arm here
+            s.bite_peak_rad = min(s.bite_peak_rad, lo)
         elif not s.bite_armed or (bite_trig is not None and bite_trig.any()):
+            was_armed = s.bite_armed
             near, starts, s.near_bite_run_s = near_runs(dev > near_lo, lo > near_lo, t_s, s.near_bite_run_s)
             s.bite_armed, s.bite_disarmed_at_s, changes = latch_step(
                 s.bite_armed, s.bite_disarmed_at_s, _or_none(bite_trig, n), near, starts, t_s, p.rearm_quiet_s
             )
+            spans = iter(disarmed_spans(was_armed, changes, n))
+            if not was_armed:
+                a, b = next(spans)
+                s.bite_peak_rad = min(s.bite_peak_rad, float(np.fmin.reduce(dev[a : b + 1])))
             for rearmed, k in changes:
                 if rearmed:
-                    events.append(RodEvent("bite_rearmed", float(t_s[k]), float(dev[k]), -p.bite_rad))
-                elif bite_ok is not None and bite_ok[k]:
-                    events.append(RodEvent("bite", float(t_s[k]), float(dev[k]), -p.bite_rad, "pitch"))
-                else:
-                    events.append(RodEvent("bite", float(t_s[k]), float(dev[k]), -p.cue_rad, "accel"))
+                    events.append(RodEvent("bite_rearmed", float(t_s[k]), float(dev[k]), -p.bite_rad, "",
+                                           s.bite_peak_rad))  # fmt: skip
+                    continue
+                a, b = next(spans)
+                s.bite_peak_rad = float(np.fmin.reduce(dev[a : b + 1]))
+                by_pitch = bite_ok is not None and bool(bite_ok[k])
+                events.append(RodEvent("bite", float(t_s[k]), float(dev[k]), -p.bite_rad,
+                                       "pitch" if by_pitch else "accel"))  # fmt: skip
         near_hi = REARM_FRACTION * p.drop_back_rad
         if not s.drop_armed and lo >= near_hi:
             s.near_drop_run_s = math.nan
+            s.drop_peak_rad = max(s.drop_peak_rad, hi)
         elif not s.drop_armed or (drop_ok is not None and drop_ok.any()):
+            was_armed = s.drop_armed
             near, starts, s.near_drop_run_s = near_runs(dev < near_hi, hi < near_hi, t_s, s.near_drop_run_s)
             s.drop_armed, s.drop_disarmed_at_s, changes = latch_step(
                 s.drop_armed, s.drop_disarmed_at_s, _or_none(drop_ok, n), near, starts, t_s, p.rearm_quiet_s
             )
+            spans = iter(disarmed_spans(was_armed, changes, n))
+            if not was_armed:
+                a, b = next(spans)
+                s.drop_peak_rad = max(s.drop_peak_rad, float(np.fmax.reduce(dev[a : b + 1])))
             for rearmed, k in changes:
-                kind: EventKind = "drop_back_rearmed" if rearmed else "drop_back"
-                events.append(RodEvent(kind, float(t_s[k]), float(dev[k]), p.drop_back_rad, "" if rearmed else "pitch"))
+                if rearmed:
+                    events.append(RodEvent("drop_back_rearmed", float(t_s[k]), float(dev[k]), p.drop_back_rad, "",
+                                           s.drop_peak_rad))  # fmt: skip
+                    continue
+                a, b = next(spans)
+                s.drop_peak_rad = float(np.fmax.reduce(dev[a : b + 1]))
+                events.append(RodEvent("drop_back", float(t_s[k]), float(dev[k]), p.drop_back_rad, "pitch"))
         if len(events) > 1:
             events.sort(key=lambda e: e.t_s)
+        return dev, lo, i_lo
 
-        used = s.baseline_rad
-        self._track_baseline(t_s, pitch_rad, lo, hi)
-        return RodBlock(tuple(events), used, lo, float(t_s[i_min]), float(dev[-1]))
-
-    def _warm_up(self, t_s: FloatArray, pitch_rad: FloatArray, acc_up_m_s2: FloatArray | None) -> RodBlock:
-        """Learn the rest pitch as the mean of the first WARMUP_S seconds (nan samples skipped); no alarms."""
-        s = self.state
-        ok = pitch_rad[np.isfinite(pitch_rad)]
-        s.warm_sum_rad += float(np.add.reduce(ok))
-        s.warm_n += ok.size
-        if s.warm_n:
-            s.baseline_rad = s.warm_sum_rad / s.warm_n
-        if acc_up_m_s2 is not None:
-            s.acc_tail = keep_tail(s.acc_tail, acc_up_m_s2, ACC_WINDOW - 1)
-            self._track_acc(t_s, acc_up_m_s2)
-        s.last_t_s = float(t_s[-1])
-        s.warmed = s.warm_n > 0 and s.last_t_s >= s.warm_until_s
-        dev = pitch_rad - s.baseline_rad
-        return RodBlock(
-            (), s.baseline_rad, float(np.nanmin(dev)) if ok.size else math.nan, float(t_s[0]), float(dev[-1])
-        )
-
-    def _track_acc(self, t_s: FloatArray, acc_up_m_s2: FloatArray) -> None:
-        """Vibration level for the cue's bar: mean square with fast attack and ACC_RMS_DECAY_S decay, lagged."""
-        s, n = self.state, t_s.size
-        block_ms = float(np.dot(acc_up_m_s2, acc_up_m_s2)) / n
-        if not math.isfinite(block_ms):
-            return
-        span_s = float(t_s[-1] - t_s[0]) * n / max(n - 1, 1)
-        s.acc_ms = max(block_ms, s.acc_ms * math.exp(-span_s / ACC_RMS_DECAY_S))
-        if t_s[-1] - s.acc_checkpoint_s >= ACC_RMS_LAG_S:
-            s.acc_ms_lagged, s.acc_ms_snapshot = s.acc_ms_snapshot, s.acc_ms
-            s.acc_checkpoint_s = float(t_s[-1])
-
-    def _track_baseline(self, t_s: FloatArray, pitch_rad: FloatArray, lo: float, hi: float) -> None:
-        """Follow the rest pitch while quiet and armed; re-take it after a long steady spell while disarmed."""
+    def _close_frame(self) -> None:
+        """End of the open frame: its samples move the warm-up sums, vibration level and rest baseline."""
         p, s = self.params, self.state
-        t_end = float(t_s[-1])
-        dt_s = t_end - s.last_t_s if not math.isnan(s.last_t_s) else t_end - float(t_s[0])
-        s.last_t_s = t_end
-        mean = float(np.add.reduce(pitch_rad)) / pitch_rad.size
+        if s.frame_k < 0 or not s.frame_pitch:
+            return
+        pitch = s.frame_pitch[0] if len(s.frame_pitch) == 1 else np.concatenate(s.frame_pitch)
+        acc = None if not s.frame_acc else s.frame_acc[0] if len(s.frame_acc) == 1 else np.concatenate(s.frame_acc)
+        s.frame_pitch, s.frame_acc = [], []
+        lo, hi = s.frame_lo_rad, s.frame_hi_rad
+        s.frame_lo_rad, s.frame_hi_rad = math.inf, -math.inf
+        gap_frames = s.frame_k - s.closed_k if s.closed_k >= 0 else 1
+        s.closed_k = s.frame_k
+        if acc is not None:
+            self._track_acc(acc, gap_frames)
+        if not s.warmed:
+            ok = pitch[np.isfinite(pitch)]
+            s.warm_sum_rad += float(np.add.reduce(ok))
+            s.warm_n += ok.size
+            if s.warm_n:
+                s.baseline_rad = s.warm_sum_rad / s.warm_n
+            s.warmed = s.warm_n > 0 and s.frame_k >= WARMUP_FRAMES - 1
+            return
+        mean = float(np.add.reduce(pitch)) / pitch.size
         if not math.isfinite(mean):
-            return  # a block with gaps (nan) never moves the baseline
+            return  # a frame with gaps (nan) never moves the baseline
         if s.bite_armed and s.drop_armed:
             s.steady_since_s = math.nan
             if lo > -REARM_FRACTION * p.bite_rad and hi < REARM_FRACTION * p.drop_back_rad:
-                s.baseline_rad += (1.0 - math.exp(-max(dt_s, 0.0) / p.baseline_tau_s)) * (mean - s.baseline_rad)
+                dt_s = gap_frames * FRAME_S
+                s.baseline_rad += (1.0 - math.exp(-dt_s / p.baseline_tau_s)) * (mean - s.baseline_rad)
             return
         if math.isnan(s.steady_since_s) or abs(mean - s.steady_ref_rad) > STEADY_FRACTION * p.bite_rad:
-            s.steady_ref_rad, s.steady_since_s = mean, float(t_s[0])
+            s.steady_ref_rad, s.steady_since_s = mean, s.frame_t0_s
             return
         s.steady_ref_rad += 0.1 * (mean - s.steady_ref_rad)
-        if t_end - s.steady_since_s >= REBASELINE_FACTOR * max(p.rearm_quiet_s, 1.0):
+        if s.frame_t0_s + FRAME_S - s.steady_since_s >= REBASELINE_FACTOR * max(p.rearm_quiet_s, 1.0):
             s.baseline_rad, s.steady_since_s = s.steady_ref_rad, math.nan
+
+    def _track_acc(self, acc_up_m_s2: FloatArray, gap_frames: int) -> None:
+        """Vibration level for the cue's bar: mean square with fast attack and ACC_RMS_DECAY_S decay, lagged."""
+        s = self.state
+        frame_ms = float(np.dot(acc_up_m_s2, acc_up_m_s2)) / acc_up_m_s2.size
+        if not math.isfinite(frame_ms):
+            return
+        s.acc_ms = max(frame_ms, s.acc_ms * math.exp(-gap_frames * FRAME_S / ACC_RMS_DECAY_S))
+        if s.frame_k - s.acc_checkpoint_k >= ACC_RMS_LAG_FRAMES:
+            s.acc_ms_lagged, s.acc_ms_snapshot = s.acc_ms_snapshot, s.acc_ms
+            s.acc_checkpoint_k = s.frame_k
+
+
+def _or_none(mask: BoolArray | None, n: int) -> BoolArray:
+    return np.zeros(n, dtype=bool) if mask is None else mask

@@ -9,9 +9,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from gateway.alarm.bite import BiteDetector, FloatArray, RodBlock, RodEvent
-from gateway.alarm.engine import Condition, Severity
+from gateway.alarm.engine import Condition, DetailValue, Severity
 from gateway.config import RodThresholds
 
 
@@ -36,6 +37,8 @@ ALARM_TYPES: tuple[AlarmSpec, ...] = (
     ),
     AlarmSpec("hook_swing", "hook", (Severity.WARNING, Severity.CRITICAL), "hook swing angle Theta over limit"),
     AlarmSpec("hook_torsion", "hook", (Severity.WARNING, Severity.CRITICAL), "hook twist phi about rope over limit"),
+    AlarmSpec("device_conflict", "any", (Severity.CRITICAL,),
+              "two publishers on one device's keys (spoofing or a duplicated id); raised by ingest, clears 10 s after"),
 )
 SPECS: dict[str, AlarmSpec] = {s.type: s for s in ALARM_TYPES}
 
@@ -97,37 +100,126 @@ class LevelGuard:
                          f"{label} {peak:.1f} {self.unit} >= {thr:.1f} {self.unit}")  # fmt: skip
 
 
+def hysteresis_levels(
+    values: FloatArray, level: int, thresholds: Sequence[float], hysteresis: float
+) -> NDArray[np.int64]:
+    """Alarm level after each sample (0 = none, i = thresholds[i-1] passed), starting from `level`.
+
+    Per threshold a latch turns on at a sample >= thr and off at a sample < thr - hysteresis (nan holds); with
+    ascending thresholds the latches nest, so the level is how many are on. Sample by sample, so the levels do
+    not depend on how the samples were cut into blocks. `thresholds` ascend.
+    """
+    n = values.size
+    out = np.zeros(n, dtype=np.int64)
+    idx = np.arange(n)
+    with np.errstate(invalid="ignore"):
+        for j, thr in enumerate(thresholds):
+            step = np.where(values >= thr, 1, np.where(values < thr - hysteresis, -1, 0))
+            last = np.maximum.accumulate(np.where(step != 0, idx, -1))
+            on = np.where(last >= 0, step[np.maximum(last, 0)] > 0, level > j)
+            out += on
+    return out
+
+
+def _deg(x_rad: float) -> str:
+    return f"{math.degrees(x_rad):.1f}°"
+
+
 def _event_condition(device_id: str, e: RodEvent) -> Condition:
+    """The engine condition of a latch change, with the measured deviation and the threshold it passed."""
     dev_deg, thr_deg = math.degrees(e.deviation_rad), math.degrees(e.threshold_rad)
-    details = {"deviation_deg": round(dev_deg, 3), "cue": e.cue}
+    details: dict[str, DetailValue] = {"deviation_deg": round(dev_deg, 3), "cue": e.cue}
     if e.kind == "bite":
-        msg = f"bite: pitch {-dev_deg:.1f} deg below rest (threshold {-thr_deg:.1f} deg, by {e.cue})"
+        how = " (confirmed early by the accel cue)" if e.cue == "accel" else ""
+        msg = f"bite: pitch {_deg(-e.deviation_rad)} below rest ≥ θ1 {_deg(-e.threshold_rad)}{how}"
         return Condition(device_id, "bite", Severity.MAJOR, e.t_s, dev_deg, thr_deg, msg, details)
     if e.kind == "drop_back":
-        msg = f"drop-back: pitch {dev_deg:.1f} deg above rest (threshold {thr_deg:.1f} deg)"
+        msg = f"drop-back: pitch {_deg(e.deviation_rad)} above rest ≥ {_deg(e.threshold_rad)}"
         return Condition(device_id, "drop_back", Severity.MINOR, e.t_s, dev_deg, thr_deg, msg, details)
-    alarm_type = "bite" if e.kind == "bite_rearmed" else "drop_back"
-    return Condition(device_id, alarm_type, None, e.t_s, dev_deg, thr_deg, "pitch back at rest: re-armed", details)
+    details["peak_deg"] = round(math.degrees(e.peak_rad), 3)
+    if e.kind == "bite_rearmed":
+        msg = f"pitch back at rest, re-armed (bite peak {_deg(-e.peak_rad)} below rest)"
+        return Condition(device_id, "bite", None, e.t_s, dev_deg, thr_deg, msg, details)
+    msg = f"pitch back at rest, re-armed (drop-back peak {_deg(e.peak_rad)} above rest)"
+    return Condition(device_id, "drop_back", None, e.t_s, dev_deg, thr_deg, msg, details)
+
+
+class LineGuard:
+    """Line-tension alarm of one rod, sample by sample: level 1 (warning) at a drop >= theta2, level 2 (critical)
+    at a drop >= line_critical_fraction * theta3 or a reel tension >= tension_warn_fraction * breaking load."""
+
+    def __init__(self, th: RodThresholds) -> None:
+        self.level = 0
+        self._angle_level = 0
+        self._tension_level = 0
+        self.set_thresholds(th)
+
+    def set_thresholds(self, th: RodThresholds) -> None:
+        """New levels; the current alarm level is kept until the samples say otherwise."""
+        self.angle_deg = (th.line_switch_deg, th.line_critical_fraction * th.line_limit_deg)
+        self.critical_name = f"{th.line_critical_fraction:g}·θ3"
+        self.tension_n = th.tension_warn_fraction * th.line_breaking_n
+        self.tension_hyst_n = TENSION_HYSTERESIS_FRACTION * th.line_breaking_n
+
+    def update(self, device_id: str, t_s: FloatArray, block: RodBlock, tension_n: FloatArray | None
+               ) -> list[Condition]:  # fmt: skip
+        """Conditions for every level change in the block, at the sample that caused it."""
+        peak_drop_deg = -math.degrees(block.min_deviation_rad)  # nan (warm-up) counts as quiet
+        quiet = self.level == 0 and not peak_drop_deg >= self.angle_deg[0] - LINE_HYSTERESIS_DEG
+        if quiet and (tension_n is None or not np.fmax.reduce(tension_n) >= self.tension_n - self.tension_hyst_n):
+            return []
+        drop_deg = np.degrees(-block.deviation_rad)
+        by_angle = hysteresis_levels(drop_deg, self._angle_level, self.angle_deg, LINE_HYSTERESIS_DEG)
+        by_tension = (np.zeros(t_s.size, dtype=np.int64) if tension_n is None
+                      else hysteresis_levels(tension_n, self._tension_level, (self.tension_n,), self.tension_hyst_n))
+        level = np.maximum(by_angle, 2 * by_tension)
+        self._angle_level, self._tension_level = int(by_angle[-1]), int(by_tension[-1])
+        out = []
+        for k in np.flatnonzero(np.diff(np.concatenate(([self.level], level)))):
+            new = int(level[k])
+            out.append(self._condition(device_id, float(t_s[k]), new, float(drop_deg[k]), by_tension[k] > 0,
+                                       None if tension_n is None else float(tension_n[k])))  # fmt: skip
+            self.level = new
+        return out
+
+    def _condition(self, device_id: str, t_s: float, new: int, drop_deg: float, by_tension: bool,
+                   tension_n: float | None) -> Condition:  # fmt: skip
+        """Message with the measured value and the threshold it passed (or fell back under)."""
+        if new == 0:
+            msg = f"line: rod drop back to {drop_deg:.1f}° < {self.angle_deg[0] - LINE_HYSTERESIS_DEG:.1f}°"
+            if tension_n is not None:
+                msg += f", tension {tension_n:.1f} N < {self.tension_n - self.tension_hyst_n:.1f} N"
+            return Condition(device_id, "line_tension", None, t_s, drop_deg, self.angle_deg[0], msg, {"level": 0})
+        severity = SPECS["line_tension"].severities[new - 1]
+        if by_tension and tension_n is not None:
+            msg = f"line: tension {tension_n:.1f} N ≥ {self.tension_n:.1f} N (near breaking)"
+            return Condition(device_id, "line_tension", severity, t_s, tension_n, self.tension_n, msg, {"level": new})
+        thr = self.angle_deg[new - 1]
+        name = "θ2" if new == 1 else self.critical_name
+        if new < self.level:
+            msg = f"line: rod drop {drop_deg:.1f}°, back under {self.angle_deg[new] - LINE_HYSTERESIS_DEG:.1f}°"
+        else:
+            msg = f"line: rod drop {drop_deg:.1f}° ≥ {name} {thr:.1f}°"
+        return Condition(device_id, "line_tension", severity, t_s, drop_deg, thr, msg, {"level": new})
 
 
 class RodAlarms:
-    """All rod rules for one device: bite / drop-back latches and the line guard (theta2, theta3, tension)."""
+    """All rod rules for one device: bite / drop-back latches and the line guard (theta2, theta3, tension).
+
+    Every decision is per sample, so the conditions do not depend on how the samples were cut into blocks."""
 
     def __init__(self, device_id: str, thresholds: RodThresholds | None = None) -> None:
         self.device_id = device_id
-        self.detector = BiteDetector(thresholds)
-        self._angle = LevelGuard("line_tension", (0.0, 0.0), LINE_HYSTERESIS_DEG, "deg")
-        self._tension = LevelGuard("line_tension", (0.0,), 0.0, "N")
-        self._level = 0
-        self.set_thresholds(thresholds or RodThresholds())
+        th = thresholds or RodThresholds()
+        self.detector = BiteDetector(th)
+        self.line = LineGuard(th)
+        self.thresholds = th
 
     def set_thresholds(self, th: RodThresholds) -> None:
         """Apply new thresholds (REST update) without losing the baseline or active latches."""
         self.thresholds = th
         self.detector.set_thresholds(th)
-        self._angle.thresholds = (th.line_switch_deg, th.line_critical_fraction * th.line_limit_deg)
-        self._tension.thresholds = (th.tension_warn_fraction * th.line_breaking_n,)
-        self._tension.hysteresis = TENSION_HYSTERESIS_FRACTION * th.line_breaking_n
+        self.line.set_thresholds(th)
 
     def update(
         self,
@@ -138,30 +230,10 @@ class RodAlarms:
         acc_up_m_s2: FloatArray | None = None,
         tension_n: FloatArray | None = None,
     ) -> tuple[RodBlock, list[Condition]]:
-        """One block (shapes (n,)) -> detector summary and the conditions for the engine."""
+        """One block (shapes (n,)) -> detector summary and the conditions for the engine, in time order."""
         block = self.detector.update(t_s, pitch_rad, roll_rad, yaw_rad, acc_up_m_s2)
         out = [_event_condition(self.device_id, e) for e in block.events]
-        line = self._line(t_s, block, lambda: pitch_rad - block.baseline_rad, tension_n)
-        if line is not None:
-            out.append(line)
+        line = self.line.update(self.device_id, t_s, block, tension_n)
+        if line:
+            out = sorted(out + line, key=lambda c: c.t_s)
         return block, out
-
-    def _line(
-        self, t_s: FloatArray, block: RodBlock, dev_rad: Callable[[], FloatArray], tension_n: FloatArray | None
-    ) -> Condition | None:
-        """Line guard: level = max(angle level, tension level); tension has only the critical level."""
-        by_angle = self._angle.update(
-            self.device_id, t_s, lambda: np.degrees(-dev_rad()), "rod drop", math.degrees(-block.min_deviation_rad)
-        )
-        by_tension = None
-        if tension_n is not None:
-            by_tension = self._tension.update(self.device_id, t_s, tension_n, "line tension")
-        new = max(self._angle.level, 2 * self._tension.level)
-        if new == self._level:
-            return None
-        self._level = new
-        source = by_tension if self._tension.level and by_tension is not None else by_angle or by_tension
-        assert source is not None
-        severity = None if new == 0 else SPECS["line_tension"].severities[new - 1]
-        return Condition(self.device_id, "line_tension", severity, source.t_s, source.value, source.threshold,
-                         source.message, {"level": new})  # fmt: skip

@@ -28,7 +28,9 @@ from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect
 
 from gateway import schemas
 from gateway.api.routes.devices import device_view
+from gateway.api.security import origin_allowed
 from gateway.ingest.runner import GatewayService
+from gateway.store import ApiToken
 
 log = logging.getLogger("gateway.ws")
 router = APIRouter()
@@ -67,13 +69,14 @@ class ClientQueue:
 class LiveSettings:
     """Stream rates and bounds. `tick_s`: period of tick frames; `series_max`: samples kept per device between
     ticks (older ones are dropped); `raw_packets`: raw packets kept per key between ticks; `cards_every`: ticks between
-    full device cards (the other ticks carry only the new samples)."""
+    full device cards (the other ticks carry only the new samples); `max_raw_keys`: raw buffers at most."""
 
     queue_size: int = 256
     tick_s: float = 0.1
     cards_every: int = 5  # full device cards and the spot ranking every this many ticks (2 Hz)
     series_max: int = 200
     raw_packets: int = 8
+    max_raw_keys: int = 512  # raw buffers (one per known device's imu/env key)
 
 
 @dataclass
@@ -151,6 +154,8 @@ class LiveStream:
         self._series: dict[str, _Series] = {}
         self._raw: dict[str, collections.deque[bytes]] = {}
         self._task: asyncio.Task[None] | None = None
+        self.entry_failures = 0
+        self._entry_fail_logged_s = -math.inf
 
     # -- producers --------------------------------------------------------------------------------------------
 
@@ -181,9 +186,15 @@ class LiveStream:
         return s
 
     def on_raw(self, key: str, payload: bytes) -> None:
-        """Bus callback (zenoh thread): keep the payload, nothing else."""
+        """Bus callback (zenoh thread): keep the payload, nothing else. Only keys of devices the pipeline knows get
+        a buffer (and at most `max_raw_keys`): anyone can publish on `rig/*/*/imu`, and a buffer per arbitrary key
+        kept rejected payloads forever (150 keys of large payloads: +700 MB)."""
         q = self._raw.get(key)
         if q is None:
+            parts = key.split("/")
+            if (len(parts) != 4 or parts[2] not in self.service.pipeline.kinds
+                    or len(self._raw) >= self.settings.max_raw_keys):  # fmt: skip
+                return
             q = self._raw.setdefault(key, collections.deque(maxlen=self.settings.raw_packets))
         q.append(payload)
 
@@ -215,30 +226,40 @@ class LiveStream:
         svc = self.service
         devices = []
         for device_id, kind in sorted(svc.pipeline.kinds.items()):
-            entry: dict[str, Any] = {"device_id": device_id, "kind": kind}
-            if full:
-                try:
-                    entry = device_view(svc, device_id, detail=False)
-                except Exception:  # a device half-registered mid-batch: skip its card this tick
-                    pass
-            s = self._series.get(device_id)
-            entry["series"] = s.take() if s is not None else {"t_s": []}
-            if kind in schemas.IMU_KINDS:
-                raw = raw_imu_summary(self._take_raw(schemas.imu_key(kind, device_id)), now_s)
-                entry["acc"] = raw["acc"]
-                if raw["link"]:
-                    entry["link"] = raw["link"]
-            elif kind == "ball" and full:
-                for raw_env in self._take_raw(schemas.env_key(device_id))[-1:]:
-                    with contextlib.suppress(ValueError):
-                        p = json.loads(raw_env)
-                        entry["link"] = {k: p[k] for k in ("battery_v", "rssi_dbm") if _finite(p.get(k)) is not None}
-            devices.append(entry)
+            try:  # one device's card must never stop the stream for all
+                devices.append(self._device_entry(device_id, kind, now_s, full))
+            except Exception:
+                self.entry_failures += 1
+                if now_s - self._entry_fail_logged_s >= 10.0:
+                    self._entry_fail_logged_s = now_s
+                    log.exception("tick: device %r skipped (%d skipped so far)", device_id[:80], self.entry_failures)
         frame = {"type": "tick", "wall_s": round(now_s, 3), "alarm_seq": self.alarm_seq, "full": full,
                  "devices": devices}  # fmt: skip
         if full:
             frame["spots"] = svc.pipeline.rank_spots(now_s).model_dump()["spots"]
         return frame
+
+    def _device_entry(self, device_id: str, kind: str, now_s: float, full: bool) -> dict[str, Any]:
+        svc = self.service
+        entry: dict[str, Any] = {"device_id": device_id, "kind": kind}
+        if full:
+            try:
+                entry = device_view(svc, device_id, detail=False)
+            except Exception:  # a device half-registered mid-batch: skip its card this tick
+                pass
+        s = self._series.get(device_id)
+        entry["series"] = s.take() if s is not None else {"t_s": []}
+        if kind in schemas.IMU_KINDS:
+            raw = raw_imu_summary(self._take_raw(schemas.imu_key(kind, device_id)), now_s)
+            entry["acc"] = raw["acc"]
+            if raw["link"]:
+                entry["link"] = raw["link"]
+        elif kind == "ball" and full:
+            for raw_env in self._take_raw(schemas.env_key(device_id))[-1:]:
+                with contextlib.suppress(ValueError):
+                    p = json.loads(raw_env)
+                    entry["link"] = {k: p[k] for k in ("battery_v", "rssi_dbm") if _finite(p.get(k)) is not None}
+        return entry
 
     async def run(self) -> None:
         """Tick loop; work is skipped while nobody listens (buffers are still bounded)."""
@@ -272,10 +293,28 @@ class LiveStream:
             self._task = None
 
 
+def stream_allowed(ws: WebSocket) -> bool:
+    """A browser page may open the stream only from the gateway's own origin (or `Settings.allowed_origins`),
+    else it needs the API token (`?token=` or `Authorization: Bearer`): any site the operator visits could
+    otherwise read the live data. Clients that send no Origin are not browsers and read as REST does."""
+    origin = ws.headers.get("origin")
+    settings = ws.app.state.service.settings
+    if origin is None or origin_allowed(origin, ws.headers.get("host"), settings.allowed_origins):
+        return True
+    auth = ws.headers.get("authorization", "")
+    given = ws.query_params.get("token") or (auth[7:] if auth.lower().startswith("bearer ") else None)
+    token: ApiToken = ws.app.state.token
+    return token.verify_token(given)
+
+
 @router.websocket("/ws/stream")
 async def stream(ws: WebSocket) -> None:
-    """Live frames (see module docstring); read-only, so no token."""
+    """Live frames (see module docstring); read-only: same origin, or the token from another origin."""
     live: LiveStream = ws.app.state.live
+    if not stream_allowed(ws):
+        log.warning("refused /ws/stream from origin %r", (ws.headers.get("origin") or "")[:100])
+        await ws.close(code=1008)  # before accept: the handshake gets a 403
+        return
     await ws.accept()
     q = ClientQueue(live.settings.queue_size)
     live.clients.add(q)

@@ -30,6 +30,17 @@ OUT = REPO / "test-output"
 BITE_AT_S = 30.0  # device time of the scripted bite: after the page is open and the first tests ran
 
 
+def wait_js(page: Any, expression: str, timeout: float = 30_000) -> None:
+    """Wait until a JS expression is truthy in the page. Polls `page.evaluate` (DevTools evaluation) instead of
+    `page.wait_for_function`, whose in-page polling compiles the string and so breaks the dashboard's CSP
+    (no 'unsafe-eval'): the tests keep the real CSP and would see any violation by the page itself."""
+    deadline = time.monotonic() + timeout / 1000.0
+    while not page.evaluate(expression):
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"not true within {timeout / 1000.0:g} s: {expression}")
+        time.sleep(0.05)
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

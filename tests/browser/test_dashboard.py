@@ -17,7 +17,7 @@ from urllib.parse import urlparse
 
 import pytest
 
-from tests.browser.conftest import BITE_AT_S, OUT, Browser, System, get_json
+from tests.browser.conftest import BITE_AT_S, OUT, Browser, System, get_json, wait_js
 
 pytestmark = pytest.mark.browser
 LOCAL_HOSTS = {"127.0.0.1", "localhost"}
@@ -44,7 +44,7 @@ def test_dashboard_shows_live_values(system: System, browser: Browser) -> None:
     page.get_by_test_id("conn").filter(has_text="live").wait_for(timeout=15_000)
     page.get_by_test_id("fleet-rod-1").wait_for(timeout=15_000)
     page.get_by_test_id("fleet-ball-1").wait_for(timeout=15_000)
-    page.wait_for_function("Devices.get('rod-1') && Devices.get('rod-1').acc.t.length > 20", timeout=15_000)
+    wait_js(page, "Devices.get('rod-1') && Devices.get('rod-1').acc.t.length > 20", timeout=15_000)
     n0, acc0 = _series_len(browser, "rod-1"), _series_len(browser, "rod-1", "acc")
     time.sleep(1.5)
     n1, acc1 = _series_len(browser, "rod-1"), _series_len(browser, "rod-1", "acc")
@@ -111,8 +111,8 @@ def test_history_is_there_after_a_reload(system: System, browser: Browser) -> No
     page.reload()
     page.get_by_test_id("conn").filter(has_text="live").wait_for(timeout=15_000)
     # the page starts where the gateway's history starts, not at the reload
-    page.wait_for_function(f"Devices.get('rod-1') && Devices.get('rod-1').att.t[0] <= {rod0 + 1.0}", timeout=5_000)
-    page.wait_for_function(f"Devices.get('ball-1') && Devices.get('ball-1').env.t[0] <= {ball0 + 1.5}", timeout=5_000)
+    wait_js(page, f"Devices.get('rod-1') && Devices.get('rod-1').att.t[0] <= {rod0 + 1.0}", timeout=5_000)
+    wait_js(page, f"Devices.get('ball-1') && Devices.get('ball-1').env.t[0] <= {ball0 + 1.5}", timeout=5_000)
     assert not browser.errors(), browser.errors()
 
 
@@ -163,7 +163,7 @@ def test_scripted_bite_raises_loud_alarm_and_ack_clears_banner(system: System, b
     assert seen - bite["started_at"] < 1.0, f"alarm shown {seen - bite['started_at']:.2f} s after it started"
     banner_h = page.evaluate("document.querySelector('#bite').getBoundingClientRect().height")
     assert banner_h < 0.15 * 800, f"the banner covers {banner_h} px"
-    page.wait_for_function("Devices.get('rod-1').charts[0] && Alarms.recent.some((a) => a.type === 'bite')")
+    wait_js(page, "Devices.get('rod-1').charts[0] && Alarms.recent.some((a) => a.type === 'bite')")
     browser.shot("dashboard_bite", full_page=False)
     page.get_by_test_id("bite-ack").click()
     banner.wait_for(state="hidden", timeout=5_000)
@@ -173,11 +173,11 @@ def test_scripted_bite_raises_loud_alarm_and_ack_clears_banner(system: System, b
     page.get_by_test_id("alarms-history-tab").click()
     page.locator('[data-testid="alarms"] tr[data-type="bite"]').first.wait_for(timeout=5_000)
     page.get_by_test_id("alarm-filter-type").select_option("bite")
-    page.wait_for_function(
+    wait_js(page,
         "[...document.querySelectorAll('#alarm-rows tr[data-type]')].every((r) => r.dataset.type === 'bite')"
     )
     page.get_by_test_id("alarm-filter-severity").select_option("critical")
-    page.wait_for_function("!document.querySelector('#alarm-rows tr[data-type=\"bite\"]')")  # bites are major
+    wait_js(page, "!document.querySelector('#alarm-rows tr[data-type=\"bite\"]')")  # bites are major
     browser.shot("dashboard_alarm_history")
     page.get_by_test_id("alarm-filter-severity").select_option("")
     page.get_by_test_id("alarm-filter-type").select_option("")
@@ -205,7 +205,7 @@ def test_phone_layout_has_no_sideways_scroll(system: System, phone: Browser) -> 
     page.goto(system.base + "/")
     page.get_by_test_id("conn").filter(has_text="live").wait_for(timeout=15_000)
     page.get_by_test_id("fleet-rod-1").wait_for(timeout=15_000)
-    page.wait_for_function("Devices.get('rod-1') && Devices.get('rod-1').charts.length > 0", timeout=15_000)
+    wait_js(page, "Devices.get('rod-1') && Devices.get('rod-1').charts.length > 0", timeout=15_000)
     time.sleep(1.0)
     assert page.evaluate(NO_SIDEWAYS_SCROLL), page.evaluate("document.documentElement.scrollWidth")
     token = page.get_by_test_id("token-btn").bounding_box()
@@ -292,7 +292,7 @@ def test_stale_state_when_devices_then_gateway_stop(system: System, browser: Bro
     devices.send_signal(2)
     devices.wait(timeout=20)
     row = page.get_by_test_id("fleet-rod-1")
-    page.wait_for_function(
+    wait_js(page,
         "document.querySelector('[data-testid=\"fleet-rod-1\"] [data-status]').dataset.status !== 'online'",
         timeout=15_000)  # fmt: skip
     assert "stale" in (row.get_attribute("class") or "") or "offline" in (row.get_attribute("class") or "")

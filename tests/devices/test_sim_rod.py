@@ -101,3 +101,24 @@ def test_command_selectors_are_valid_key_expressions_matching_every_device(count
         sels = [zenoh.KeyExpr(s) for s in f.command_selectors]  # raises on an invalid expression
         for dev in f.ids:
             assert any(s.intersects(zenoh.KeyExpr(key_of(dev))) for s in sels)
+
+
+def test_scenario_fleet_plays_the_recordings_with_labelled_truth_then_falls_silent() -> None:
+    from devices.rod_scenarios import make_scenario
+    from devices.sim_rod import ScenarioFleet
+
+    fleet = ScenarioFleet(FleetSettings(count=2, seed=0, samples_per_packet=50, progress=False, id_prefix="rod"), 3)
+    ticks = [fleet.tick(k) for k in range(601)]  # 600 packets = the whole 5 min, then one more
+    for i, seed in enumerate((3, 4)):
+        sc = make_scenario(seed)
+        imu = [schemas.decode(m.key, m.payload) for data, _ in ticks for m in data[i]]
+        assert all(isinstance(p, schemas.ImuPacket) for p in imu) and len(imu) == 600
+        acc = np.concatenate([np.asarray(p.acc_m_s2) for p in imu if isinstance(p, schemas.ImuPacket)])
+        np.testing.assert_allclose(acc, sc.acc_m_s2, atol=1e-5)  # the payload rounds to 10 µm/s²
+        truths = [schemas.decode(m.key, m.payload) for _, extra in ticks for m in extra if f"/rod-{i + 1}/" in m.key]
+        labels = [(e.label, e.phase) for p in truths if isinstance(p, schemas.RodTruth) for e in p.events]
+        assert labels == [(e.family, ph) for e in sc.events for ph in ("start", "end")]
+        first = imu[0]
+        assert isinstance(first, schemas.ImuPacket) and isinstance(truths[0], schemas.RodTruth)
+        assert truths[0].t0_us == first.t0_us and truths[0].seq == first.seq == 0
+    assert ticks[-1] == ([[], []], [])

@@ -33,5 +33,5 @@ async def clear_alarm(alarm_id: str, service: ServiceDep, who: WriterDep) -> dic
                                                 message=f"{stored.message}; cleared by hand ({who})"))  # fmt: skip
     kind = service.pipeline.kinds.get(change.alarm.device_id, "rod")
     service.hub.emit(Output(alarms=[AlarmOut(kind, change, int(now * 1e6), None)]))
-    stored = service.store.get_alarm(change.alarm.id)
-    return alarm_json(stored if stored is not None else change.alarm)
+    # the engine's record is the authority: the store row follows from the writer thread a moment later
+    return alarm_json(change.alarm)
