@@ -220,7 +220,9 @@ def test_phone_layout_has_no_sideways_scroll(system: System, phone: Browser) -> 
     assert page.evaluate("matchMedia('(prefers-color-scheme: dark)').matches")
     assert page.evaluate("getComputedStyle(document.body).backgroundColor") != "rgb(244, 246, 248)"  # dark theme
     page.get_by_test_id("fleet-filter").fill("ball")
+    time.sleep(0.6)  # past two 4 Hz status refreshes: the filter must survive them
     assert page.get_by_test_id("fleet-rod-1").is_hidden() and page.get_by_test_id("panel-rod-1").is_hidden()
+    assert page.get_by_test_id("fleet-ball-1").is_visible()
     page.get_by_test_id("fleet-filter").fill("")
     phone.shot("dashboard_phone", full_page=False)
     phone.shot("dashboard_phone_full")
