@@ -301,6 +301,7 @@ function buildRow(d) {
   const after = rows.find((r) => r.dataset.testid && byId(r.dataset.testid.slice(6), d.id) > 0);
   body.insertBefore(d.row, after || null);
   $("#fleet-count").textContent = `(${Devices.size})`;
+  $("#device-ids").append(el("option", { value: d.id })); // suggestions for the alarm filter (exact id)
 }
 
 function buildPanel(d) {
