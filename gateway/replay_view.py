@@ -167,11 +167,17 @@ def load(path: Path) -> Loaded:
     return Loaded(dataclasses.replace(trial, quat_ref=truth), rt.kind, "simulator truth")
 
 
-def run(path: Path, filter_name: str, mode: broad.Mode) -> ReplayData:
-    """Load, run the filter, compute display arrays (with a progress bar over the stages)."""
+KIND_FILTERS = {"hook": "hook"}
+"""The filter the gateway runs for a device kind (pipeline.HOOK_FILTER for hooks); others use `default`."""
+
+
+def run(path: Path, filter_name: str | None, mode: broad.Mode) -> ReplayData:
+    """Load, run the filter (None: the one the gateway runs for this device kind), compute display arrays (with a
+    progress bar over the stages)."""
     with tqdm(total=3, desc=f"replay {path.name}", unit="step") as bar:
         loaded = load(path)
         trial = loaded.trial
+        filter_name = filter_name or KIND_FILTERS.get(loaded.kind, "default")
         bar.update()
         use_mag = mode == "9D" and bool(np.all(np.isfinite(trial.mag_uT)))
         q_est = broad.run_filter(make_filter(filter_name, use_mag=use_mag), trial, "9D" if use_mag else "6D")
@@ -336,7 +342,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m gateway.replay_view", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     p.add_argument("path", type=Path, help="BROAD .mat file, .rigrec recording (file or directory) or CSV/text log")
-    p.add_argument("--filter", default="default", choices=sorted(FILTERS), help="attitude filter (default: default)")
+    p.add_argument("--filter", default=None, choices=sorted(FILTERS),
+                   help="attitude filter (default: the gateway's for the device kind: hook for hooks, else default)")
     p.add_argument("--mode", choices=["6D", "9D"], default="9D", help="use the magnetometer (9D) or not (default 9D)")
     p.add_argument("--host", default="127.0.0.1", help="viser bind address (default: 127.0.0.1)")
     p.add_argument("--port", type=int, default=8090, help="viser port (default: 8090; the next free one if taken)")

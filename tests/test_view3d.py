@@ -307,3 +307,25 @@ def test_replay_of_a_simulator_recording_uses_its_truth_and_the_rod_model(tmp_pa
     # 6D: heading is free, so compare the tilt: after 2.5 s pitch and roll follow the truth within 2°
     tilt = np.abs(data.euler_est_deg[250:, :2] - data.euler_ref_deg[250:, :2])
     assert np.median(tilt, axis=0) == pytest.approx([0.0, 0.0], abs=2.0)
+
+
+def test_replay_of_a_simulated_hook_uses_the_hook_filter_and_model(tmp_path: Path) -> None:
+    """A hook recording replays with the gateway's hook filter (rope-aware) against the simulator's truth."""
+    from bench.hook_e2e import HookFleet, fleet_settings, make_case
+    from gateway.pipeline import HOOK_FILTER
+    from gateway.recording.format import Record, write_recording
+    from gateway.replay_view import KIND_FILTERS
+
+    assert KIND_FILTERS["hook"] == HOOK_FILTER  # the replay runs what the gateway runs
+    fleet = HookFleet(fleet_settings(8.0, 5), make_case("free", 8.0, 100.0, 5, 0.0), 5)
+    records = []
+    for k in range(160):  # 8 s at 20 packets/s
+        data, extra = fleet.tick(k)
+        for m in data[0] + extra:
+            records.append(Record(m.key, m.payload, len(records) * 1000))
+    path = tmp_path / "hook.rigrec"
+    write_recording(path, records, {"source": "test"})
+    data = run(path, None, "9D")
+    assert (data.kind, data.reference) == ("hook", "simulator truth")
+    tilt = np.abs(data.euler_est_deg[400:, :2] - data.euler_ref_deg[400:, :2])
+    assert np.median(tilt, axis=0) == pytest.approx([0.0, 0.0], abs=2.0)  # after 4 s the hook follows the truth

@@ -301,6 +301,7 @@ function buildRow(d) {
   const after = rows.find((r) => r.dataset.testid && byId(r.dataset.testid.slice(6), d.id) > 0);
   body.insertBefore(d.row, after || null);
   $("#fleet-count").textContent = `(${Devices.size})`;
+  $("#device-ids").append(el("option", { value: d.id })); // suggestions for the alarm filter (exact id)
 }
 
 function buildPanel(d) {
@@ -408,7 +409,9 @@ function refreshStatus(d) { // status and age from the last card, aged on the cl
   d.cells.status.lastChild.textContent = text;
   d.cells.status.setAttribute("data-status", text.split(" ")[0]);
   d.cells.age.textContent = age == null ? "–" : age < 60 ? `${fmt(age, 1)} s ago` : `${fmt(age / 60, 0)} min ago`;
-  d.row.className = [c.online && !stale ? "online" : "", stale ? "stale" : "", c.online ? "" : "offline", (c.active_alarms || []).length ? "alarming" : ""].join(" ");
+  // toggled one by one: the fleet filter's "hidden" class on the same row must survive this 4 Hz refresh
+  const cls = { online: c.online && !stale, stale, offline: !c.online, alarming: (c.active_alarms || []).length > 0 };
+  for (const [k, on] of Object.entries(cls)) d.row.classList.toggle(k, on);
   d.panel.classList.toggle("stale", stale);
   d.alarming = (c.active_alarms || []).length > 0;
 }

@@ -13,6 +13,7 @@ import json
 import re
 import time
 import urllib.request
+from typing import Any
 from urllib.parse import urlparse
 
 import pytest
@@ -220,11 +221,36 @@ def test_phone_layout_has_no_sideways_scroll(system: System, phone: Browser) -> 
     assert page.evaluate("matchMedia('(prefers-color-scheme: dark)').matches")
     assert page.evaluate("getComputedStyle(document.body).backgroundColor") != "rgb(244, 246, 248)"  # dark theme
     page.get_by_test_id("fleet-filter").fill("ball")
+    time.sleep(0.6)  # past two 4 Hz status refreshes: the filter must survive them
     assert page.get_by_test_id("fleet-rod-1").is_hidden() and page.get_by_test_id("panel-rod-1").is_hidden()
+    assert page.get_by_test_id("fleet-ball-1").is_visible()
     page.get_by_test_id("fleet-filter").fill("")
     phone.shot("dashboard_phone", full_page=False)
     phone.shot("dashboard_phone_full")
     assert not phone.errors(), phone.errors()
+
+
+def test_page_says_warming_up_until_the_gateway_is_ready(system: System, browser: Browser) -> None:
+    """The gateway serves the page while its kernels load (`ready: false`); the page says so, then goes live."""
+    page = browser.page.context.new_page()
+    ready = {"now": False}
+
+    def health(route: Any) -> None:
+        if ready["now"]:
+            route.continue_()
+        else:
+            route.fulfill(json={"status": "ok", "ready": False, "uptime_s": 0.5, "devices_online": 0})
+
+    page.route("**/api/health", health)
+    page.goto(system.base + "/")
+    page.get_by_test_id("conn").filter(has_text="warming up").wait_for(timeout=5_000)
+    assert "warming up" in page.get_by_test_id("notice").inner_text()
+    time.sleep(1.5)
+    assert page.get_by_test_id("conn").inner_text() == "warming up"  # no live stream before ready
+    ready["now"] = True
+    page.get_by_test_id("conn").filter(has_text="live").wait_for(timeout=10_000)
+    assert page.get_by_test_id("notice").is_hidden()
+    page.close()
 
 
 @pytest.mark.parametrize(("path", "ready"), [("/docs", ".swagger-ui .info .title"), ("/redoc", "h1")])
