@@ -164,7 +164,7 @@ def run_gateway(sc: Scenario, th: RodThresholds | None = None) -> RodRun:
             kind = a.change.alarm.type
             (bite_s if kind == "bite" else drop_s if kind == "drop_back" else []).append(t)
         for b in out.attitude_blocks:
-            k = int(round((b.t0_us - T0_US) * 1e-4)) - 1  # sample k is at (k + 1) * 10 ms
+            k = int(round((b.t0_us - T0_US) * 1e-4 - sc.t_s[0] * 100))  # sample k is at t_s[0] + k * 10 ms
             quats[k : k + len(b.quat_wxyz)] = b.quat_wxyz
     return RodRun(bite_s, drop_s, to_euler(quats)[:, 1], msgs)
 
