@@ -200,7 +200,8 @@ def analyse(rec: Recorder, theta1_rad: float, grace_s: float = 1.0) -> BiteRepor
     truths = [p for _, p in rec.decoded("/truth") if isinstance(p, schemas.RodTruth)]
     windows = truth_windows(truths, theta1_rad)
     bites = [w for w in windows if w.label == "bite"]
-    alarms = [(t, a) for t, a in rec.decoded("/alarm") if a["state"] == "raised"]
+    # presence alarms are not judged here: the rod process ending raises device_offline by design
+    alarms = [(t, a) for t, a in rec.decoded("/alarm") if a["state"] == "raised" and a["alarm"] != "device_offline"]
     onset, cross, missed, used = [], [], 0, set()
     pipe: list[float] = []
     cues: list[str] = []

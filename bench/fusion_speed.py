@@ -27,7 +27,8 @@ DEFAULT_TRIAL = "06_undisturbed_fast_rotation_A"
 
 
 def load_data(data_dir: Path, trial: str) -> tuple[FloatArray, FloatArray, FloatArray, float, str]:
-    """gyr, acc, mag (N, 3) and dt_s from a BROAD trial, or 60 s of synthetic 285.7 Hz data if it is absent."""
+    """gyr, acc, mag (N, 3) and dt_s from a BROAD trial, or 200 s of synthetic 285.7 Hz data if it is absent (the
+    trial has 56 380 samples; the synthetic stand-in is about as long, so every case has enough samples)."""
     path = data_dir / f"{trial}.mat"
     if path.is_file():
         from gateway.fusion import broad
@@ -35,11 +36,12 @@ def load_data(data_dir: Path, trial: str) -> tuple[FloatArray, FloatArray, Float
         t = broad.load_trial(path)
         return t.gyr_rad_s, t.acc_m_s2, t.mag_uT, t.dt_s, f"BROAD {trial} ({t.n} samples)"
     rng = np.random.default_rng(0)
-    n = 60 * 286
+    n = 200 * 286
     gyr = 0.5 * rng.normal(size=(n, 3))
     acc = np.array([0.0, 0.0, 9.81]) + 0.3 * rng.normal(size=(n, 3))
     mag = np.array([0.0, 18.0, -46.0]) + rng.normal(size=(n, 3))
-    return gyr, acc, mag, 1 / 285.714, f"synthetic ({n} samples; {path} not found)"
+    return gyr, acc, mag, 1 / 285.714, (f"synthetic noise, {n} samples ({path} not found: pass --data-dir, or put "
+                                        "the BROAD trials in ../shared/data/broad beside the repo)")
 
 
 Rate = tuple[float, float]
@@ -60,6 +62,8 @@ def bench_single(gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, dt_s:
                  n_update: int) -> dict[str, Rate]:
     out: dict[str, Rate] = {}
     use_mag = mag is not None
+
+    n_update = min(n_update, int(gyr.shape[0]))  # a short recording must not index past its end
 
     def per_sample() -> int:
         f = DefaultFilter(use_mag=use_mag)

@@ -2,7 +2,8 @@
 
 A ball floats at a fishing spot with its probe hanging below it. About once a second it publishes
 `rig/ball/{id}/env` (air temperature, humidity, light at the surface; water temperature, dissolved oxygen and
-depth at the probe); the first packet after a throw also carries the profile measured while the probe sank.
+depth at the probe) and, with its GNSS receiver, where it floats (`gnss`, 2.5 m noise around the spot it was thrown
+to); the first packet after a throw also carries the profile measured while the probe sank.
 It holds the token `rig/ball/{id}`, publishes `rig/ball/{id}/truth` (noise-free values) and obeys
 `rig/ball/{id}/cmd` (re-throw), or re-throws itself every `--rethrow-every` seconds.
 
@@ -40,14 +41,17 @@ class Spot:
     deep_oxygen_frac: float  # oxygen below the thermocline as a fraction of saturation
     shade: float  # 0 = open sky, 1 = full shade
     probe_m: float  # probe line length below the ball
+    lat_deg: float = 30.2460  # where a throw lands (WGS-84); defaults: West Lake, Hangzhou (seed 000's city)
+    lon_deg: float = 120.1480
 
 
+LAKE_SURFACE_ALT_M = 7.2
 SPOTS: tuple[Spot, ...] = (
-    Spot("reed_bay", 2.5, 1.8, 0.4, +1.5, 16.0, 0.55, 0.4, 1.5),
-    Spot("deep_hole", 12.0, 5.0, 1.0, 0.0, 8.0, 0.10, 0.0, 6.0),
-    Spot("inlet", 4.0, 3.0, 1.0, -3.0, 11.0, 0.90, 0.2, 2.0),
-    Spot("dam_wall", 18.0, 7.0, 1.5, -0.5, 7.0, 0.30, 0.1, 4.0),
-    Spot("sand_flat", 1.5, 1.2, 0.3, +2.5, 17.0, 0.85, 0.0, 1.0),
+    Spot("reed_bay", 2.5, 1.8, 0.4, +1.5, 16.0, 0.55, 0.4, 1.5, 30.2551, 120.1402),
+    Spot("deep_hole", 12.0, 5.0, 1.0, 0.0, 8.0, 0.10, 0.0, 6.0, 30.2468, 120.1473),
+    Spot("inlet", 4.0, 3.0, 1.0, -3.0, 11.0, 0.90, 0.2, 2.0, 30.2396, 120.1385),
+    Spot("dam_wall", 18.0, 7.0, 1.5, -0.5, 7.0, 0.30, 0.1, 4.0, 30.2417, 120.1556),
+    Spot("sand_flat", 1.5, 1.2, 0.3, +2.5, 17.0, 0.85, 0.0, 1.0, 30.2523, 120.1531),
 )
 SPOT_BY_NAME = {s.name: s for s in SPOTS}
 
@@ -109,6 +113,16 @@ def profile(hour: float, weather: Weather, spot: Spot, step_m: float = 0.5) -> l
             for d, t, o in zip(depths, temp, oxy, strict=True)]
 
 
+def gnss_fix(spot: Spot, std_m: float, rng: np.random.Generator) -> dict[str, Any]:
+    """Where the ball floats: the spot's position plus receiver noise of `std_m` per horizontal axis (m)."""
+    north, east = rng.normal(0.0, std_m, 2)
+    lat = spot.lat_deg + north / 111_320.0
+    lon = spot.lon_deg + east / (111_320.0 * math.cos(math.radians(spot.lat_deg)))
+    return {"lat_deg": round(float(lat), 7), "lon_deg": round(float(lon), 7), "alt_m": LAKE_SURFACE_ALT_M,
+            "speed_m_s": 0.0,
+            "fix_quality": 1}
+
+
 def probe_depth(spot: Spot) -> float:
     """Where the probe hangs: its line length, but at least 0.2 m above the bottom."""
     return max(0.1, min(spot.probe_m, spot.bottom_m - 0.2))
@@ -124,6 +138,7 @@ class BallNoise:
     water_temp_c: float = 0.05
     oxygen_mg_l: float = 0.1
     depth_m: float = 0.03
+    gnss_m: float = 2.5  # horizontal position std of a consumer GNSS receiver (0: the ball has none)
 
 
 class BallFleet:
@@ -203,6 +218,8 @@ class BallFleet:
                 "bottom_depth_m": spot.bottom_m,
                 "battery_v": round(3.9 - 2e-6 * t_s, 3), "rssi_dbm": float(-70 + round(r.normal(0, 3))),
             }
+            if nz.gnss_m > 0:
+                pkt["gnss"] = gnss_fix(spot, nz.gnss_m, r)
             if self.fresh[i]:
                 pkt["profile"] = profile(hour, self.weather, spot)
                 self.fresh[i] = False
@@ -231,13 +248,15 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--time-scale", type=float, default=1.0, help="simulated seconds per real second (default: 1)")
     g.add_argument("--start-hour", type=float, default=6.0, help="simulated hour of day at start (default: 6)")
     g.add_argument("--rethrow-every", type=float, default=None, help="re-throw to another spot every N seconds")
+    g.add_argument("--no-gnss", action="store_true", help="balls without a GNSS receiver (no `gnss` in packets)")
     return p
 
 
 def make_fleet(args: argparse.Namespace, fleet: FleetSettings) -> BallFleet:
     """BallFleet from parsed CLI options."""
+    noise = BallNoise(gnss_m=0.0) if getattr(args, "no_gnss", False) else None
     return BallFleet(fleet, time_scale=args.time_scale, start_hour=args.start_hour,
-                     rethrow_every_s=args.rethrow_every)
+                     rethrow_every_s=args.rethrow_every, noise=noise)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -36,6 +36,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="endpoint to connect to, repeatable (default: none)")  # fmt: skip
     z.add_argument("--multicast", dest="zenoh_multicast_scouting", action="store_true", default=None,
                    help="enable multicast scouting (default: off)")  # fmt: skip
+    z.add_argument("--zenoh-config", dest="zenoh_config_file", type=Path, metavar="FILE",
+                   help="zenoh JSON5 config file (TLS/mTLS, user/password auth, access control: docs/security.md); "
+                        "with it, only the zenoh options given explicitly override its keys")  # fmt: skip
+    s = p.add_argument_group("browser access (DNS-rebinding and cross-site guards)")
+    s.add_argument("--allowed-host", dest="allowed_hosts", action="append", metavar="NAME",
+                   help="a host name the server answers to, besides IP addresses, localhost, dotless and .local "
+                        "names; repeatable")  # fmt: skip
+    s.add_argument("--allowed-origin", dest="allowed_origins", action="append", metavar="ORIGIN",
+                   help="a browser origin (https://host:port) that may open /ws/stream without the token; repeatable")
+    p.add_argument("--max-devices", type=int, metavar="N",
+                   help="devices the gateway keeps state for; further new ids are dropped and counted (default: 1000)")
     p.add_argument("--filter", dest="default_filter", help="default attitude filter for rods (default: default)")
     o = p.add_argument_group("attitude output (replay scoring, full-rate recording)")
     o.add_argument("--attitude-interval-s", type=float, metavar="S",
@@ -49,6 +60,17 @@ def build_parser() -> argparse.ArgumentParser:
                         "the offline gateway.fusion.evaluate does (default: seed)")  # fmt: skip
     p.add_argument("--with-devices", action="store_true", help="also start the simulated devices (python -m devices)")
     p.add_argument("--devices-args", default="", metavar="ARGS", help="extra arguments for python -m devices")
+    p.add_argument(
+        "--no-3d",
+        dest="view3d",
+        action="store_false",
+        help="do not start the viser 3-D view with the gateway (it then starts on the first /view3d)",
+    )
+    p.add_argument(
+        "--prepare",
+        action="store_true",
+        help="compile and cache the fusion kernels, then exit (scripts/env.sh runs it after install)",
+    )
     p.add_argument("--log-level", default="INFO", help="logging level (default: INFO)")
     return p
 
@@ -57,7 +79,8 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
     """Settings from the environment (RIG_*) with the given options on top."""
     names = ("data_dir", "http_host", "http_port", "zenoh_mode", "zenoh_listen", "zenoh_connect",
              "zenoh_multicast_scouting", "default_filter", "attitude_interval_s", "attitude_blocks",
-             "warmup_bias_seed")  # fmt: skip
+             "warmup_bias_seed", "zenoh_config_file", "allowed_hosts", "allowed_origins",
+             "max_devices")  # fmt: skip
     overrides: dict[str, Any] = {n: getattr(args, n) for n in names if getattr(args, n) is not None}
     return Settings(**overrides)
 
@@ -73,6 +96,21 @@ def device_command(settings: Settings, extra: str) -> list[str]:
     return cmd + shlex.split(extra)
 
 
+def prepare(settings: Settings) -> int:
+    """Compile the numba kernels the gateway runs (numba caches them in __pycache__), with a progress line."""
+    import time
+
+    t0 = time.perf_counter()
+    print("[prepare] compiling the fusion kernels (once after install; ~40 s on 2 cores)...", file=sys.stderr,
+          flush=True)  # fmt: skip
+    from gateway.ingest.runner import pipeline_settings_from
+    from gateway.pipeline import Pipeline
+
+    Pipeline(pipeline_settings_from(settings)).warm_up()
+    print(f"[prepare] fusion kernels ready in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+    return 0
+
+
 def _terminate(signum: int, frame: object) -> None:
     raise SystemExit(128 + signum)
 
@@ -81,6 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     settings = settings_from_args(args)
+    if args.prepare:
+        return prepare(settings)
     import uvicorn
 
     from gateway.app import create_app
@@ -88,16 +128,21 @@ def main(argv: list[str] | None = None) -> int:
     # uvicorn shuts down gracefully on SIGTERM, then re-raises it; with Python's default disposition that kills the
     # process before `finally`, orphaning the devices. As an exception it unwinds through the cleanup below.
     signal.signal(signal.SIGTERM, _terminate)
-    devices = subprocess.Popen(device_command(settings, args.devices_args)) if args.with_devices else None
+    devices: list[subprocess.Popen[bytes]] = []
+
+    def start_devices() -> None:  # when the gateway is ready: the simulators do not slow its warm-up
+        devices.append(subprocess.Popen(device_command(settings, args.devices_args)))
+
     try:
-        uvicorn.run(create_app(settings), host=settings.http_host, port=settings.http_port, log_level="warning")
+        app = create_app(settings, start_view3d=args.view3d, on_ready=start_devices if args.with_devices else None)
+        uvicorn.run(app, host=settings.http_host, port=settings.http_port, log_level="warning")
     finally:
-        if devices is not None:
-            devices.terminate()
+        for p in devices:
+            p.terminate()
             try:
-                devices.wait(timeout=10)
+                p.wait(timeout=10)
             except subprocess.TimeoutExpired:
-                devices.kill()
+                p.kill()
     return 0
 
 

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+import sqlite3
 import sys
 import time
 from collections.abc import AsyncIterator, Callable
@@ -13,9 +15,13 @@ from pathlib import Path
 from fastapi import FastAPI, Request
 from fastapi.responses import HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
+from fastapi_offline import FastAPIOffline
 
 from gateway import view3d
 from gateway.api import api_router, ws
+from gateway.api.routes import history, metrics
+from gateway.api.routes.docs import API_DESCRIPTION, install_openapi, install_redoc
+from gateway.api.security import BrowserGuard
 from gateway.config import Settings
 from gateway.errors import BadSettings, UnknownDevice
 from gateway.ingest.bus import Bus, ZenohBus
@@ -30,10 +36,43 @@ PLACEHOLDER = """<!doctype html><title>rig-gateway</title><h1>rig-gateway</h1>
 
 
 def create_app(
-    settings: Settings, bus_factory: Callable[[Settings], Bus] = ZenohBus.open, *, warm_up: bool = True
+    settings: Settings,
+    bus_factory: Callable[[Settings], Bus] = ZenohBus.open,
+    *,
+    warm_up: bool = True,
+    start_view3d: bool = False,
+    on_ready: Callable[[], None] | None = None,
 ) -> FastAPI:
-    """The gateway as an ASGI app; the bus opens (and always closes) in the lifespan. `warm_up` compiles the
-    fusion kernels before ingest starts (in-process tests that already compiled them may skip it)."""
+    """The gateway as an ASGI app; the bus opens (and always closes) in the lifespan.
+
+    `warm_up`: compile the fusion kernels (numba, cached after the first time) before ingest starts. The HTTP
+    server does not wait for it: the lifespan returns at once, the dashboard shows "warming up" (`GET
+    /api/health` -> `ready: false`) and ingest starts when the kernels are ready. Without `warm_up` (in-process
+    tests that already compiled them) ingest starts before the lifespan returns. `start_view3d`: start the viser
+    3-D server with the gateway (else on the first `GET /view3d`). The URLs are logged when ready, then `on_ready`
+    is called (on the event loop; `python -m gateway --with-devices` starts the simulators there, so they do not
+    compete with the warm-up for the CPU)."""
+
+    async def start(app: FastAPI, service: GatewayService) -> None:
+        t0 = time.perf_counter()
+        view_task = asyncio.create_task(view3d.start_view3d(app)) if start_view3d else None
+        # Subscriptions, presence and REST work at once (a SIGKILLed gateway sees its devices again in seconds);
+        # with `warm_up` the ingest task first loads the fusion kernels in a thread (compiled once after install,
+        # cached in __pycache__; scripts/env.sh does it) and packets wait in the bounded inbox meanwhile.
+        await service.start(warm_up=warm_up)
+        ws.start_live(app, service)
+        history.start_history(app, service)
+        while service.warming_since_s is not None:
+            await asyncio.sleep(0.1)
+        if view_task is not None:
+            try:
+                await view_task
+            except Exception:  # a busy port or a viser failure must not stop ingest
+                log.exception("3-D view did not start")
+        app.state.ready = True
+        log.info("ready in %.1f s\n%s", time.perf_counter() - t0, "\n".join(ready_lines(settings, app)))
+        if on_ready is not None:
+            on_ready()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -42,40 +81,69 @@ def create_app(
         if created:  # shown once; afterwards read it from the 0600 file
             print(f"API token (shown once, also in {settings.data_dir / 'api_token'}): {token}", file=sys.stderr)
         app.state.token = ApiToken(token)
+        app.state.ready = False
         bus = bus_factory(settings)
         service = GatewayService(settings, bus, store)
         app.state.service = service
+        metrics.start_metrics(app, service)
+        starting: asyncio.Task[None] | None = None
         try:
-            if warm_up:  # compile before the first packet, not on it; cached in __pycache__ after the first start
-                log.info("preparing fusion kernels (the first start after install compiles them: up to a minute)")
-                t0 = time.perf_counter()
-                await asyncio.to_thread(service.pipeline.warm_up)
-                log.info("fusion kernels ready in %.1f s", time.perf_counter() - t0)
-            await service.start()
-            ws.start_live(app, service)
+            if warm_up:
+                starting = asyncio.create_task(start(app, service))
+                log.info("dashboard http://%s:%d/ (warming up)", _link_host(settings.http_host), settings.http_port)
+            else:
+                await start(app, service)
             yield
         finally:
+            if starting is not None and not starting.done():
+                starting.cancel()
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await starting
             await ws.stop_live(app)
+            await history.stop_history(app)
             view3d.stop_view3d(app)
             await service.stop()
             bus.close()
             store.close()
 
-    app = FastAPI(title="rig-gateway", lifespan=lifespan)
+    # Swagger UI and ReDoc from the files fastapi-offline ships (no CDN): the docs work on a rig without internet
+    app = FastAPIOffline(title="rig-gateway", lifespan=lifespan, description=API_DESCRIPTION, redoc_url=None)
+    app.add_middleware(BrowserGuard, allowed_hosts=settings.allowed_hosts)  # Host check, CSP, frame options
     app.include_router(api_router, prefix="/api")
     app.include_router(ws.router)
+    app.include_router(metrics.router)
     app.include_router(view3d.router)
 
     @app.exception_handler(BadSettings)
     async def bad_settings(_: Request, exc: BadSettings) -> JSONResponse:
         return JSONResponse({"detail": exc.errors}, status_code=422)
 
+    @app.exception_handler(sqlite3.Error)
+    async def store_failed(_: Request, exc: sqlite3.Error) -> JSONResponse:  # e.g. disk full on a REST write
+        log.error("store error on a REST request: %s", exc)
+        return JSONResponse({"detail": f"storage unavailable: {exc}"[:300]}, status_code=503)
+
     @app.exception_handler(UnknownDevice)
     async def unknown_device(_: Request, exc: UnknownDevice) -> JSONResponse:
         return JSONResponse({"detail": str(exc)}, status_code=404)
 
+    install_openapi(app)
+    install_redoc(app)
     if (WEB_DIR / "index.html").is_file():
         app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     else:
         app.add_api_route("/", lambda: HTMLResponse(PLACEHOLDER), include_in_schema=False)
     return app
+
+
+def _link_host(host: str) -> str:
+    return "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
+
+
+def ready_lines(settings: Settings, app: FastAPI) -> list[str]:
+    """What a user opens, one URL a line (printed when the gateway is ready)."""
+    base = f"http://{_link_host(settings.http_host)}:{settings.http_port}"
+    view: view3d.View3D | None = getattr(app.state, "view3d", None)
+    v3d = f"http://{_link_host(settings.viser_host)}:{view.port}/" if view is not None else f"{base}/view3d (on demand)"
+    return [f"  dashboard  {base}/", f"  API docs   {base}/docs  (ReDoc {base}/redoc)",
+            f"  metrics    {base}/metrics", f"  3D view    {v3d}"]  # fmt: skip

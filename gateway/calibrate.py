@@ -4,12 +4,19 @@ Procedure (docs/calibration.md): record the device (`python -m gateway.recording
 in at least six poses (each axis up and down, ≥ 2 s each) and, between and after them, turn it slowly through as
 many orientations as you can. Then:
 
-    python -m gateway.calibrate REC [--device ID] [-o calib.json]
+    python -m gateway.calibrate REC [--device ID] [--method fit|paper] [-o calib.json]
+    python -m gateway.calibrate REC --compare       # both methods' fit figures side by side
 
+`--method fit` (default):
 - Accelerometer offset and per-axis scale: rest segments (`rest_mask`) of at least `--min-pose-s`
   give one mean reading each; `fit_accel_offset_scale` fits |(a - offset) / scale| = g over those poses.
 - Magnetometer hard iron and full soft-iron matrix: `calibrate_mag_ellipsoid` over every sample, scaled so the
   calibrated field keeps the ellipsoid's mean radius.
+`--method paper` (seed 004's procedure as written):
+- Accelerometer offsets = mean of the level rest pose (z up) minus (0, 0, g): "Z at 1 g"; scale 1.
+- Magnetometer per-axis min/max over the turning: offset = (max + min)/2, diagonal scale so the axes match.
+Both print the gyro bias (mean rate over the rest samples, seed 004) as `gyr_bias_rad_s`, for information: the
+gateway's filters learn the bias live, so it is not applied.
 
 The result (`DeviceCalibration`, JSON) is applied before fusion as `acc_cal = (acc - offset) / scale`,
 `mag_cal = soft_iron @ (mag - offset)`.
@@ -37,8 +44,13 @@ from gateway.fusion.calibration import (
     RestSettings,
     apply_accel_calibration,
     calibrate_mag_ellipsoid,
+    calibrate_mag_minmax,
     fit_accel_offset_scale,
 )
+
+METHODS: tuple[str, ...] = ("fit", "paper")
+POSE_REST = RestSettings(gyr_th_rad_s=float(np.deg2rad(0.5)), acc_th_m_s2=0.1)
+LEVEL_MAX_TILT_RAD = float(np.deg2rad(10.0))
 
 
 @dataclass(frozen=True)
@@ -128,36 +140,77 @@ def rest_mask(gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, rate_hz: float, rest: R
     return out
 
 
+def rest_segments(
+    gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, rate_hz: float, min_pose_s: float = 1.0,
+    rest: RestSettings | None = None,
+) -> list[tuple[int, int]]:
+    """(start, stop) sample ranges of the rest segments lasting at least `min_pose_s`."""
+    mask = rest_mask(gyr_rad_s, acc_m_s2, rate_hz, rest or POSE_REST)
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], mask.astype(np.int8), [0]))))
+    n_min = max(2, int(round(min_pose_s * rate_hz)))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= n_min]
+
+
 def rest_pose_means(
     gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, rate_hz: float, min_pose_s: float = 1.0,
     rest: RestSettings | None = None,
 ) -> FloatArray:
     """Mean accelerometer reading (m/s²) of every rest segment lasting at least `min_pose_s`, shape (P, 3)."""
     acc = np.asarray(acc_m_s2, dtype=np.float64)
-    mask = rest_mask(gyr_rad_s, acc, rate_hz, rest or RestSettings(gyr_th_rad_s=np.deg2rad(0.5), acc_th_m_s2=0.1))
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], mask.astype(np.int8), [0]))))
-    n_min = max(2, int(round(min_pose_s * rate_hz)))
-    means = [acc[a:b].mean(axis=0) for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= n_min]
+    means = [acc[a:b].mean(axis=0) for a, b in rest_segments(gyr_rad_s, acc, rate_hz, min_pose_s, rest)]
     return np.array(means, dtype=np.float64).reshape(-1, 3)
 
 
+def gyro_bias_at_rest(gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, rate_hz: float, min_pose_s: float = 1.0) -> FloatArray:
+    """Seed 004's gyro bias: the mean rate (rad/s) over every rest segment of at least `min_pose_s`."""
+    gyr = np.asarray(gyr_rad_s, dtype=np.float64)
+    segs = rest_segments(gyr, acc_m_s2, rate_hz, min_pose_s)
+    if not segs:
+        raise ValueError(f"no rest segment of ≥ {min_pose_s:g} s for the gyro bias")
+    bias: FloatArray = np.concatenate([gyr[a:b] for a, b in segs]).mean(axis=0)
+    return bias
+
+
+def paper_accel_offset(pose_means_m_s2: FloatArray, gravity_m_s2: float = 9.80665) -> FloatArray:
+    """Seed 004: offsets = the level (z-up) rest mean minus (0, 0, g). The level pose is the one nearest z-up, and it
+    must be within 10° of it; raises ValueError otherwise."""
+    if pose_means_m_s2.shape[0] == 0:
+        raise ValueError("no rest pose")
+    tilt = np.arccos(np.clip(pose_means_m_s2[:, 2] / np.linalg.norm(pose_means_m_s2, axis=1), -1.0, 1.0))
+    i = int(np.argmin(tilt))
+    if tilt[i] > LEVEL_MAX_TILT_RAD:
+        raise ValueError(f"no level rest pose (z up within 10°; nearest {np.degrees(tilt[i]):.0f}°): seed 004's "
+                         "procedure starts lying flat")  # fmt: skip
+    offset: FloatArray = pose_means_m_s2[i] - np.array([0.0, 0.0, gravity_m_s2])
+    return offset
+
+
 def fit_device(
-    gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, mag_uT: ArrayLike | None, rate_hz: float, min_pose_s: float = 1.0
+    gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, mag_uT: ArrayLike | None, rate_hz: float, min_pose_s: float = 1.0,
+    method: str = "fit",
 ) -> DeviceCalibration:
     """Calibration from one recording of the device held in rest poses and turned (see the module docstring).
 
-    Raises ValueError when the poses do not span all axes (accelerometer) or the field samples do not span an
-    ellipsoid (magnetometer); without `mag_uT` the magnetometer part is the identity.
+    `method` "fit": pose fit of offset and scale, ellipsoid fit of the magnetometer; "paper": seed 004's level-pose
+    offsets and min/max magnetometer. Raises ValueError when the poses do not span all axes (fit) or there is no
+    level pose (paper), or the field samples do not span an ellipsoid; without `mag_uT` the magnetometer part is
+    the identity. The accelerometer rms is taken over every pose found, for both methods, so they compare.
     """
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
     poses = rest_pose_means(gyr_rad_s, acc_m_s2, rate_hz, min_pose_s)
-    if poses.shape[0] < 6:
-        raise ValueError(f"found {poses.shape[0]} rest poses of ≥ {min_pose_s:g} s; need 6 or more (each axis up/down)")
-    offset, scale = fit_accel_offset_scale(poses)
+    if method == "paper":
+        offset, scale = paper_accel_offset(poses), np.ones(3)
+    else:
+        if poses.shape[0] < 6:
+            raise ValueError(f"found {poses.shape[0]} rest poses of ≥ {min_pose_s:g} s; need 6 or more (each axis "
+                             "up/down)")  # fmt: skip
+        offset, scale = fit_accel_offset_scale(poses)
     acc_rms = float(np.sqrt(np.mean((np.linalg.norm((poses - offset) / scale, axis=1) - 9.80665) ** 2)))
     if mag_uT is None:
         return DeviceCalibration(offset, scale, np.zeros(3), np.eye(3), poses.shape[0], acc_rms)
     mag = np.asarray(mag_uT, dtype=np.float64)
-    cal = calibrate_mag_ellipsoid(mag)
+    cal = calibrate_mag_minmax(mag) if method == "paper" else calibrate_mag_ellipsoid(mag)
     norms = np.linalg.norm(cal.apply(mag), axis=1)
     mag_rms = float(np.sqrt(np.mean((norms - norms.mean()) ** 2)))
     return DeviceCalibration(offset, scale, cal.offset_uT, cal.soft_iron, poses.shape[0], acc_rms, mag_rms)
@@ -206,6 +259,25 @@ def load_imu(path: str | Path, device_id: str | None = None, progress: bool = Fa
                      np.array(mag, dtype=np.float64) if has_mag else None)  # fmt: skip
 
 
+def compare_table(imu: ImuSeries, mag_uT: FloatArray | None, min_pose_s: float = 1.0) -> str:
+    """Markdown table of both methods on one recording: accel |pose| − g rms (mm/s²) over all poses, mag |field|
+    spread rms (µT, relative to its mean), offsets; a method that cannot run shows its reason."""
+    rows = ["| method | poses | accel rms mm/s² | mag rms µT (% of |m|) | acc offset m/s² | mag offset µT |",
+            "|---|---|---|---|---|---|"]
+    for method in METHODS:
+        try:
+            c = fit_device(imu.gyr_rad_s, imu.acc_m_s2, mag_uT, imu.rate_hz, min_pose_s, method)
+        except ValueError as exc:
+            rows.append(f"| {method} | failed: {exc} | | | | |")
+            continue
+        mag_cal = c.apply(imu.acc_m_s2, mag_uT)[1]
+        mean_norm = float(np.linalg.norm(mag_cal, axis=1).mean()) if mag_cal is not None else 0.0
+        rel = f" ({100 * c.mag_fit_rms_uT / mean_norm:.2f} %)" if mean_norm else ""
+        rows.append(f"| {method} | {c.n_poses} | {c.acc_fit_rms_m_s2 * 1e3:.1f} | {c.mag_fit_rms_uT:.2f}{rel} | "
+                    f"{np.round(c.acc_offset_m_s2, 3).tolist()} | {np.round(c.mag_offset_uT, 2).tolist()} |")
+    return "\n".join(rows)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """CLI."""
     p = argparse.ArgumentParser(prog="python -m gateway.calibrate", description=__doc__,
@@ -214,6 +286,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default=None, help="device id (default: the first IMU device in the recording)")
     p.add_argument("--min-pose-s", type=float, default=1.0, help="shortest rest segment used as a pose, s (default 1)")
     p.add_argument("--no-mag", action="store_true", help="calibrate the accelerometer only")
+    p.add_argument("--method", choices=METHODS, default="fit",
+                   help="fit: pose and ellipsoid fits (default); paper: seed 004's level pose and min/max")
+    p.add_argument("--compare", action="store_true", help="print both methods' fit figures instead of the JSON")
     p.add_argument("-o", "--output", default=None, help="write the calibration JSON here (default: stdout)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
@@ -224,12 +299,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         imu = load_imu(args.recording, args.device, progress=not args.no_progress)
-        cal = fit_device(imu.gyr_rad_s, imu.acc_m_s2, None if args.no_mag else imu.mag_uT, imu.rate_hz,
-                         args.min_pose_s)  # fmt: skip
+        mag = None if args.no_mag else imu.mag_uT
+        if args.compare:
+            print(compare_table(imu, mag, args.min_pose_s))
+            return 0
+        cal = fit_device(imu.gyr_rad_s, imu.acc_m_s2, mag, imu.rate_hz, args.min_pose_s, args.method)
+        bias = gyro_bias_at_rest(imu.gyr_rad_s, imu.acc_m_s2, imu.rate_hz, args.min_pose_s)
     except ValueError as exc:
         print(f"calibration failed: {exc}", file=sys.stderr)
         return 1
-    text = json.dumps({"device_id": imu.device_id, **cal.to_json()}, indent=2)
+    text = json.dumps({"device_id": imu.device_id, "method": args.method, **cal.to_json(),
+                       "gyr_bias_rad_s": np.round(bias, 6).tolist()}, indent=2)  # fmt: skip
     if args.output:
         Path(args.output).write_text(text + "\n")
         print(f"wrote {args.output}: {cal.n_poses} poses, accel fit rms {cal.acc_fit_rms_m_s2 * 1e3:.1f} mm/s², "

@@ -1,6 +1,7 @@
-"""Fan-out of pipeline results: zenoh outputs, the store (alarm history), and in-process listeners (websocket,
-3-D view later). Alarms, reel commands and (opt-in) attitude blocks are published with CongestionControl.BLOCK;
-attitude and swing with DROP (a newer sample follows shortly)."""
+"""Fan-out of pipeline results: zenoh outputs, the store (alarm history, through the `StoreWriter` thread), and
+in-process listeners (websocket, 3-D view). Alarms, reel commands, hook swing (at most 20 Hz per hook) and (opt-in)
+attitude blocks are published with CongestionControl.BLOCK; attitude and height with DROP (a newer sample follows
+shortly)."""
 
 from __future__ import annotations
 
@@ -10,15 +11,15 @@ import time
 from collections.abc import Callable
 
 from gateway import schemas
-from gateway.alarm.engine import Alarm, AlarmChange
+from gateway.alarm.engine import Alarm
 from gateway.ingest.bus import Bus
 from gateway.pipeline import AlarmOut, Output
-from gateway.store import Store
+from gateway.store import StoreWriter
 
 log = logging.getLogger("gateway.hub")
 
 Listener = Callable[[str, schemas.WireModel], None]
-"""(topic, model): topic is `attitude`, `attitude_block`, `swing`, `alarm`, `spots` or `reel_cmd`."""
+"""(topic, model): topic is `attitude`, `attitude_block`, `swing`, `height`, `alarm`, `spots` or `reel_cmd`."""
 
 
 def alarm_event(out: AlarmOut, now_us: int) -> schemas.AlarmEvent:
@@ -38,9 +39,9 @@ def alarm_event(out: AlarmOut, now_us: int) -> schemas.AlarmEvent:
 class Hub:
     """Publishes and persists one `Output` at a time; `listeners` get every published model too."""
 
-    def __init__(self, bus: Bus, store: Store, clock: Callable[[], float] = time.time) -> None:
+    def __init__(self, bus: Bus, writer: StoreWriter, clock: Callable[[], float] = time.time) -> None:
         self.bus = bus
-        self.store = store
+        self.writer = writer
         self.clock = clock
         self.listeners: list[Listener] = []
         self._cmd_ids = itertools.count(int(clock()) % 1_000_000 * 1000)
@@ -57,22 +58,28 @@ class Hub:
 
     def emit(self, out: Output) -> None:
         """Alarms first (they matter most and are rare), then reel commands, attitude, attitude blocks (BLOCK: a
-        scoring run or a full-rate recording must not lose samples), swing, spots."""
+        scoring run or a full-rate recording must not lose samples), swing, height, spots."""
         now_us = int(self.clock() * 1e6)
         for al in out.alarms:
-            stored = self.store.upsert_alarm(al.change.alarm)  # may keep an older active row's id: publish that one
-            if al.change.kind == "acknowledged":
-                continue
-            al = al._replace(change=AlarmChange(al.change.kind, stored))
-            self._put(schemas.alarm_key(al.kind, stored.device_id), "alarm", alarm_event(al, now_us), block=True)
+            # Publish first, then hand the row to the writer thread: a failing disk must cost no alarm (it retries
+            # the write from its journal) and the event loop never waits on SQLite.
+            if al.change.kind != "acknowledged":
+                try:
+                    self._put(schemas.alarm_key(al.kind, al.change.alarm.device_id), "alarm", alarm_event(al, now_us),
+                              block=True)  # fmt: skip
+                except Exception:
+                    log.exception("alarm %s of %s not published", al.change.alarm.type, al.change.alarm.device_id)
+            self.writer.upsert_alarm(al.change.alarm)
         for device_id, fields in out.reel_commands:
             self.send_reel(device_id, sender="auto", **fields)
         for a in out.attitudes:
             self._put(schemas.attitude_key(a.kind, a.device_id), "attitude", a)
         for b in out.attitude_blocks:
             self._put(schemas.attitude_block_key(b.kind, b.device_id), "attitude_block", b, block=True)
-        for s in out.swings:
-            self._put(schemas.swing_key(s.device_id), "swing", s)
+        for s in out.swings:  # BLOCK: at <= 20 Hz per hook, a crane app must not lose any (docs/protocol.md)
+            self._put(schemas.swing_key(s.device_id), "swing", s, block=True)
+        for h in out.heights:
+            self._put(schemas.height_key(h.kind, h.device_id), "height", h)
         if out.spots is not None:
             self._put(schemas.SPOTS_KEY, "spots", out.spots)
 

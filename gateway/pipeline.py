@@ -32,7 +32,7 @@ from gateway import schemas
 from gateway.alarm.bite import tip_acc_up
 from gateway.alarm.engine import Alarm, AlarmChange, AlarmEngine, Condition
 from gateway.alarm.hook import HookAlarms
-from gateway.alarm.rules import RodAlarms
+from gateway.alarm.rules import SPECS, RodAlarms
 from gateway.calibrate import DeviceCalibration
 from gateway.config import (
     DeviceSettings,
@@ -63,6 +63,7 @@ class PipelineSettings:
     default_filter: str = DEFAULT_FILTER
     hook_filter: str = HOOK_FILTER  # hooks not configured otherwise use the rope-aware EKF
     attitude_interval_s: float = 0.02  # at most 50 Hz of attitude per device (0: the end of every packet)
+    swing_interval_s: float = 0.05  # hook: at most 20 Hz of Swing per hook (docs/protocol.md "Hook angles")
     attitude_blocks: bool = False  # also every sample's attitude, one AttitudeBlock per IMU packet
     spots_interval_s: float = 1.0
     reel_max_age_s: float = 1.0  # reel tension older than this is not fed to the line guard
@@ -77,6 +78,10 @@ class PipelineSettings:
     # Auto reel watchdog: every rod in auto mode has its controller stepped at least this often (gateway clock), so
     # the controller's data timeout stops the reel when the rod's packets stop (`Pipeline.tick_reel`).
     reel_watchdog_s: float = 0.1
+    # An alarm resumed from the store after a restart is cleared when its device's fresh rules have run this long
+    # (gateway wall time) without a condition of its type (its clear may have been lost with the old process).
+    resume_confirm_s: float = 10.0
+    height_interval_s: float = 0.1  # at most 10 Hz of Height (heave) per IMU device; <= 0: none computed
 
 
 @dataclass
@@ -93,6 +98,7 @@ class ImuDevice:
     hook: HookAlarms | None = None
     rest_heading_rad: float | None = None  # hook: heading at the first fused sample (torsion reference)
     rest_heading_set_rad: float | None = None  # hook: configured rest heading (HookThresholds), wins when set
+    last_swing_t_s: float = -math.inf  # hook: device time of the last Swing published
     yaw_last: float = math.nan
     yaw_turns: int = 0
     quat: FloatArray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0, 0.0]))
@@ -107,6 +113,9 @@ class ImuDevice:
     baseline_rad: float = math.nan
     auto_reel: Any = None  # FishWalkingController when auto mode is on
     reel_step_t_s: float = -math.inf  # device time the controller was last stepped at (its steps move forward)
+    heave: Any = None  # gateway.fusion.heave.HeaveEstimator, made on the first fused block
+    height: schemas.Height | None = None  # the last one published
+    last_height_t_s: float = -math.inf
 
 
 class AlarmOut(NamedTuple):
@@ -158,6 +167,7 @@ class Output:
     attitudes: list[schemas.Attitude] = field(default_factory=list)
     attitude_blocks: list[schemas.AttitudeBlock] = field(default_factory=list)
     swings: list[schemas.Swing] = field(default_factory=list)
+    heights: list[schemas.Height] = field(default_factory=list)
     alarms: list[AlarmOut] = field(default_factory=list)
     spots: schemas.SpotRanking | None = None
     reel_commands: list[tuple[str, dict[str, Any]]] = field(default_factory=list)  # (device id, ReelCommand fields)
@@ -175,6 +185,11 @@ def _thermocline_m(profile: list[schemas.ProfilePoint] | None) -> float | None:
     ]
     i = int(np.argmax(grads))
     return 0.5 * (pts[i].depth_m + pts[i + 1].depth_m)
+
+
+def _position(fix: schemas.GnssFix | None) -> dict[str, float]:
+    """A spot's `lat_deg`/`lon_deg` from its ball's GNSS fix (none without a fix or with fix quality 0)."""
+    return {} if fix is None or fix.fix_quality == 0 else {"lat_deg": fix.lat_deg, "lon_deg": fix.lon_deg}
 
 
 def _chunks(ends: list[tuple[int, int, int]], t_s: FloatArray, max_s: float) -> list[tuple[int, int]]:
@@ -214,7 +229,16 @@ class Pipeline:
         self.defaults: dict[str, ThresholdModel] = {k: default_thresholds(k) for k in ("rod", "hook", "ball")}
         self.defaults.update(defaults or {})
         self.device_settings: dict[str, tuple[str, DeviceSettings]] = dict(device_settings or {})
-        self.engine = AlarmEngine(active_alarms)
+        active = list(active_alarms)
+        self.engine = AlarmEngine(active)
+        # Alarms resumed from the store: the rules restart from scratch, so one whose clear was lost (a full disk, a
+        # kill) would stay active for good. Each is confirmed by any condition of its type, else cleared once its
+        # device's fresh rules have run for `resume_confirm_s`. Only the rules' own types (rod, hook): ingest and
+        # presence alarms (device_conflict, ...) clear themselves.
+        self._resumed: dict[tuple[str, str], float | None] = {
+            (a.device_id, a.type): None for a in active
+            if a.active and (spec := SPECS.get(a.type)) is not None and spec.kind in ("rod", "hook")
+        }  # fmt: skip
         self.devices: dict[str, ImuDevice] = {}
         self.kinds: dict[str, str] = {}  # every device ever seen or configured -> wire kind
         self.kinds.update({d: k for d, (k, _) in self.device_settings.items()})
@@ -331,6 +355,13 @@ class Pipeline:
             dev.hook.set_thresholds(th)
             dev.rest_heading_set_rad = None if th.rest_heading_deg is None else math.radians(th.rest_heading_deg)
 
+    def restart(self, device_id: str) -> None:
+        """Forget a device's fusion and rules state (its next packets start a new warm-up), e.g. when its clock
+        jumped to a new timeline. Alarms stay with the engine; settings stay."""
+        self._warmup.pop(device_id, None)
+        if device_id in self.devices:
+            self._drop(device_id)
+
     def _drop(self, device_id: str) -> None:
         dev = self.devices.pop(device_id)
         if dev.filt is None and self._batch is not None:
@@ -356,6 +387,10 @@ class Pipeline:
             f.initialise(acc, mag)
             step = getattr(f, "update_block", None) or f.run
             step(np.zeros((n, 3)), np.tile(acc, (n, 1)), np.tile(mag, (n, 1)), 0.01)
+        if self.settings.height_interval_s > 0:
+            from gateway.fusion.heave import HeaveEstimator
+
+            HeaveEstimator().update(np.tile([1.0, 0, 0, 0], (n, 1)), np.zeros((n, 3)), np.tile(acc, (n, 1)), 0.01)
 
     # -- processing -----------------------------------------------------------------------------------------
 
@@ -377,12 +412,30 @@ class Pipeline:
         conditions: list[_Timed] = []
         if imu:
             self._fuse(imu, now, out, conditions)
+        if self._resumed:
+            self._settle_resumed(conditions, now)
         for kind, t_us, src_us, c in conditions:
             out.alarms += [AlarmOut(kind, change, t_us, src_us) for change in self.engine.evaluate([c])]
         if self._spots_dirty and now - self._last_spots_s >= self.settings.spots_interval_s:
             out.spots = self.rank_spots(now)
             self._last_spots_s, self._spots_dirty = now, False
         return out
+
+    def _settle_resumed(self, conditions: list[_Timed], now: float) -> None:
+        """Confirm resumed alarms by their rules' conditions; clear the ones unconfirmed after `resume_confirm_s`
+        of their device's fused data (wall time)."""
+        for _, _, _, c in conditions:
+            self._resumed.pop((c.device_id, c.type), None)
+        for (device_id, alarm_type), since in list(self._resumed.items()):
+            dev = self.devices.get(device_id)
+            if dev is None:  # not fused yet (or restarting): its rules have not looked
+                continue
+            if since is None:
+                self._resumed[(device_id, alarm_type)] = now
+            elif now - since >= self.settings.resume_confirm_s:
+                del self._resumed[(device_id, alarm_type)]
+                msg = f"cleared: not confirmed within {self.settings.resume_confirm_s:g} s of data after a restart"
+                conditions.append((dev.kind, dev.t_us, None, Condition(device_id, alarm_type, None, now, message=msg)))
 
     def _device(self, p: schemas.ImuPacket, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None) -> ImuDevice:
         """Create a device after its warm-up window: the filter starts from the window's mean acc (+ mag), and
@@ -400,7 +453,10 @@ class Pipeline:
             except KeyError:
                 log.warning("device %s: filter %r not available, using %r", p.device_id, name, DEFAULT_FILTER)
                 name = DEFAULT_FILTER
-        if filt is not None:
+        hook_start = getattr(filt, "start", None) if p.kind == "hook" else None  # HookFilter: its own warm-up
+        if hook_start is not None:
+            hook_start(gyr, acc, mag, 1.0 / p.rate_hz, seed_bias=self.settings.warmup_bias_seed)
+        elif filt is not None:
             filt.initialise(acc0, mag0)
         else:
             if self._batch is None:
@@ -412,14 +468,8 @@ class Pipeline:
         g_std = gyr.std(axis=0) if gyr.shape[0] > 1 else np.full(3, math.inf)
         quiet = g_std < self.settings.rest_gyr_std_rad_s
         level = abs(float(np.linalg.norm(acc0)) - G_M_S2) < self.settings.rest_acc_tol_m_s2
-        if p.kind == "hook" and hasattr(filt, "assume_moving"):
-            # A hook can hang still yet twist in gusts: x/y quiet is rest for the swing (seed the x/y bias), z too
-            # seeds the z bias. Swinging at start: the filter must not assume plumb.
-            if level and quiet[0] and quiet[1]:
-                if self.settings.warmup_bias_seed:
-                    filt.seed_gyro_bias(gyr.mean(axis=0), axes=(0, 1, 2) if quiet[2] else (0, 1))  # type: ignore[union-attr]
-            else:
-                filt.assume_moving()  # type: ignore[union-attr]
+        if hook_start is not None:
+            pass  # rest, bias seeding and "already swinging" are decided by HookFilter.start
         elif level and quiet.all() and self.settings.warmup_bias_seed:
             self._seed_bias(dev, gyr.mean(axis=0))
         if p.kind == "rod":
@@ -464,25 +514,25 @@ class Pipeline:
         fused: dict[str, list[schemas.ImuPacket]] = {}  # per device: the packets behind its block
         for dev_id, pkts in imu.items():
             dev = self.devices.get(dev_id)
-            if dev is None:  # warm-up: collect, start the filter once the window is full
-                warm = self._warmup.setdefault(dev_id, [])
-                warm.extend(pkts)
-                self.kinds[dev_id] = pkts[0].kind
-                if sum(p.n / p.rate_hz for p in warm) < self.settings.warmup_s - 1e-9:  # 10 x 0.05 s is 0.4999…
-                    continue
-                pkts = self._warmup.pop(dev_id)
-                gyr, acc, mag, t_s = self._gather(dev_id, pkts)
-                if (cal := self._cal.get(dev_id)) is not None:  # before `_device` takes the warm-up means
-                    acc, mag = cal.apply(acc, mag)
-                try:
-                    dev = self._device(pkts[0], gyr, acc, mag)
-                except Exception as exc:  # a filter that cannot start: count it, warm up again
-                    self._fail(pkts[0].kind, dev_id, exc, out)
-                    continue
-            else:
-                gyr, acc, mag, t_s = self._gather(dev_id, pkts)
-                if (cal := self._cal.get(dev_id)) is not None:
-                    acc, mag = cal.apply(acc, mag)
+            try:  # one device's bad data (or a bug it triggers) costs only its own output: it restarts
+                if dev is None:  # warm-up: collect, start the filter once the window is full
+                    warm = self._warmup.setdefault(dev_id, [])
+                    warm.extend(pkts)
+                    self.kinds[dev_id] = pkts[0].kind
+                    if sum(p.n / p.rate_hz for p in warm) < self.settings.warmup_s - 1e-9:  # 10 x 0.05 s is 0.4999…
+                        continue
+                    pkts = self._warmup.pop(dev_id)
+                    gyr, acc, mag, t_s = self._gather(dev_id, pkts)
+                    if (cal := self._cal.get(dev_id)) is not None:  # before `_device` takes the warm-up means
+                        acc, mag = cal.apply(acc, mag)
+                    dev = self._device(pkts[0], gyr, acc, mag)  # a filter that cannot start: counted, warms up again
+                else:
+                    gyr, acc, mag, t_s = self._gather(dev_id, pkts)
+                    if (cal := self._cal.get(dev_id)) is not None:
+                        acc, mag = cal.apply(acc, mag)
+            except Exception as exc:
+                self._fail(pkts[0].kind, dev_id, exc, out)
+                continue
             if abs(1.0 / pkts[-1].rate_hz - dev.dt_s) > 1e-12:
                 dev.dt_s = 1.0 / pkts[-1].rate_hz
                 if dev.filt is None:
@@ -500,9 +550,51 @@ class Pipeline:
         quats = self._step_filters(blocks, out)
         for dev_id, q in quats.items():
             dev = self.devices[dev_id]
-            self._post(dev, q, blocks[dev_id], ends[dev_id], now, out, conds)
-            if self.settings.attitude_blocks:
-                out.attitude_blocks += self._attitude_blocks(dev, q, fused[dev_id])
+            mine: list[_Timed] = []
+            try:
+                self._post(dev, q, blocks[dev_id], ends[dev_id], now, out, mine)
+                if self.settings.height_interval_s > 0:
+                    out.heights += self._heights(dev, q, blocks[dev_id], fused[dev_id], ends[dev_id])
+                if self.settings.attitude_blocks:
+                    out.attitude_blocks += self._attitude_blocks(dev, q, fused[dev_id])
+            except Exception as exc:  # e.g. an output time out of range: only this device restarts
+                self._fail(dev.kind, dev_id, exc, out)
+                continue
+            conds += mine
+
+    def _heights(
+        self, dev: ImuDevice, q: FloatArray, block: tuple[FloatArray, FloatArray, FloatArray | None, FloatArray],
+        pkts: list[schemas.ImuPacket], ends: list[tuple[int, int, int]],
+    ) -> list[schemas.Height]:  # fmt: skip
+        """Height / heave of the block (gateway.fusion.heave) at packet ends, at most every `height_interval_s`."""
+        from gateway.fusion.heave import AIDED_NAMES, HeaveEstimator
+
+        gyr, acc, _, t_s = block
+        if dev.heave is None:
+            g0 = float(np.linalg.norm(acc[: min(acc.shape[0], 50)].mean(axis=0)))
+            level = abs(g0 - G_M_S2) < self.settings.rest_acc_tol_m_s2
+            dev.heave = HeaveEstimator(gravity_m_s2=g0 if level else G_M_S2)
+        depth = None
+        if any(p.depth_m is not None for p in pkts):
+            depth = np.full(t_s.shape[0], np.nan)
+            for (i, _, _), p in zip(ends, pkts, strict=True):
+                if p.depth_m is not None:
+                    depth[i - p.n + 1] = p.depth_m
+        bias = self.bias_rad_s(dev.device_id)  # the rest detector sees the rate without the filter's bias estimate
+        rows = dev.heave.update(q, gyr if bias is None else gyr - np.asarray(bias), acc, dev.dt_s, depth)
+        out = []
+        for i, seq, t_us in ends:
+            if t_s[i] - dev.last_height_t_s < self.settings.height_interval_s - 1e-9:
+                continue
+            dev.last_height_t_s = float(t_s[i])
+            h, v, rest, aided = rows[i]
+            out.append(schemas.Height(
+                device_id=dev.device_id, kind=dev.kind, seq=seq, t_us=t_us,  # type: ignore[arg-type]
+                wall_t_us=t_us + dev.wall_offset_us, vz_m_s=float(v), height_m=float(h), at_rest=bool(rest),
+                aided=AIDED_NAMES[int(aided)],  # type: ignore[arg-type]
+            ))  # fmt: skip
+        dev.height = out[-1] if out else dev.height
+        return out
 
     def _step_filters(
         self, blocks: dict[str, tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]], out: Output
@@ -629,11 +721,17 @@ class Pipeline:
             ref = dev.rest_heading_rad if dev.rest_heading_set_rad is None else dev.rest_heading_set_rad
             tors = hook_geo.torsion(q, ref)
             new = dev.hook.update(t_s, swing, tors)
+            rope = getattr(dev.filt, "rope_length_m", None)  # the hook filter's estimate at the batch's end
             for i, seq, t_us in ends:
+                if t_s[i] - dev.last_swing_t_s < self.settings.swing_interval_s - 1e-9:
+                    continue
+                dev.last_swing_t_s = float(t_s[i])
                 dev.swing = schemas.Swing(
                     device_id=dev.device_id, seq=seq, t_us=t_us, wall_t_us=t_us + dev.wall_offset_us,
                     swing_angle_rad=float(swing[i]), swing_direction_rad=float(hook_geo.displacement_bearing(q[i])),
-                    torsion_rad=float(tors[i]),
+                    torsion_rad=float(tors[i]), swing_phi_rad=float(hook_geo.swing_direction_paper(q[i], ref)),
+                    rest_heading_rad=math.remainder(ref, 2.0 * math.pi),
+                    rope_length_m=None if rope is None else float(rope),
                 )  # fmt: skip
                 out.swings.append(dev.swing)
         for cond in new:
@@ -752,9 +850,9 @@ class Pipeline:
         ranked = rank_spots(readings, prefs, lt.tm_hour + lt.tm_min / 60.0)
         spots = [
             schemas.SpotScore(
-                spot=s.spot_id, rank=i + 1, score=min(1.0, max(0.0, s.score / 100.0)),
+                spot=s.spot_id, rank=i + 1, score=min(1.0, max(0.0, s.score)),
                 device_id=latest[s.spot_id].device_id, last_seen_wall_us=latest[s.spot_id].wall_t_us,
-                reasons=[r[:200] for r in s.reasons][:20],
+                reasons=[r[:200] for r in s.reasons][:20], **_position(latest[s.spot_id].gnss),
             )
             for i, s in enumerate(ranked)
         ]  # fmt: skip
@@ -784,7 +882,10 @@ def _make_filter(name: str, use_mag: bool, rope_length_m: float | None = None) -
     if name == HOOK_FILTER:
         from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
 
-        settings = HookFilterSettings() if rope_length_m is None else HookFilterSettings(rope_length_m=rope_length_m)
+        # The hook setting's length (configured, or the 10 m default) is a prior the pendulum frequency corrects: a
+        # wrong one is found within seconds of swinging, while a wide prior would let a trolley jerk read as a rope.
+        settings = HookFilterSettings() if rope_length_m is None else HookFilterSettings(
+            rope_length_m=rope_length_m, rope_length_known=True)
         return HookFilter(settings, use_mag=use_mag)
     if name in registry.FILTERS:
         return registry.make_filter(name, use_mag=use_mag)

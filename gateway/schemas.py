@@ -19,6 +19,7 @@ Key layout (`{kind}` in `rod`, `hook`, `ball`; `{device_id}` matches `DEVICE_ID_
     gw/{rod|hook}/{id}/attitude    Attitude          gateway -> apps
     gw/{rod|hook}/{id}/attitude/block  AttitudeBlock  gateway -> apps (opt-in `--attitude-blocks`, BLOCK)
     gw/hook/{id}/swing             Swing             gateway -> apps
+    gw/{rod|hook}/{id}/height      Height            gateway -> apps (vertical velocity and heave, seed 002)
     gw/{kind}/{id}/alarm           AlarmEvent        gateway -> apps (BLOCK)
     gw/spots                       SpotRanking       gateway -> apps
     gw/diag/ingest                 IngestStats       gateway -> apps
@@ -89,8 +90,13 @@ class DecodeError(Exception):
 # ---------------------------------------------------------------------------------------------------------------
 
 
+def valid_device_id(device_id: str) -> bool:
+    """True when `device_id` matches DEVICE_ID_PATTERN (1-64 of A-Z a-z 0-9 _ -)."""
+    return _DEVICE_ID_RE.fullmatch(device_id) is not None
+
+
 def _check_id(device_id: str) -> str:
-    if not _DEVICE_ID_RE.match(device_id):
+    if not _DEVICE_ID_RE.fullmatch(device_id):
         raise ValueError(f"device id {device_id!r} does not match {DEVICE_ID_PATTERN}")
     return device_id
 
@@ -138,6 +144,11 @@ def attitude_key(kind: str, device_id: str) -> str:
 def attitude_block_key(kind: str, device_id: str) -> str:
     """`gw/{kind}/{device_id}/attitude/block`: every sample's attitude, one message per IMU packet (opt-in)."""
     return f"gw/{kind}/{_check_id(device_id)}/attitude/block"
+
+
+def height_key(kind: str, device_id: str) -> str:
+    """Gateway height / heave of an IMU device (seed 002 eq. 8)."""
+    return f"gw/{kind}/{_check_id(device_id)}/height"
 
 
 def swing_key(device_id: str) -> str:
@@ -198,7 +209,7 @@ def parse_key(key: str) -> ParsedKey:
         raise DecodeError("unknown_key", key[:200])
     kind, device_id, topic = parts[1], parts[2], "/".join(parts[3:])
     kinds = _TOPICS.get(topic)
-    if kinds is None or kind not in kinds or not _DEVICE_ID_RE.match(device_id):
+    if kinds is None or kind not in kinds or not _DEVICE_ID_RE.fullmatch(device_id):
         raise DecodeError("unknown_key", key[:200])
     return ParsedKey(kind, device_id, topic)
 
@@ -261,6 +272,16 @@ def _check_unit_quats(quats: list[tuple[float, float, float, float]]) -> None:
 # ---------------------------------------------------------------------------------------------------------------
 
 
+class GnssFix(WireModel):
+    """A position fix from the device's GNSS receiver (seed 004's BeiDou module), for devices that carry one."""
+
+    lat_deg: Annotated[float, Field(ge=-90.0, le=90.0, allow_inf_nan=False)]
+    lon_deg: Annotated[float, Field(ge=-180.0, le=180.0, allow_inf_nan=False)]
+    alt_m: Annotated[float, Field(ge=-1000.0, le=20_000.0, allow_inf_nan=False)] | None = None
+    speed_m_s: Annotated[float, Field(ge=0.0, le=500.0, allow_inf_nan=False)] | None = None
+    fix_quality: Annotated[int, Field(ge=0, le=8)] = 1
+
+
 class ImuPacket(WireModel):
     """A batch of n IMU samples at `rate_hz`; sample i was taken at `t0_us + i * 1e6 / rate_hz` (device clock)."""
 
@@ -278,6 +299,8 @@ class ImuPacket(WireModel):
     battery_v: BatteryV | None = None
     rssi_dbm: RssiDbm | None = None
     wall_t0_us: TimeUs | None = None
+    gnss: GnssFix | None = None
+    depth_m: Annotated[float, Field(ge=0.0, le=1000.0, allow_inf_nan=False)] | None = None
 
     @model_validator(mode="after")
     def _equal_lengths(self) -> ImuPacket:
@@ -329,6 +352,7 @@ class EnvPacket(WireModel):
     profile: list[ProfilePoint] | None = Field(default=None, min_length=1, max_length=200)
     battery_v: BatteryV | None = None
     rssi_dbm: RssiDbm | None = None
+    gnss: GnssFix | None = None
 
 
 ReelAction: TypeAlias = Literal["in", "out", "stop", "speed"]
@@ -518,7 +542,10 @@ class AttitudeBlock(WireModel):
 
 
 class Swing(WireModel):
-    """Hook swing from the fused attitude (paper 001 eq. 4-7): angle Θ, direction Φ (ENU bearing), torsion φ."""
+    """Hook swing from the fused attitude at the last sample of IMU packet `seq` (paper 001 eq. 4-7); the angles are
+    defined in section 3.5 "Hook angles": swing angle Θ, displacement bearing, the paper's swing-plane direction Φ,
+    torsion φ, all from the gateway's heading frame. At most one per IMU packet, at most `swing_rate_hz` (20 Hz by
+    default) per hook; published with BLOCK (see the key table)."""
 
     v: Version = 1
     device_id: DeviceId
@@ -528,6 +555,27 @@ class Swing(WireModel):
     swing_angle_rad: _Angle
     swing_direction_rad: _Angle
     torsion_rad: Finite
+    swing_phi_rad: _Angle | None = None
+    rest_heading_rad: _Angle | None = None
+    rope_length_m: Annotated[float, Field(gt=0.0, le=1000.0, allow_inf_nan=False)] | None = None
+
+
+class Height(WireModel):
+    """Vertical velocity and height of an IMU device from its fused attitude (seed 002 eq. 6-8): gravity removed from
+    the specific force rotated to ENU, integrated twice; drift held by rest detection (velocity to zero, height
+    held) and by the device's depth sensor where it has one; free-running without either for 10 s it becomes heave
+    about the last rest height (`aided` says which held it)."""
+
+    v: Version = 1
+    device_id: DeviceId
+    kind: ImuKind
+    seq: Uint32
+    t_us: TimeUs
+    wall_t_us: TimeUs | None = None
+    vz_m_s: Finite
+    height_m: Finite
+    at_rest: bool
+    aided: Literal["rest", "depth", "highpass", "none"]
 
 
 AlarmState: TypeAlias = Literal["raised", "cleared"]
@@ -569,6 +617,8 @@ class SpotScore(WireModel):
     device_id: DeviceId | None = None
     last_seen_wall_us: TimeUs | None = None
     reasons: list[Annotated[str, Field(max_length=200)]] = Field(default_factory=list, max_length=20)
+    lat_deg: Annotated[float, Field(ge=-90.0, le=90.0, allow_inf_nan=False)] | None = None
+    lon_deg: Annotated[float, Field(ge=-180.0, le=180.0, allow_inf_nan=False)] | None = None
 
 
 class SpotRanking(WireModel):
@@ -710,7 +760,7 @@ def decode(key: str, payload: bytes | bytearray | memoryview) -> Packet:
 # Sequence tracking
 # ---------------------------------------------------------------------------------------------------------------
 
-SeqStatus: TypeAlias = Literal["first", "ok", "lost", "duplicate", "reordered", "reboot"]
+SeqStatus: TypeAlias = Literal["first", "ok", "lost", "duplicate", "reordered", "reboot", "conflict", "rival"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -722,25 +772,51 @@ class SeqResult:
 
     @property
     def accept(self) -> bool:
-        """True when the packet carries new data (everything except a duplicate)."""
-        return self.status != "duplicate"
+        """True when the packet carries new data of the followed stream (not a duplicate, not the rival's)."""
+        return self.status not in ("duplicate", "rival")
+
+    @property
+    def conflict(self) -> bool:
+        """True when the packet shows a second publisher on the key (`conflict` or `rival`)."""
+        return self.status in ("conflict", "rival")
+
+
+CONFLICT_EVIDENCE: Final = 2
+"""New packets of the boot left behind, after a reboot, that prove it still publishes (one can be a late packet)."""
 
 
 @dataclass
 class SequenceTracker:
-    """Classifies each packet's (boot_id, seq) of ONE device stream: ok, lost(n), duplicate, reordered, reboot.
+    """Classifies each packet's (boot_id, seq) of ONE device stream: ok, lost(n), duplicate, reordered, reboot, and
+    conflict / rival when two publishers share the key.
 
     Arithmetic is modulo 2**32 so the wrap 0xFFFFFFFF -> 0 is ordinary. A seq ahead of the newest by d
     (0 < d < 2**31) is new; d - 1 packets were lost. A seq behind the newest within `window` is `reordered`
     if unseen (one previously lost packet arrived late: the counters subtract it from `lost`), else `duplicate`;
     further behind is counted as duplicate (too old to tell). A new boot_id restarts the stream (`reboot`);
     late packets of the boot before are stale and counted as duplicates.
-    Counters accumulate in `ok`, `lost`, `duplicates`, `reordered`, `reboots`.
+
+    Two publishers: a real reboot silences the boot before it. When that boot instead goes on with new seqs
+    (`CONFLICT_EVIDENCE` of them) another publisher is using the key (a spoofer, or two devices with one id). The
+    tracker then goes back to the boot it followed first (`conflict`: this packet is accepted) and from then on
+    classifies the newcomer's boot as `rival` (dropped, counted in `conflicts`): a forged boot_id can no longer
+    make the real stream look stale. The same holds within one boot: after a jump ahead by `window` or more, when
+    the sequence left behind goes on (`CONFLICT_EVIDENCE` packets), the tracker follows it again and packets near
+    the jumped-to sequence are `rival`. Which of the two is genuine cannot be known without authentication (zenoh
+    access control, docs/security.md); the gateway raises a `device_conflict` alarm.
+    Counters accumulate in `ok`, `lost`, `duplicates`, `reordered`, `reboots`, `conflicts`.
     """
 
     window: int = 1024
     boot_id: int | None = None
     previous_boot_id: int | None = None
+    previous_newest: int = 0
+    previous_fresh: int = 0
+    rival_boot_id: int | None = None
+    jumped_from: int | None = None  # newest seq before the last jump ahead by >= window (same boot)
+    jump_lost: int = 0
+    jump_fresh: int = 0
+    rival_seq: tuple[int, int] | None = None  # (boot, newest seq) of a second publisher using the same boot_id
     newest: int = 0
     _seen: set[int] = field(default_factory=set)
     ok: int = 0
@@ -748,14 +824,32 @@ class SequenceTracker:
     duplicates: int = 0
     reordered: int = 0
     reboots: int = 0
+    conflicts: int = 0
 
     def update(self, boot_id: int, seq: int) -> SeqResult:
         """Classify one packet and update the counters."""
+        if boot_id == self.rival_boot_id and boot_id != self.boot_id:
+            self.conflicts += 1
+            return SeqResult("rival")
         if boot_id == self.previous_boot_id and boot_id != self.boot_id:
+            ahead = (seq - self.previous_newest) % UINT32
+            if 0 < ahead < UINT32 // 2:  # the boot left behind goes on: is it a second publisher?
+                self.previous_newest = seq
+                self.previous_fresh += 1
+                if self.previous_fresh >= CONFLICT_EVIDENCE:
+                    return self._resume_previous(seq)
             self.duplicates += 1  # a straggler from before the reboot: stale, not a second reboot
             return SeqResult("duplicate")
+        if self.rival_seq is not None and boot_id == self.rival_seq[0]:
+            d = (seq - self.rival_seq[1]) % UINT32
+            if d < self.window or UINT32 - d < self.window:  # near the rival's sequence, not ours
+                if 0 < d < self.window:
+                    self.rival_seq = (boot_id, seq)
+                self.conflicts += 1
+                return SeqResult("rival")
         if self.boot_id is None or boot_id != self.boot_id:
-            self.previous_boot_id = self.boot_id
+            self.jumped_from = None
+            self.previous_boot_id, self.previous_newest, self.previous_fresh = self.boot_id, self.newest, 0
             status: SeqStatus = "first" if self.boot_id is None else "reboot"
             if status == "reboot":
                 self.reboots += 1
@@ -767,6 +861,8 @@ class SequenceTracker:
             self.duplicates += 1
             return SeqResult("duplicate")
         if ahead < UINT32 // 2:
+            if ahead >= self.window:  # a big jump: remember where from, in case that sequence goes on
+                self.jumped_from, self.jump_lost, self.jump_fresh = self.newest, ahead - 1, 0
             self.newest = seq
             self._remember(seq)
             self.ok += 1
@@ -781,8 +877,32 @@ class SequenceTracker:
             self.lost = max(0, self.lost - 1)
             self.ok += 1
             return SeqResult("reordered")
+        if self.jumped_from is not None and 0 < (seq - self.jumped_from) % UINT32 < self.window:
+            self.jumped_from = seq  # the sequence left behind by the jump goes on: a second publisher?
+            self.jump_fresh += 1
+            if self.jump_fresh >= CONFLICT_EVIDENCE:
+                return self._resume_sequence(boot_id, seq)
         self.duplicates += 1
         return SeqResult("duplicate")
+
+    def _resume_sequence(self, boot_id: int, seq: int) -> SeqResult:
+        """Two publishers with one boot_id (one jumped the seq ahead): follow the sequence seen first again."""
+        self.rival_seq = (boot_id, self.newest)
+        self.lost = max(0, self.lost - self.jump_lost)  # the jump's gap was not loss
+        self.newest, self._seen, self.jumped_from = seq, {seq}, None
+        self.conflicts += 1
+        self.ok += 1
+        return SeqResult("conflict")
+
+    def _resume_previous(self, seq: int) -> SeqResult:
+        """Two publishers: follow the boot seen first again; the newcomer's boot becomes the rival."""
+        self.rival_boot_id = self.boot_id
+        self.boot_id, self.previous_boot_id, self.previous_fresh = self.previous_boot_id, None, 0
+        self.newest, self._seen = seq, {seq}
+        self.reboots = max(0, self.reboots - 1)  # it was not a reboot
+        self.conflicts += 1
+        self.ok += 1
+        return SeqResult("conflict")
 
     def _remember(self, seq: int) -> None:
         self._seen.add(seq)
@@ -807,6 +927,7 @@ def examples() -> dict[str, tuple[str, WireModel]]:
         acc_m_s2=[(5.312, 0.021, 8.247), (5.309, 0.018, 8.251)],
         mag_uT=[(-14.3, 18.1, -39.2), (-14.2, 18.0, -39.3)],
         temp_c=24.5, battery_v=4.08, rssi_dbm=-61.0, wall_t0_us=wall + 10_420_000,
+        gnss=GnssFix(lat_deg=30.2741, lon_deg=120.1551, alt_m=7.5, speed_m_s=0.0, fix_quality=1),
     )
     hook_imu = ImuPacket(
         v=1, device_id="hook-1", kind="hook", boot_id=99, seq=7, t0_us=70_000, rate_hz=100.0,
@@ -818,7 +939,7 @@ def examples() -> dict[str, tuple[str, WireModel]]:
         probe_depth_m=6.0, bottom_depth_m=12.0,
         profile=[ProfilePoint(depth_m=0.0, water_temp_c=19.9, oxygen_mg_l=8.9),
                  ProfilePoint(depth_m=6.0, water_temp_c=10.1, oxygen_mg_l=1.2)],
-        battery_v=3.9, rssi_dbm=-70.0,
+        battery_v=3.9, rssi_dbm=-70.0, gnss=GnssFix(lat_deg=30.2746, lon_deg=120.1559, fix_quality=1),
     )
     reel = ReelStatus(
         v=1, device_id="rod-1", boot_id=2_882_400_001, seq=208, t_us=10_420_000, wall_t_us=wall + 10_420_000,
@@ -854,8 +975,11 @@ def examples() -> dict[str, tuple[str, WireModel]]:
         device_id="rod-1", kind="rod", boot_id=2_882_400_001, seq=1042, t0_us=10_420_000, rate_hz=100.0,
         wall_t0_us=wall + 10_420_000, quat_wxyz=[quat, quat], filter="default",
     )
+    height = Height(device_id="hook-1", kind="hook", seq=7, t_us=80_000, wall_t_us=wall + 86_000, vz_m_s=-0.12,
+                    height_m=1.84, at_rest=False, aided="rest")
     swing = Swing(device_id="hook-1", seq=7, t_us=80_000, wall_t_us=wall + 86_000, swing_angle_rad=0.087,
-                  swing_direction_rad=1.2, torsion_rad=0.15)
+                  swing_direction_rad=1.2, torsion_rad=0.15, swing_phi_rad=0.6764, rest_heading_rad=0.5236,
+                  rope_length_m=9.87)  # the worked example of section 3.5
     alarm = AlarmEvent(
         alarm_id="3f2b9c0d5e8a4b7c9d1e2f3a4b5c6d7e", device_id="rod-1", kind="rod", alarm="bite", state="raised",
         severity="major", t_us=10_425_000, wall_t_us=wall + 10_436_000, source_wall_us=wall + 10_425_000, value=-12.0,
@@ -863,7 +987,7 @@ def examples() -> dict[str, tuple[str, WireModel]]:
     )
     spots = SpotRanking(wall_t_us=wall + 12_100_000, spots=[
         SpotScore(spot="inlet", rank=1, score=0.82, device_id="ball-2", last_seen_wall_us=wall + 12_000_000,
-                  reasons=["oxygen 9.1 mg/L", "water 16 °C"]),
+                  reasons=["oxygen 9.1 mg/L", "water 16 °C"], lat_deg=30.2751, lon_deg=120.1548),
         SpotScore(spot="deep_hole", rank=2, score=0.41, device_id="ball-1", last_seen_wall_us=wall + 12_000_000,
                   reasons=["low oxygen at probe depth"]),
     ])
@@ -888,6 +1012,7 @@ def examples() -> dict[str, tuple[str, WireModel]]:
         "ball_cmd": (ball_cmd_key("ball-1"), ball_cmd),
         "attitude": (attitude_key("rod", "rod-1"), att),
         "attitude_block": (attitude_block_key("rod", "rod-1"), att_block),
+        "height": (height_key("hook", "hook-1"), height),
         "swing": (swing_key("hook-1"), swing),
         "alarm": (alarm_key("rod", "rod-1"), alarm),
         "spots": (SPOTS_KEY, spots),
@@ -925,7 +1050,19 @@ FIELD_NOTES: Final[dict[str, str]] = {
     "yaw_unwrapped_rad": "yaw without the ±π jumps",
     "filter_restarts": "fusion restarted from a fresh warm-up, by reason: the filter's exception class (e.g. "
                        "`LinAlgError`) or `non_finite` (it returned NaN/inf)",
-    "swing_direction_rad": "bearing of the swing plane, counter-clockwise from East",
+    "swing_direction_rad": "bearing of the hook's horizontal displacement, counter-clockwise from East",
+    "gnss": "GNSS fix at sample 0 (ImuPacket) or at the reading (EnvPacket: where the ball lies); absent without a "
+            "receiver",
+    "lat_deg": "WGS-84 latitude, degrees north",
+    "lon_deg": "WGS-84 longitude, degrees east",
+    "alt_m": "altitude above mean sea level, m",
+    "fix_quality": "NMEA GGA fix quality: 0 invalid, 1 GNSS, 2 differential, 4 RTK fixed, 5 RTK float, 6 estimated",
+    "depth_m": "pressure depth below the water surface at sample 0, m; absent without a depth sensor",
+    "vz_m_s": "vertical velocity, ENU up, m/s",
+    "height_m": "height above the device's first rest position (ENU up), m; minus the depth when depth-aided",
+    "at_rest": "the rest detector holds the device still (velocity zeroed)",
+    "aided": "what held the drift on this sample: rest detection, the depth sensor, the high-pass of a device free-"
+             "running for 10 s (heave about the last rest height), or nothing yet (free integration)",
 }
 
 # Notes that differ from FIELD_NOTES for one model: (model name, field) -> note.
@@ -935,6 +1072,23 @@ MODEL_FIELD_NOTES: Final[dict[tuple[str, str], str]] = {
     ("AttitudeBlock", "quat_wxyz"): "n unit quaternions body -> ENU, scalar first, one per sample of the packet",
     ("AlarmEvent", "t_us"): "device monotonic clock (µs) of the sample that raised, updated or cleared the alarm",
     ("AlarmEvent", "wall_t_us"): "gateway realtime clock (unix µs) when the event was published",
+    ("GnssFix", "speed_m_s"): "ground speed, m/s",
+    ("SpotScore", "lat_deg"): "where the spot's ball last reported its GNSS fix (WGS-84), absent without one",
+    ("SpotScore", "lon_deg"): "as `lat_deg`",
+    ("Height", "t_us"): "device monotonic clock (µs) of the sample",
+    ("Swing", "swing_angle_rad"): "Θ ∈ [0, π/2): angle between the rope and the vertical (section 3.5)",
+    ("Swing", "swing_direction_rad"): "displacement bearing ∈ (-π, π]: direction of the hook's horizontal "
+                                      "displacement from below the boom tip, CCW from East in the heading frame; "
+                                      "0 when Θ = 0 (section 3.5)",
+    ("Swing", "torsion_rad"): "φ ∈ (-π, π]: twist about the rope from the rest heading, right-handed about the rope "
+                              "(CCW seen from above); 0 = body x at the rest heading (section 3.5)",
+    ("Swing", "swing_phi_rad"): "paper 001 eq. 7 Φ ∈ [-π/2, π/2] relative to the rest heading ψ: sin Φ = sin θy / "
+                                "sin Θ; the bearing is ψ + Φ or ψ + π - Φ (section 3.5); absent from old gateways",
+    ("Swing", "rest_heading_rad"): "ψ: the rest heading torsion and Φ are taken from, CCW from East in the heading "
+                                   "frame (configured `rest_heading_deg`, else the first fused heading)",
+    ("Swing", "rope_length_m"): "the hook filter's estimate of the pendulum length (boom tip to the hook and load's "
+                                "centre), m; absent with other filters",
+    ("HookTruth", "swing_direction_rad"): "bearing of the hook's horizontal displacement, CCW from East (ENU)",
 }
 
 
@@ -982,9 +1136,9 @@ def fields_markdown(model: type[WireModel]) -> str:
 _FIELDS_BEGIN = "<!-- fields:begin (generated) -->"
 _FIELDS_END = "<!-- fields:end -->"
 DOC_MODELS: Final[tuple[type[WireModel], ...]] = (
-    ImuPacket, EnvPacket, ProfilePoint, ReelStatus, RodTruth, HookTruth, BallTruth, TruthEvent, ReelCommand,
-    BallCommand, Attitude, AttitudeBlock, Swing, AlarmEvent, SpotRanking, SpotScore, IngestStats, DeviceIngestCounters,
-    RejectedPacket, DeviceConfig,
+    ImuPacket, GnssFix, EnvPacket, ProfilePoint, ReelStatus, RodTruth, HookTruth, BallTruth, TruthEvent, ReelCommand,
+    BallCommand, Attitude, AttitudeBlock, Height, Swing, AlarmEvent, SpotRanking, SpotScore, IngestStats,
+    DeviceIngestCounters, RejectedPacket, DeviceConfig,
 )
 
 

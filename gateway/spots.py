@@ -1,13 +1,14 @@
 """Fishing-spot suggestion (seed 000: the environment ball's readings judge whether a spot suits fish). Pure.
 
-Each spot gets 0..100 points from four components, each a score in [0, 1] times its weight, with a reason:
+Each spot gets a score in [0, 1] (as on the wire, `SpotScore.score`) from four components, each a score in [0, 1]
+times its weight (the weights sum to 1), with a reason:
 
-- temperature (35): inside a target species' preferred range = 1, falling linearly to 0 at TEMP_FALLOFF_C
+- temperature (0.35): inside a target species' preferred range = 1, falling linearly to 0 at TEMP_FALLOFF_C
   outside it (the best species counts);
-- oxygen (30): >= 5 mg/L good (1); 3..5 low (0.4..1); 2..3 stressful (0.15); < 2 dangerous (0) -- and a
-  spot with dangerous oxygen is capped at DANGER_CAP points overall, so it always ranks last;
-- light (15): dawn and dusk best; overcast (< 10 klx) by day good; bright midday sun (>= 50 klx) poor;
-- depth (20): near (<= 2 m) above the thermocline best; well above fine; below it with low oxygen bad.
+- oxygen (0.30): >= 5 mg/L good (1); 3..5 low (0.4..1); 2..3 stressful (0.15); < 2 dangerous (0) -- and a
+  spot with dangerous oxygen is capped at DANGER_CAP overall, so it always ranks last;
+- light (0.15): dawn and dusk best; overcast (< 10 klx) by day good; bright midday sun (>= 50 klx) poor;
+- depth (0.20): near (<= 2 m) above the thermocline best; well above fine; below it with low oxygen bad.
 A missing reading scores 0.5 ("no reading") so a spot is neither favoured nor buried for it.
 """
 
@@ -18,12 +19,12 @@ from dataclasses import dataclass
 
 from gateway.config import SpotPreferences
 
-WEIGHTS: Mapping[str, float] = {"temperature": 35.0, "oxygen": 30.0, "light": 15.0, "depth": 20.0}
+WEIGHTS: Mapping[str, float] = {"temperature": 0.35, "oxygen": 0.30, "light": 0.15, "depth": 0.20}
 TEMP_FALLOFF_C = 6.0
 OXYGEN_GOOD_MG_L = 5.0
 OXYGEN_STRESS_MG_L = 3.0
 OXYGEN_DANGER_MG_L = 2.0
-DANGER_CAP = 10.0
+DANGER_CAP = 0.10
 NEAR_THERMOCLINE_M = 2.0
 DAWN_H = (5.0, 8.0)
 DUSK_H = (17.0, 20.0)
@@ -47,7 +48,7 @@ class SpotReading:
 
 @dataclass(frozen=True, slots=True)
 class Component:
-    """One scoring component: score in [0, 1], its weight in points, and why."""
+    """One scoring component: score in [0, 1], its weight (a fraction of the total), and why."""
 
     name: str
     score: float
@@ -61,7 +62,7 @@ class Component:
 
 @dataclass(frozen=True, slots=True)
 class SpotScore:
-    """A spot's total (0..100) and its components."""
+    """A spot's total (0..1) and its components."""
 
     spot_id: str
     score: float
@@ -137,7 +138,7 @@ def score_depth(depth_m: float | None, thermocline_m: float | None, oxygen_mg_l:
 
 
 def score_spot(r: SpotReading, prefs: SpotPreferences, local_hour: float) -> SpotScore:
-    """All four components and the total (0..100) for one spot."""
+    """All four components and the total (0..1) for one spot."""
     parts = {
         "temperature": score_temperature(r.temp_c, prefs.temp_ranges_c()),
         "oxygen": score_oxygen(r.oxygen_mg_l),
@@ -148,7 +149,7 @@ def score_spot(r: SpotReading, prefs: SpotPreferences, local_hour: float) -> Spo
     total = sum(c.points for c in comps)
     if r.oxygen_mg_l is not None and r.oxygen_mg_l < OXYGEN_DANGER_MG_L:
         total = min(total, DANGER_CAP)
-    return SpotScore(r.spot_id, round(total, 1), comps)
+    return SpotScore(r.spot_id, round(total, 3), comps)
 
 
 def rank_spots(readings: Iterable[SpotReading], prefs: SpotPreferences, local_hour: float) -> list[SpotScore]:

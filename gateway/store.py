@@ -12,14 +12,18 @@ inspected without leaking it; anyone who can read the file already owns the gate
 from __future__ import annotations
 
 import hmac
+import itertools
 import json
+import logging
+import math
 import os
 import secrets
 import sqlite3
 import stat
 import threading
 import time
-from collections.abc import Iterator, Mapping
+from collections import OrderedDict
+from collections.abc import Callable, Hashable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -116,7 +120,11 @@ class Store:
     """The gateway database. Thread-safe; use as a context manager or call `close()`."""
 
     def __init__(self, db_path: Path) -> None:
-        db_path.parent.mkdir(parents=True, exist_ok=True)
+        private_dir(db_path.parent)
+        fd = os.open(db_path, os.O_RDWR | os.O_CREAT, 0o600)  # SQLite gives its -wal/-shm files the same mode
+        os.close(fd)
+        if stat.S_IMODE(db_path.stat().st_mode) & 0o077:
+            db_path.chmod(0o600)
         self.path = db_path
         self._lock = threading.Lock()
         self._conn = sqlite3.connect(db_path, check_same_thread=False, isolation_level=None, timeout=10.0)
@@ -142,10 +150,13 @@ class Store:
             self._conn.execute("BEGIN IMMEDIATE")
             try:
                 yield
+                self._conn.execute("COMMIT")
             except BaseException:
-                self._conn.execute("ROLLBACK")
+                # A failed COMMIT (disk full) may or may not have ended the transaction: roll back only if it is
+                # still open, so the original error is raised and the next write can BEGIN again.
+                if self._conn.in_transaction:
+                    self._conn.execute("ROLLBACK")
                 raise
-            self._conn.execute("COMMIT")
 
     def _migrate(self) -> None:
         with self._lock:
@@ -322,6 +333,15 @@ class Store:
         return [dict(r) | {"payload": json.loads(r["payload"])} for r in rows]
 
 
+def private_dir(path: Path) -> None:
+    """Create `path` (mode 0700), or tighten it to 0700 if it is ours and not a shared sticky directory such as /tmp:
+    the database, its WAL and the token file are nobody else's business."""
+    path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    st = path.stat()
+    if stat.S_IMODE(st.st_mode) & 0o077 and st.st_uid == os.geteuid() and not st.st_mode & stat.S_ISVTX:
+        path.chmod(0o700)
+
+
 # -- API bearer token ---------------------------------------------------------------------------------------------
 
 TOKEN_FILE = "api_token"
@@ -332,7 +352,7 @@ def ensure_token(data_dir: Path) -> tuple[str, bool]:
 
     Returns (token, created). A file readable by group/others is tightened to 0600.
     """
-    data_dir.mkdir(parents=True, exist_ok=True)
+    private_dir(data_dir)
     path = data_dir / TOKEN_FILE
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
@@ -360,3 +380,120 @@ class ApiToken:
 
     def __repr__(self) -> str:
         return "ApiToken(***)"
+
+
+# -- the ingest side's writer ---------------------------------------------------------------------------------------
+
+log = logging.getLogger("gateway.store")
+
+
+class StoreWriter:
+    """One thread applies the ingest side's writes (alarm upserts, event log) in order, so the event loop never waits
+    on SQLite, and a failing disk costs no alarm: the hub publishes first and hands the write here.
+
+    A write that fails (disk full, I/O error, database locked) stays at the head of a bounded journal and is retried
+    every `retry_s` until it succeeds; later writes wait behind it, so order is kept (a raise is never stored after
+    its clear). Upserts of one alarm replace each other in the journal (the newest row is the one to store), so an
+    outage keeps one entry per alarm, not one per update; past `max_pending` the oldest entry is dropped and counted.
+    `status()` is what /api/health reports.
+    """
+
+    def __init__(self, store: Store, max_pending: int = 10_000, retry_s: float = 1.0) -> None:
+        self.store = store
+        self.max_pending = max_pending
+        self.retry_s = retry_s
+        self.written = 0
+        self.failures = 0
+        self.dropped = 0
+        self.last_error: str | None = None
+        self._ops: OrderedDict[Hashable, Callable[[Store], object]] = OrderedDict()
+        self._seq = itertools.count()
+        self._cond = threading.Condition()
+        self._stop = False
+        self._busy = False
+        self._last_log_s = -math.inf
+        self._thread = threading.Thread(target=self._run, name="store-writer", daemon=True)
+        self._thread.start()
+
+    def upsert_alarm(self, alarm: Alarm) -> None:
+        self._put(("alarm", alarm.id), lambda s: s.upsert_alarm(alarm))
+
+    def log_event(
+        self, t: float, kind: str, device_id: str | None = None, payload: Mapping[str, Any] | None = None
+    ) -> None:
+        payload = dict(payload or {})
+        self._put(("event", next(self._seq)), lambda s: s.log_event(t, kind, device_id, payload))
+
+    def _put(self, key: Hashable, op: Callable[[Store], object]) -> None:
+        with self._cond:
+            self._ops[key] = op  # an alarm already pending keeps its place and gets the newest row
+            while len(self._ops) > self.max_pending:
+                self._ops.popitem(last=False)
+                self.dropped += 1
+            self._cond.notify_all()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._ops and not self._stop:
+                    self._cond.wait()
+                if not self._ops:
+                    return
+                key, op = next(iter(self._ops.items()))
+                self._busy = True
+            try:
+                op(self.store)
+            except Exception as exc:
+                with self._cond:
+                    self._busy = False
+                    self.failures += 1
+                    self.last_error = f"{type(exc).__name__}: {exc}"[:300]
+                    now = time.monotonic()
+                    if now - self._last_log_s >= 10.0:
+                        self._last_log_s = now
+                        log.error("store write failed (%d pending, retrying every %.1f s): %s", len(self._ops),
+                                  self.retry_s, self.last_error)  # fmt: skip
+                    if self._stop:
+                        return
+                    self._cond.wait(self.retry_s)
+                continue
+            with self._cond:
+                self._busy = False
+                if self._ops.get(key) is op:  # not replaced by a newer row meanwhile
+                    del self._ops[key]
+                self.written += 1
+                if self.last_error is not None:
+                    log.warning("store writes succeed again (%d pending)", len(self._ops))
+                self.last_error = None
+                self._cond.notify_all()
+
+    def flush(self, timeout_s: float = 2.0) -> bool:
+        """Wait until every pending write is stored; False on timeout (the store is failing)."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while self._ops or self._busy:
+                left = deadline - time.monotonic()
+                if left <= 0 or not self._thread.is_alive():
+                    return False
+                self._cond.wait(left)
+        return True
+
+    def close(self, timeout_s: float = 2.0) -> None:
+        """Store what is pending (up to `timeout_s`), then stop the thread."""
+        self.flush(timeout_s)
+        with self._cond:
+            self._stop = True
+            self._cond.notify_all()
+        self._thread.join(timeout_s)
+
+    def status(self) -> dict[str, Any]:
+        """Health of the write path: `ok` False while writes fail or wait; `reason` says why."""
+        with self._cond:
+            pending = len(self._ops)
+            failing = self.last_error is not None
+            reason = None
+            if failing:
+                reason = (f"store writes failing ({pending} pending, retried every {self.retry_s:g} s): "
+                          f"{self.last_error}")  # fmt: skip
+            return {"ok": not failing, "reason": reason, "pending": pending, "written": self.written,
+                    "failures": self.failures, "dropped": self.dropped}  # fmt: skip

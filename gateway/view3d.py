@@ -2,8 +2,8 @@
 
 Geometry is pure (`rod_curve`, `hook_geometry`, `raw_attitude`); `View3D` owns a `viser.ViserServer` bound to
 `Settings.viser_host:viser_port` (127.0.0.1 by default; viser takes the next free port if that one is busy) and
-a 20 Hz update thread. It is started on demand by `GET /view3d` (the dashboard's link), so gateways and tests
-that never open it pay nothing; the app's lifespan stops it.
+a 20 Hz update thread. `python -m gateway` starts it with the gateway (`start_view3d`); in-process apps start it on
+the first `GET /view3d` (the dashboard's link), so tests that never open it pay nothing; the lifespan stops it.
 
 Inputs: fused attitude and swing from the hub (listener on the ingest task, stores the latest values only), raw
 IMU and ground truth (`rig/{kind}/{id}/truth`) from bus subscriptions whose callbacks only keep the latest bytes.
@@ -12,12 +12,14 @@ Scene frames are ENU (viser's z is up, as ours). Quaternions are wxyz body->eart
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import json
 import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,7 +29,7 @@ from fastapi.responses import RedirectResponse
 from numpy.typing import NDArray
 
 from gateway import schemas
-from gateway.config import Settings
+from gateway.config import HookThresholds, Settings
 from gateway.fusion import quaternion as quat
 from gateway.ingest.runner import GatewayService
 
@@ -39,6 +41,15 @@ FUSED_RGB = (30, 110, 220)
 RAW_RGB = (230, 140, 20)
 TRUTH_RGB = (160, 160, 160)
 HOOK_ROPE_M = 4.0  # drawn rope length (the real one is unknown to the gateway); fits the default camera
+WATER_Z_M = -1.2  # water surface below the rod butt
+HOOK_LIFT_M = 2.0  # the hook scene stands this much higher, so the load hangs above the ground grid
+SLOT_M = 6.0  # devices side by side along y, this far apart
+GHOST_OFFSET_M = (0.0, 0.35, 0.0)  # ground truth drawn beside the estimate, so it never hides under it
+ALL = "(all devices)"
+LEGEND = """**rig-gateway 3D**  \n<span style="color:#1e6edc">■</span> fused estimate ·
+<span style="color:#e68c14">■</span> raw (acc + mag only) · <span style="color:#a0a0a0">■</span> ground truth
+(simulator, drawn 0.35 m aside, hook as wireframe)  \nrod: blue plane = water, dark line to a red bait · hook:
+boom, rope, hook block and load; cone = swing warning limit, magenta arc = torsion φ"""
 
 
 # -- pure geometry ------------------------------------------------------------------------------------------------
@@ -87,6 +98,46 @@ def segments(points: FloatArray) -> FloatArray:
     return np.stack([points[:-1], points[1:]], axis=1)
 
 
+def fishing_line(tip: FloatArray, water_z_m: float, reach_m: float = 2.0, depth_m: float = 0.8) -> FloatArray:
+    """Points (3, 3) of the line: rod tip -> where it enters the water, `reach_m` further out along the tip's
+    horizontal direction from the butt (origin) -> the bait, `depth_m` below the surface."""
+    out_dir = np.array([tip[0], tip[1], 0.0])
+    n = float(np.linalg.norm(out_dir))
+    out_dir = out_dir / n if n > 1e-9 else np.array([1.0, 0.0, 0.0])
+    entry = np.array([tip[0], tip[1], water_z_m]) + reach_m * out_dir
+    bait = entry + np.array([0.3 * out_dir[0], 0.3 * out_dir[1], -depth_m])
+    return np.stack([np.asarray(tip, dtype=np.float64), entry, bait])
+
+
+def cone_mesh(
+    apex: FloatArray, length_m: float, half_angle_rad: float, n: int = 32
+) -> tuple[FloatArray, NDArray[np.int32]]:
+    """Open cone hanging from `apex` (the swing limit: every rope direction within `half_angle_rad` of the
+    vertical): vertices (n+1, 3), apex first, base circle of radius L·sin α at depth L·cos α; faces (n, 3)."""
+    a = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    r, h = length_m * math.sin(half_angle_rad), length_m * math.cos(half_angle_rad)
+    ring = np.stack([apex[0] + r * np.cos(a), apex[1] + r * np.sin(a), np.full(n, apex[2] - h)], axis=-1)
+    verts: FloatArray = np.vstack([np.asarray(apex, dtype=np.float64)[None, :], ring])
+    faces = np.array([[0, 1 + i, 1 + (i + 1) % n] for i in range(n)], dtype=np.int32)
+    return verts, faces
+
+
+def torsion_arc(center: FloatArray, phi_rad: float, radius_m: float = 0.6, n: int = 24) -> FloatArray:
+    """Segments (m, 2, 3) of a horizontal arc around `center` from the rest direction (x) to the torsion φ, with an
+    arrow head at φ: it shows how far and which way the hook has turned about the rope."""
+    a = np.linspace(0.0, phi_rad, max(2, n))
+    arc = np.stack([center[0] + radius_m * np.cos(a), center[1] + radius_m * np.sin(a), np.full(a.size, center[2])], -1)
+    segs = [segments(arc)]
+    if abs(phi_rad) > 1e-3:  # head: two strokes back along the arc's tangent, opening outwards and inwards
+        end, sign = arc[-1], math.copysign(1.0, phi_rad)
+        tangent = sign * np.array([-math.sin(phi_rad), math.cos(phi_rad), 0.0])
+        radial = np.array([math.cos(phi_rad), math.sin(phi_rad), 0.0])
+        for side in (1.0, -1.0):
+            segs.append(np.stack([end, end - 0.15 * tangent + side * 0.08 * radial])[None, :, :])
+    out: FloatArray = np.concatenate(segs)
+    return out
+
+
 # -- live state ---------------------------------------------------------------------------------------------------
 
 
@@ -114,17 +165,19 @@ class View3D:
         self._raw: dict[str, bytes] = {}
         self._truth: dict[str, bytes] = {}
         self._nodes: dict[str, dict[str, Any]] = {}
+        self._slots: dict[str, int] = {}
+        self.swing_limit_deg: Callable[[], float] = lambda: HookThresholds().swing_warn_deg
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.updates = 0
-        self.server.initial_camera.position = (1.0, -4.5, 2.2)
-        self.server.initial_camera.look_at = (1.5, 0.5, 1.0)
+        self.server.initial_camera.position = (-6.0, -9.0, 6.0)
+        self.server.initial_camera.look_at = (1.0, 3.0, 0.5)
         s = self.server.scene
         s.add_grid("/ground", width=20.0, height=20.0, cell_size=1.0, plane="xy")
         s.add_frame("/world", axes_length=0.5, axes_radius=0.01)
         gui = self.server.gui
-        gui.add_markdown("**rig-gateway 3D** — blue: fused, orange: raw (acc+mag only), grey: ground truth")
-        self.pick = gui.add_dropdown("Device", options=("(none yet)",), initial_value="(none yet)")
+        gui.add_markdown(LEGEND)
+        self.pick = gui.add_dropdown("Device", options=(ALL,), initial_value=ALL)
         self.show_fused = gui.add_checkbox("Show fused", initial_value=True)
         self.show_raw = gui.add_checkbox("Show raw", initial_value=False)
         self.show_truth = gui.add_checkbox("Show ground truth", initial_value=True)
@@ -153,12 +206,19 @@ class View3D:
             }  # fmt: skip
 
     def on_raw(self, key: str, payload: bytes) -> None:
-        self._raw[key.rsplit("/", 2)[1]] = payload
+        self._keep(self._raw, key, payload)
 
     def on_truth(self, key: str, payload: bytes) -> None:
-        self._truth[key.rsplit("/", 2)[1]] = payload
+        self._keep(self._truth, key, payload)
+
+    def _keep(self, store: dict[str, bytes], key: str, payload: bytes) -> None:
+        """Latest payload per device, only for devices with a fused attitude (anyone may publish on these keys)."""
+        device_id = key.rsplit("/", 2)[1]
+        if device_id in self.devices:
+            store[device_id] = payload
 
     def attach(self, service: GatewayService) -> None:
+        self.swing_limit_deg = lambda: float(getattr(service.pipeline.defaults.get("hook"), "swing_warn_deg", 5.0))
         service.hub.listeners.append(self.on_hub)
         service.bus.subscribe(schemas.SEL_IMU, self.on_raw)
         service.bus.subscribe(schemas.SEL_TRUTH, self.on_truth)
@@ -175,26 +235,68 @@ class View3D:
             return None
 
     def _node_set(self, device_id: str, kind: str) -> dict[str, Any]:
+        """Scene nodes of one device under `/dev/{id}`, placed in its own slot; the truth layer is offset."""
         nodes = self._nodes.get(device_id)
         if nodes is not None:
             return nodes
         s, base = self.server.scene, f"/dev/{device_id}"
-        nodes = {}
+        slot = self._slots.setdefault(device_id, len(self._slots))
+        lift = HOOK_LIFT_M if kind == "hook" else 0.0  # a hook hangs above the ground with its load
+        nodes = {"root": s.add_frame(base, show_axes=False, position=(0.0, slot * SLOT_M, lift))}
+        s.add_frame(f"{base}/truth", show_axes=False, position=GHOST_OFFSET_M)
         for layer, rgb in (("fused", FUSED_RGB), ("raw", RAW_RGB), ("truth", TRUTH_RGB)):
             pts = np.zeros((2, 2, 3))
             nodes[f"{layer}_line"] = s.add_line_segments(f"{base}/{layer}/line", pts, rgb, thickness=0.04)
             nodes[f"{layer}_frame"] = s.add_frame(f"{base}/{layer}/frame", axes_length=0.4, axes_radius=0.02)
             if kind == "hook":
-                nodes[f"{layer}_hook"] = s.add_box(f"{base}/{layer}/frame/hook", color=rgb,
-                                                   dimensions=(0.6, 0.15, 0.3), position=(0.15, 0.0, -0.2))  # fmt: skip
+                ghost = layer == "truth"  # hook block and load hanging from the hook frame
+                f = f"{base}/{layer}/frame"
+                block = (0.35, 0.25, 0.5)
+                nodes[f"{layer}_hook"] = s.add_box(f"{f}/hook", color=rgb, wireframe=ghost, dimensions=block,
+                                                   position=(0.0, 0.0, -0.25))  # fmt: skip
+                nodes[f"{layer}_load"] = s.add_box(f"{f}/load", color=rgb if ghost else (200, 140, 40),
+                                                   dimensions=(0.9, 0.9, 0.6), position=(0.0, 0.0, -1.0),
+                                                   wireframe=ghost)  # fmt: skip
+        if kind == "rod":
+            nodes["water"] = s.add_box(f"{base}/water", color=(60, 130, 200), dimensions=(7.0, 4.0, 0.02),
+                                       position=(2.5, 0.0, WATER_Z_M), opacity=0.35)  # fmt: skip
+            nodes["fishline"] = s.add_line_segments(f"{base}/fishline", np.zeros((2, 2, 3)), (40, 40, 40),
+                                                    thickness=0.015)  # fmt: skip
+            nodes["bait"] = s.add_icosphere(f"{base}/bait", radius=0.07, color=(220, 60, 60))
+        elif kind == "hook":
+            top = np.array([0.0, 0.0, HOOK_ROPE_M])
+            mast_top = [-3.5, 0.0, HOOK_ROPE_M + 0.3]
+            boom = np.array([[[-3.5, 0.0, -HOOK_LIFT_M], mast_top], [mast_top, top]])
+            nodes["boom"] = s.add_line_segments(f"{base}/boom", boom, (235, 180, 40), thickness=0.12)
+            nodes["boom_tip"] = s.add_box(f"{base}/boom_tip", color=(90, 90, 90), dimensions=(0.3, 0.3, 0.3),
+                                          position=tuple(top))  # fmt: skip
+            nodes["torsion"] = s.add_line_segments(f"{base}/torsion", np.zeros((1, 2, 3)), (210, 40, 200),
+                                                   thickness=0.03)  # fmt: skip
+            nodes["cone_deg"] = None
         nodes["label"] = s.add_label(f"{base}/label", device_id, position=(0.0, 0.0, 0.3))
         self._nodes[device_id] = nodes
         return nodes
 
+    def _hook_extras(self, nodes: dict[str, Any], device_id: str, d: DeviceView, visible: bool) -> None:
+        """Swing cone (rebuilt when the limit changes) and the torsion arc at the fused hook."""
+        limit = self.swing_limit_deg()
+        if nodes["cone_deg"] != limit:
+            verts, faces = cone_mesh(np.array([0.0, 0.0, HOOK_ROPE_M]), HOOK_ROPE_M + 0.5, math.radians(limit))
+            nodes["cone"] = self.server.scene.add_mesh_simple(
+                f"/dev/{device_id}/cone", verts, faces, color=(230, 120, 40), opacity=0.15, side="double"
+            )
+            nodes["cone_deg"] = limit
+        nodes["cone"].visible = visible
+        nodes["torsion"].visible = visible and d.swing is not None
+        if visible and d.swing is not None:
+            _, hook = hook_geometry(d.fused / np.linalg.norm(d.fused), HOOK_ROPE_M)
+            phi = math.radians(d.swing["torsion_deg"])
+            nodes["torsion"].points = torsion_arc(hook + np.array([0.0, 0.0, 0.3]), phi)
+
     def _place(self, nodes: dict[str, Any], layer: str, kind: str, q: FloatArray | None, d: DeviceView,
                visible: bool) -> None:  # fmt: skip
         show = visible and q is not None and bool(np.all(np.isfinite(q)))
-        for suffix in ("line", "frame", "hook"):
+        for suffix in ("line", "frame", "hook", "load"):
             if f"{layer}_{suffix}" in nodes:
                 nodes[f"{layer}_{suffix}"].visible = show
         if not show or q is None:
@@ -205,6 +307,10 @@ class View3D:
             pts = rod_curve(q, butt)
             nodes[f"{layer}_line"].points = segments(pts)
             tip = pts[-1]
+            if layer == "fused":
+                line = fishing_line(tip, WATER_Z_M)
+                nodes["fishline"].points = segments(line)
+                nodes["bait"].position = tuple(line[-1])
         else:
             top, tip = hook_geometry(q, HOOK_ROPE_M)
             nodes[f"{layer}_line"].points = np.stack([top, tip])[None, :, :]
@@ -212,32 +318,41 @@ class View3D:
         nodes[f"{layer}_frame"].wxyz = tuple(q)
 
     def step(self) -> None:
-        """One scene update: options of the device picker, then the picked device's three layers."""
+        """One scene update: the picker's options, then every device (or only the picked one) in its slot."""
         ids = sorted(self.devices)
-        if ids and tuple(ids) != tuple(self.pick.options):
+        if (ALL, *ids) != tuple(self.pick.options):
             current = self.pick.value
-            self.pick.options = tuple(ids)
-            self.pick.value = current if current in ids else ids[0]  # type: ignore[misc]
+            self.pick.options = (ALL, *ids)
+            self.pick.value = current if current in ids else ALL  # type: ignore[misc]
+        picked = self.pick.value
         for device_id, d in list(self.devices.items()):
             nodes = self._node_set(device_id, d.kind)
-            on = device_id == self.pick.value
-            nodes["label"].visible = on
+            on = picked in (ALL, device_id)
+            nodes["root"].visible = on
+            if not on:
+                continue
             raw_q = None
             acc = self._latest(self._raw, device_id, "acc_m_s2")
-            if on and self.show_raw.value and acc is not None and np.linalg.norm(acc) > 1e-6:
+            if self.show_raw.value and acc is not None and np.linalg.norm(acc) > 1e-6:
                 raw_q = raw_attitude(acc, self._latest(self._raw, device_id, "mag_uT"))
-            truth = self._latest(self._truth, device_id, "quat_wxyz") if on else None
-            self._place(nodes, "fused", d.kind, d.fused, d, on and self.show_fused.value)
-            self._place(nodes, "raw", d.kind, raw_q, d, on and self.show_raw.value)
-            self._place(nodes, "truth", d.kind, truth, d, on and self.show_truth.value)
-        picked = self.devices.get(self.pick.value)
-        if picked is not None:
-            e = np.degrees(quat.to_euler(picked.fused))
-            text = f"**{self.pick.value}** ({picked.kind}) roll {e[0]:.1f}° pitch {e[1]:.1f}° yaw {e[2]:.1f}°"
-            if picked.swing:
-                sw = picked.swing
-                text += f"  \nswing {sw['swing_deg']:.1f}° torsion {sw['torsion_deg']:.1f}°"
-            self.status.content = text
+            truth = self._latest(self._truth, device_id, "quat_wxyz")
+            self._place(nodes, "fused", d.kind, d.fused, d, self.show_fused.value)
+            self._place(nodes, "raw", d.kind, raw_q, d, self.show_raw.value)
+            self._place(nodes, "truth", d.kind, truth, d, self.show_truth.value)
+            if d.kind == "hook":
+                self._hook_extras(nodes, device_id, d, self.show_fused.value)
+        lines = []
+        for device_id in ids if picked == ALL else [picked]:
+            dv = self.devices.get(device_id)
+            if dv is None:
+                continue
+            e = np.degrees(quat.to_euler(dv.fused))
+            text = f"**{device_id}** ({dv.kind}) roll {e[0]:.1f}° pitch {e[1]:.1f}° yaw {e[2]:.1f}°"
+            if dv.swing:
+                text += f", swing {dv.swing['swing_deg']:.1f}° torsion {dv.swing['torsion_deg']:.1f}°"
+            lines.append(text)
+        if lines:
+            self.status.content = "  \n".join(lines[:12]) + (f"  \n… {len(lines) - 12} more" if len(lines) > 12 else "")
         self.updates += 1
 
     def _loop(self) -> None:
@@ -275,6 +390,22 @@ def ensure_view3d(app: Any) -> View3D:
             app.state.view3d = view
             log.info("3-D view on http://%s:%d", service.settings.viser_host, view.port)
         return view
+
+
+async def start_view3d(app: Any) -> View3D:
+    """Start the 3-D view with the gateway: the viser server is built off the event loop (importing and starting
+    it takes a second or two), then attached to the service on the loop."""
+    service: GatewayService = app.state.service
+    view = await asyncio.to_thread(View3D, service.settings)
+    with _lock:
+        if getattr(app.state, "view3d", None) is not None:  # a `GET /view3d` was faster
+            view.stop()
+            existing: View3D = app.state.view3d
+            return existing
+        view.attach(service)
+        view.start()
+        app.state.view3d = view
+    return view
 
 
 def stop_view3d(app: Any) -> None:

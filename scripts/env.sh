@@ -14,5 +14,11 @@ if [ ! -f "$STAMP" ]; then
   rm -f "$ROOT"/.venv/.installed-*
   touch "$STAMP"
 fi
+# numba compiles the fusion kernels on first use (~40 s on 2 cores, minutes on a loaded box) and caches them in
+# gateway/fusion/__pycache__: do it here, once per checkout, with a progress line, so the first gateway start is fast.
+if ! ls "$ROOT"/gateway/fusion/__pycache__/*.nbi >/dev/null 2>&1; then
+  echo "[env] compiling the fusion kernels once (cached for later starts)" >&2
+  (cd "$ROOT" && "$ROOT/.venv/bin/python" -m gateway --prepare) >&2
+fi
 export PATH="$ROOT/.venv/bin:$PATH"
 cd "$ROOT"

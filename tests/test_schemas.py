@@ -228,7 +228,7 @@ def test_protocol_doc_examples_validate() -> None:
     pairs = doc_examples()
     assert len(pairs) >= len(schemas.examples())
     models = {
-        "attitude": schemas.Attitude, "swing": schemas.Swing, "alarm": schemas.AlarmEvent,
+        "attitude": schemas.Attitude, "swing": schemas.Swing, "alarm": schemas.AlarmEvent, "height": schemas.Height,
         "attitude/block": schemas.AttitudeBlock,
         "gw/spots": schemas.SpotRanking, "gw/diag/ingest": schemas.IngestStats,
         "gw/diag/rejected": schemas.RejectedPacket, "gw/config": schemas.DeviceConfig,
@@ -271,3 +271,14 @@ def test_device_config_example_uses_real_threshold_names() -> None:
     _, cfg = schemas.examples()["config"]
     assert isinstance(cfg, schemas.DeviceConfig)
     assert set(cfg.thresholds) <= set(RodThresholds.model_fields)
+
+
+def test_gnss_fix_is_optional_and_range_checked() -> None:
+    """A packet without `gnss` decodes as before; with one it round-trips; a latitude beyond 90° is out of range."""
+    fix = {"lat_deg": 30.27, "lon_deg": 120.15, "alt_m": 7.5, "speed_m_s": 1.2, "fix_quality": 4}
+    assert decode(IMU_KEY, enc(imu_dict())).gnss is None  # type: ignore[union-attr]
+    pkt = decode(IMU_KEY, enc(imu_dict(gnss=fix, depth_m=2.5)))
+    assert pkt.gnss == schemas.GnssFix(**fix) and pkt.depth_m == 2.5  # type: ignore[union-attr]
+    with pytest.raises(schemas.DecodeError) as err:
+        decode(IMU_KEY, enc(imu_dict(gnss={**fix, "lat_deg": 91.0})))
+    assert err.value.reason == "out_of_range"

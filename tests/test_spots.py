@@ -35,9 +35,9 @@ def test_dangerous_oxygen_spot_ranks_last_and_says_so():
 
 
 def test_good_spot_reference_score():
-    # temp in range 35, oxygen good 30, overcast midday 0.8 * 15 = 12, 1.5 m above thermocline 20 -> 97
+    # temp in range 0.35, oxygen good 0.30, overcast midday 0.8 * 0.15 = 0.12, 1.5 m above thermocline 0.20 -> 0.97
     s = score_spot(SpotReading("a", 22.0, 7.5, 3000.0, 3.0, 4.5), CARP, local_hour=12.5)
-    assert s.score == pytest.approx(97.0)
+    assert s.score == pytest.approx(0.97)
     assert [c.name for c in s.components] == ["temperature", "oxygen", "light", "depth"]
     assert "near but above the thermocline" in s.reasons[3]
 
@@ -104,6 +104,6 @@ readings = st.builds(
 def test_property_scores_bounded_and_ranked(spots, hour):
     ranking = rank_spots(spots, SpotPreferences(species=("pike", "bass")), hour)
     assert len(ranking) == len(spots)
-    assert all(0.0 <= s.score <= 100.0 for s in ranking)
+    assert all(0.0 <= s.score <= 1.0 for s in ranking)
     assert [s.score for s in ranking] == sorted((s.score for s in ranking), reverse=True)
     assert all(len(s.reasons) == 4 and all(s.reasons) for s in ranking)

@@ -17,9 +17,19 @@ from gateway.config import Settings
 from gateway.fusion import broad
 from gateway.fusion import quaternion as quat
 from gateway.fusion.registry import make_filter
-from gateway.replay_view import euler_deg, replay_data, run
+from gateway.replay_view import euler_deg, load, replay_data, run, sensor_columns
 from gateway.replay_view import main as replay_main
-from gateway.view3d import View3D, hook_geometry, raw_attitude, rod_curve, segments
+from gateway.view3d import (
+    ALL,
+    WATER_Z_M,
+    View3D,
+    cone_mesh,
+    hook_geometry,
+    raw_attitude,
+    rod_curve,
+    segments,
+    torsion_arc,
+)
 
 angles = st.floats(-1.2, 1.2)
 
@@ -114,7 +124,7 @@ def test_scene_follows_attitude_truth_and_picker(tmp_path: Path) -> None:
         view.on_truth("rig/rod/rod-1/truth", json.dumps({"quat_wxyz": [list(q_truth)]}).encode())
         view.on_raw("rig/rod/rod-1/imu", json.dumps({"acc_m_s2": [[0.0, 0.0, 9.81]]}).encode())
         view.step()
-        assert tuple(view.pick.options) == ("rod-1",) and view.pick.value == "rod-1"
+        assert tuple(view.pick.options) == (ALL, "rod-1") and view.pick.value == ALL  # every device shown
         nodes = view._nodes["rod-1"]
         expected = segments(rod_curve(q, math.radians(20)))
         assert np.asarray(nodes["fused_line"].points) == pytest.approx(expected, abs=1e-5)
@@ -125,8 +135,47 @@ def test_scene_follows_attitude_truth_and_picker(tmp_path: Path) -> None:
         view.step()
         assert nodes["raw_line"].visible
         assert "rod-1" in view.status.content and "pitch 20.0" in view.status.content
+        line = np.asarray(nodes["fishline"].points)
+        assert line[0, 0] == pytest.approx(expected[-1, 1], abs=1e-6)  # the line leaves the rod tip
+        assert line[-1, 1, 2] < WATER_Z_M  # ... and ends under water
     finally:
         view.stop()
+
+
+def test_scene_shows_every_device_in_its_slot_and_the_picker_isolates_one(tmp_path: Path) -> None:
+    view = View3D(Settings(viser_port=_free_port(), data_dir=tmp_path))
+    try:
+        for dev in ("rod-1", "hook-1"):
+            kind = dev.split("-")[0]
+            att = schemas.Attitude(device_id=dev, kind=kind, seq=1, t_us=1, quat_wxyz=(1.0, 0.0, 0.0, 0.0),  # type: ignore[arg-type]
+                                   roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0, yaw_unwrapped_rad=0.0)  # fmt: skip
+            view.on_hub("attitude", att)
+        view.on_hub("swing", schemas.Swing(device_id="hook-1", seq=1, t_us=1, swing_angle_rad=0.1,
+                                           swing_direction_rad=0.0, torsion_rad=math.radians(40.0)))  # fmt: skip
+        view.step()
+        rod, hook = view._nodes["rod-1"], view._nodes["hook-1"]
+        assert rod["root"].visible and hook["root"].visible
+        assert abs(rod["root"].position[1] - hook["root"].position[1]) >= 5.0  # side by side, not on top
+        assert hook["cone"].visible and hook["torsion"].visible
+        arc = np.asarray(hook["torsion"].points)
+        assert math.degrees(math.atan2(arc[22, 1, 1], arc[22, 1, 0])) == pytest.approx(40.0, abs=0.5)  # arc ends at φ
+        view.pick.value = "hook-1"
+        view.step()
+        assert not rod["root"].visible and hook["root"].visible
+    finally:
+        view.stop()
+
+
+def test_cone_and_torsion_arc_reference_values() -> None:
+    verts, faces = cone_mesh(np.array([0.0, 0.0, 4.0]), 4.0, math.radians(10.0), n=16)
+    radii = np.hypot(verts[1:, 0], verts[1:, 1])
+    assert radii == pytest.approx(4.0 * math.sin(math.radians(10.0)))  # every rope direction at the limit
+    assert verts[1:, 2] == pytest.approx(4.0 - 4.0 * math.cos(math.radians(10.0)))
+    assert faces.shape == (16, 3) and faces.max() == 16
+    arc = torsion_arc(np.zeros(3), math.radians(-90.0), radius_m=1.0, n=10)
+    assert arc[0, 0] == pytest.approx([1.0, 0.0, 0.0]) and arc[8, 1] == pytest.approx([0.0, -1.0, 0.0], abs=1e-9)
+    assert arc.shape == (9 + 2, 2, 3)  # 9 arc segments + a two-stroke head
+    assert torsion_arc(np.zeros(3), 0.0).shape[0] == 23  # no head when there is no twist
 
 
 # -- replay view ----------------------------------------------------------------------------------------------------
@@ -197,3 +246,86 @@ def test_replay_cli_help_and_missing_file(capsys: pytest.CaptureFixture[str]) ->
         replay_main(["--help"])
     assert exc.value.code == 0 and "BROAD" in capsys.readouterr().out
     assert replay_main(["/nonexistent/file.mat"]) == 2
+
+
+def test_replay_raw_sensor_curves_beside_the_attitude() -> None:
+    """Seed 004's curves: gyro in °/s, acc in m/s², mag in µT, x/y/z columns around the slider time, decimated to
+    about max_points; a recording without a magnetometer (all NaN) has no mag curves."""
+    n = 1000
+    rng = np.random.default_rng(1)
+    gyr, acc = rng.normal(0, 1, (n, 3)), rng.normal(0, 9, (n, 3))
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    trial = broad.Trial("t", 100.0, gyr, acc, np.full((n, 3), np.nan), q, np.zeros((n, 3)), np.ones(n, dtype=bool))
+    d = replay_data(trial, q)
+    t, x, y, z = sensor_columns(d, "gyr_deg_s", 5.0, 1.0)  # type: ignore[misc]
+    w = d.window(5.0, 1.0)
+    assert t == pytest.approx(d.t_s[w]) and x == pytest.approx(np.degrees(gyr[w, 0]), abs=1e-12)
+    assert z == pytest.approx(np.degrees(gyr[w, 2]), abs=1e-12)
+    t2, ax, *_ = sensor_columns(d, "acc_m_s2", 5.0, 100.0, max_points=100)  # type: ignore[misc]
+    assert 100 <= len(t2) <= 200 and ax == pytest.approx(acc[:: n // 100, 0][: len(ax)])
+    assert sensor_columns(d, "mag_uT", 5.0, 1.0) is None
+
+
+def test_replay_opens_an_exported_logger_file(tmp_path: Path) -> None:
+    """A recording exported by `gateway.recording.export` (CSV) replays: same samples, filter run, curves there."""
+    from gateway.recording.export import CsvExporter, export_recording
+    from gateway.recording.format import Record, write_recording
+    from tests.gateway.conftest import rod_messages
+
+    msgs = rod_messages(1.0)
+    path = tmp_path / "rod.rigrec"
+    write_recording(path, [Record(k, p, i * 1000) for i, (k, p) in enumerate(msgs)], {"source": "test"})
+    with CsvExporter(tmp_path / "csv") as ex:
+        export_recording(path, ex)
+    from_rec, from_csv = run(path, "mahony", "6D"), run(ex.files[0], "mahony", "6D")
+    assert from_csv.q_est.shape == from_rec.q_est.shape
+    assert from_csv.gyr_deg_s == pytest.approx(from_rec.gyr_deg_s, abs=1e-6)
+    assert from_csv.euler_est_deg[-1] == pytest.approx(from_rec.euler_est_deg[-1], abs=1e-3)
+
+
+def test_replay_of_a_simulator_recording_uses_its_truth_and_the_rod_model(tmp_path: Path) -> None:
+    """Issue 17: a simulator recording (imu + truth) said "no reference" and drew a generic board."""
+    from devices.common import FleetSettings
+    from devices.sim_rod import RodFleet
+    from gateway.recording.format import Record, write_recording
+
+    fleet = RodFleet(FleetSettings(count=1, seed=3, samples_per_packet=5, progress=False, id_prefix="rod", truth=True))
+    records, n_imu = [], 0
+    for k in range(100):  # 5 s
+        data, extra = fleet.tick(k)
+        for m in data[0] + extra:
+            records.append(Record(m.key, m.payload, len(records) * 1000))
+            n_imu += m.key.endswith("/imu")
+    assert any(r.key.endswith("/truth") for r in records)
+    path = tmp_path / "sim.rigrec"
+    write_recording(path, records, {"source": "test"})
+    loaded = load(path)
+    assert (loaded.kind, loaded.reference) == ("rod", "simulator truth")
+    assert np.isfinite(loaded.trial.quat_ref).all() and loaded.trial.n == 5 * n_imu
+    data = run(path, "default", "6D")
+    assert data.kind == "rod" and data.reference == "simulator truth"
+    # 6D: heading is free, so compare the tilt: after 2.5 s pitch and roll follow the truth within 2°
+    tilt = np.abs(data.euler_est_deg[250:, :2] - data.euler_ref_deg[250:, :2])
+    assert np.median(tilt, axis=0) == pytest.approx([0.0, 0.0], abs=2.0)
+
+
+def test_replay_of_a_simulated_hook_uses_the_hook_filter_and_model(tmp_path: Path) -> None:
+    """A hook recording replays with the gateway's hook filter (rope-aware) against the simulator's truth."""
+    from bench.hook_e2e import HookFleet, fleet_settings, make_case
+    from gateway.pipeline import HOOK_FILTER
+    from gateway.recording.format import Record, write_recording
+    from gateway.replay_view import KIND_FILTERS
+
+    assert KIND_FILTERS["hook"] == HOOK_FILTER  # the replay runs what the gateway runs
+    fleet = HookFleet(fleet_settings(8.0, 5), make_case("free", 8.0, 100.0, 5, 0.0), 5)
+    records = []
+    for k in range(160):  # 8 s at 20 packets/s
+        data, extra = fleet.tick(k)
+        for m in data[0] + extra:
+            records.append(Record(m.key, m.payload, len(records) * 1000))
+    path = tmp_path / "hook.rigrec"
+    write_recording(path, records, {"source": "test"})
+    data = run(path, None, "9D")
+    assert (data.kind, data.reference) == ("hook", "simulator truth")
+    tilt = np.abs(data.euler_est_deg[400:, :2] - data.euler_ref_deg[400:, :2])
+    assert np.median(tilt, axis=0) == pytest.approx([0.0, 0.0], abs=2.0)  # after 4 s the hook follows the truth

@@ -128,7 +128,10 @@ class AlarmEngine:
         if c.severity is None:
             if current is None:
                 return None
-            cleared = replace(current, status=AlarmStatus.CLEARED, cleared_at=c.t_s, updated_at=c.t_s)
+            # the raise message stays (what happened); the rule's clear message is added (how it ended)
+            msg = f"{current.message}; cleared: {c.message}" if c.message else current.message
+            cleared = replace(current, status=AlarmStatus.CLEARED, cleared_at=c.t_s, updated_at=c.t_s, message=msg,
+                              peak=max(current.peak, abs(c.value)))  # fmt: skip
             del self._active[key]
             return AlarmChange("cleared", cleared)
         if current is None:
@@ -165,6 +168,17 @@ class AlarmEngine:
                 return AlarmChange("acknowledged", acked)
         return None
 
+    def clear(self, alarm_id: str, by: str, t_s: float) -> AlarmChange | None:
+        """Clear an active alarm by hand (e.g. a stale one whose rule state was lost in a restart); None if no such
+        active alarm. The rule raises it again only after its condition has cleared and returned."""
+        for key, a in self._active.items():
+            if a.id == alarm_id:
+                del self._active[key]
+                msg = f"{a.message}; cleared by hand ({by})"
+                return AlarmChange("cleared", replace(a, status=AlarmStatus.CLEARED, cleared_at=t_s, updated_at=t_s,
+                                                      message=msg))  # fmt: skip
+        return None
+
     def active(self, device_id: str | None = None) -> list[Alarm]:
         """Active alarms, optionally for one device, most severe first."""
         rows = [a for a in self._active.values() if device_id is None or a.device_id == device_id]
@@ -174,3 +188,14 @@ class AlarmEngine:
         """Clear every active alarm of a device (e.g. removed from the gateway)."""
         keys = [k for k in self._active if k[0] == device_id]
         return self.evaluate(Condition(device_id, k[1], None, t_s) for k in keys)
+
+
+OFFLINE_TYPE = "device_offline"
+
+
+def presence_condition(device_id: str, online: bool, t_s: float) -> Condition:
+    """`device_offline` (major) while a device's liveliness token is gone; cleared when it is back."""
+    if online:
+        return Condition(device_id, OFFLINE_TYPE, None, t_s, 0.0, 0.0, f"{device_id} back online")
+    msg = f"{device_id} offline: liveliness token lost (no data from it since)"
+    return Condition(device_id, OFFLINE_TYPE, Severity.MAJOR, t_s, 0.0, 0.0, msg)

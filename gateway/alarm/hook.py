@@ -1,16 +1,26 @@
 """Crane-hook rules: swing angle Theta (seed 001 eq. 6, cos Theta = cos(theta_x) cos(theta_y)) and torsion phi
-about the rope (seed 001 eq. 1-3), each with a warning and a critical threshold and clearing hysteresis."""
+about the rope (seed 001 eq. 1-3), each with a warning and a critical threshold, clearing hysteresis and a hold-off.
+
+A hook swings and twists back and forth: block peaks cross a limit every half period, so hysteresis alone lets an
+alarm flap (issue 17: 38 of 95 rows in 20 min were torsion warnings around 30 deg). A level therefore rises at once
+but falls only after the value has stayed below `threshold - hysteresis` for `clear_hold_s` seconds.
+"""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
 from gateway.alarm.bite import FloatArray
 from gateway.alarm.engine import Condition
-from gateway.alarm.rules import LevelGuard
+from gateway.alarm.rules import SPECS
 from gateway.config import HookThresholds
+
+CLEAR_HOLD_S = 10.0
+"""Default hold-off: seconds below the clearing level before an alarm level falls (longer than a hook's swing or
+torsion period, ~6 s for a 10 m rope)."""
 
 
 def wrap_abs_deg(angle_rad: FloatArray) -> FloatArray:
@@ -19,29 +29,90 @@ def wrap_abs_deg(angle_rad: FloatArray) -> FloatArray:
     return wrapped
 
 
+class HeldLevel:
+    """One metric (deg, >= 0) against ascending limits: rises at once, falls after `hold_s` below the band.
+
+    Emits a Condition only when the level changes; `value` is the block peak on a rise and the episode peak on
+    a fall, `threshold` the limit the message names, so the message never contradicts the numbers.
+    """
+
+    def __init__(self, alarm_type: str, label: str, names: Sequence[str]) -> None:
+        self.spec = SPECS[alarm_type]
+        self.label = label
+        self.names = tuple(names)  # "warning", "critical": what each level is called in messages
+        self.limits: tuple[float, ...] = ()
+        self.hysteresis = 0.0
+        self.hold_s = CLEAR_HOLD_S
+        self.level = 0
+        self.below_since: float | None = None  # when the value first stayed under the current level's band
+        self.episode_peak = 0.0
+
+    def update(self, device_id: str, t_s: FloatArray, values: FloatArray) -> Condition | None:
+        if values.size == 0:
+            return None
+        peak = float(values.max())
+        raised = sum(peak >= thr for thr in self.limits)
+        if raised > self.level:
+            self.level, self.below_since = raised, None
+            self.episode_peak = max(self.episode_peak, peak)
+            thr = self.limits[raised - 1]
+            t = float(t_s[int(np.argmax(values >= thr))])
+            msg = f"{self.label} peak {peak:.1f}° ≥ {self.names[raised - 1]} limit {thr:.1f}°"
+            return self._condition(device_id, t, peak, thr, msg)
+        self.episode_peak = max(self.episode_peak, peak) if self.level else 0.0
+        kept = sum(peak >= thr - self.hysteresis for thr in self.limits)
+        if kept >= self.level or self.level == 0:
+            self.below_since = None
+            return None
+        if self.below_since is None:  # the first sample of this block below the band starts the hold-off
+            band = self.limits[self.level - 1] - self.hysteresis
+            self.below_since = (
+                float(t_s[int(np.argmax(values < band))]) if bool((values < band).any()) else float(t_s[0])
+            )
+        if float(t_s[-1]) - self.below_since < self.hold_s:
+            return None
+        old = self.level
+        self.level, self.below_since = max(raised, kept), None
+        band = self.limits[old - 1] - self.hysteresis
+        held = f"below {band:.1f}° for {self.hold_s:g} s, peak {self.episode_peak:.1f}°"
+        if self.level == 0:
+            msg = f"{self.label} back to {peak:.1f}° ({held}); {self.names[0]} limit {self.limits[0]:.1f}°"
+            c = Condition(device_id, self.spec.type, None, float(t_s[-1]), self.episode_peak, self.limits[0], msg)
+            self.episode_peak = 0.0
+            return c
+        thr = self.limits[self.level - 1]
+        msg = f"{self.label} {peak:.1f}° ({held}): {self.names[self.level - 1]}, limit {thr:.1f}°"
+        return self._condition(device_id, float(t_s[-1]), self.episode_peak, thr, msg)
+
+    def _condition(self, device_id: str, t: float, value: float, thr: float, msg: str) -> Condition:
+        severity = self.spec.severities[min(self.level, len(self.spec.severities)) - 1]
+        return Condition(device_id, self.spec.type, severity, t, value, thr, msg, {"unit": "deg", "level": self.level})
+
+
 class HookAlarms:
     """Swing and torsion guards for one hook device."""
 
-    def __init__(self, device_id: str, thresholds: HookThresholds | None = None) -> None:
+    def __init__(self, device_id: str, thresholds: HookThresholds | None = None, clear_hold_s: float = CLEAR_HOLD_S):
         self.device_id = device_id
-        self.swing = LevelGuard("hook_swing", (0.0, 0.0), 0.0, "deg")
-        self.torsion = LevelGuard("hook_torsion", (0.0, 0.0), 0.0, "deg")
+        self.swing = HeldLevel("hook_swing", "swing Θ", ("warning", "critical"))
+        self.torsion = HeldLevel("hook_torsion", "torsion φ", ("warning", "critical"))
+        self.swing.hold_s = self.torsion.hold_s = clear_hold_s
         self.set_thresholds(thresholds or HookThresholds())
 
     def set_thresholds(self, th: HookThresholds) -> None:
         """Apply new thresholds; current levels are kept and re-judged on the next block."""
         self.thresholds = th
-        self.swing.thresholds = (th.swing_warn_deg, th.swing_critical_deg)
-        self.torsion.thresholds = (th.torsion_warn_deg, th.torsion_critical_deg)
+        self.swing.limits = (th.swing_warn_deg, th.swing_critical_deg)
+        self.torsion.limits = (th.torsion_warn_deg, th.torsion_critical_deg)
         self.swing.hysteresis = self.torsion.hysteresis = th.hysteresis_deg
 
     def update(self, t_s: FloatArray, swing_rad: FloatArray, torsion_rad: FloatArray) -> list[Condition]:
         """One block, shapes (n,): swing angle Theta >= 0 and torsion phi, both in radians."""
         out = []
-        c = self.swing.update(self.device_id, t_s, np.abs(swing_rad) * (180.0 / math.pi), "swing")
+        c = self.swing.update(self.device_id, t_s, np.abs(swing_rad) * (180.0 / math.pi))
         if c is not None:
             out.append(c)
-        c = self.torsion.update(self.device_id, t_s, wrap_abs_deg(torsion_rad), "torsion")
+        c = self.torsion.update(self.device_id, t_s, wrap_abs_deg(torsion_rad))
         if c is not None:
             out.append(c)
         return out

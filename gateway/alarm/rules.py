@@ -37,6 +37,8 @@ ALARM_TYPES: tuple[AlarmSpec, ...] = (
     ),
     AlarmSpec("hook_swing", "hook", (Severity.WARNING, Severity.CRITICAL), "hook swing angle Theta over limit"),
     AlarmSpec("hook_torsion", "hook", (Severity.WARNING, Severity.CRITICAL), "hook twist phi about rope over limit"),
+    AlarmSpec("device_conflict", "any", (Severity.CRITICAL,),
+              "two publishers on one device's keys (spoofing or a duplicated id); raised by ingest, clears 10 s after"),
 )
 SPECS: dict[str, AlarmSpec] = {s.type: s for s in ALARM_TYPES}
 

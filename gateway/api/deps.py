@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, HTTPException, Request, status
+from fastapi import Depends, HTTPException, Path, Query, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from gateway import schemas
 from gateway.ingest.runner import GatewayService
 from gateway.store import ApiToken
 
@@ -32,3 +33,12 @@ def require_token(
 
 ServiceDep = Annotated[GatewayService, Depends(get_service)]
 WriterDep = Annotated[str, Depends(require_token)]
+
+DeviceIdPath = Annotated[
+    str, Path(pattern=schemas.DEVICE_ID_PATTERN, max_length=64, description="1-64 of A-Z a-z 0-9 _ -")
+]
+"""A device id in a route path: anything else is a 422 before the route runs (it could not name a zenoh key)."""
+DeviceIdQuery = Annotated[
+    str | None, Query(pattern=schemas.DEVICE_ID_PATTERN, max_length=64, description="1-64 of A-Z a-z 0-9 _ -")
+]
+AlarmIdPath = Annotated[str, Path(pattern=schemas.DEVICE_ID_PATTERN, max_length=64)]

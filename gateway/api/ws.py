@@ -28,7 +28,9 @@ from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect
 
 from gateway import schemas
 from gateway.api.routes.devices import device_view
+from gateway.api.security import origin_allowed
 from gateway.ingest.runner import GatewayService
+from gateway.store import ApiToken
 
 log = logging.getLogger("gateway.ws")
 router = APIRouter()
@@ -67,13 +69,16 @@ class ClientQueue:
 class LiveSettings:
     """Stream rates and bounds. `tick_s`: period of tick frames; `series_max`: samples kept per device between
     ticks (older ones are dropped); `raw_packets`: raw packets kept per key between ticks; `cards_every`: ticks between
-    full device cards (the other ticks carry only the new samples)."""
+    full device cards (the other ticks carry only the new samples); `max_raw_keys`, `unknown_raw_bytes`: see
+    `LiveStream.on_raw`."""
 
     queue_size: int = 256
     tick_s: float = 0.1
     cards_every: int = 5  # full device cards and the spot ranking every this many ticks (2 Hz)
     series_max: int = 200
     raw_packets: int = 8
+    max_raw_keys: int = 512  # raw buffers (one per known device's imu/env key)
+    unknown_raw_bytes: int = 4 * 1024 * 1024  # raw payloads of not (yet) known devices kept between two ticks
 
 
 @dataclass
@@ -118,7 +123,7 @@ def raw_imu_summary(payloads: list[bytes], now_s: float) -> dict[str, Any]:
             rate = float(p["rate_hz"])
             acc = np.asarray(p["acc_m_s2"], dtype=np.float64)
             t0 = p.get("wall_t0_us")
-        except (ValueError, KeyError, TypeError):
+        except (ValueError, KeyError, TypeError, RecursionError):  # RecursionError: deeply nested arrays
             continue
         if acc.ndim != 2 or acc.shape[1] != 3 or rate <= 0:
             continue
@@ -151,6 +156,9 @@ class LiveStream:
         self._series: dict[str, _Series] = {}
         self._raw: dict[str, collections.deque[bytes]] = {}
         self._task: asyncio.Task[None] | None = None
+        self.entry_failures = 0
+        self._entry_fail_logged_s = -math.inf
+        self._unknown_bytes = 0
 
     # -- producers --------------------------------------------------------------------------------------------
 
@@ -181,11 +189,33 @@ class LiveStream:
         return s
 
     def on_raw(self, key: str, payload: bytes) -> None:
-        """Bus callback (zenoh thread): keep the payload, nothing else."""
+        """Bus callback (zenoh thread): keep the payload, nothing else. Anyone can publish on `rig/*/*/imu`, and a
+        buffer per arbitrary key used to keep rejected payloads forever (150 keys of large payloads: +700 MB), so:
+        at most `max_raw_keys` buffers, payloads of devices the pipeline does not know (yet: a new device's first
+        packets) only up to `unknown_raw_bytes` between two ticks, and each tick drops their buffers (`prune_raw`)."""
+        if len(payload) > schemas.MAX_PAYLOAD_BYTES:  # ingest rejects it too
+            return
+        parts = key.split("/")
+        if len(parts) != 4:
+            return
+        if parts[2] not in self.service.pipeline.kinds:
+            if self._unknown_bytes + len(payload) > self.settings.unknown_raw_bytes:
+                return
+            self._unknown_bytes += len(payload)
         q = self._raw.get(key)
         if q is None:
+            if len(self._raw) >= self.settings.max_raw_keys:
+                return
             q = self._raw.setdefault(key, collections.deque(maxlen=self.settings.raw_packets))
         q.append(payload)
+
+    def prune_raw(self) -> None:
+        """Drop the raw buffers of devices the pipeline does not know (event loop, every tick)."""
+        kinds = self.service.pipeline.kinds
+        for key in list(self._raw):
+            if key.split("/")[2] not in kinds:
+                self._raw.pop(key, None)
+        self._unknown_bytes = 0
 
     def _take_raw(self, key: str) -> list[bytes]:
         q = self._raw.get(key)
@@ -215,35 +245,46 @@ class LiveStream:
         svc = self.service
         devices = []
         for device_id, kind in sorted(svc.pipeline.kinds.items()):
-            entry: dict[str, Any] = {"device_id": device_id, "kind": kind}
-            if full:
-                try:
-                    entry = device_view(svc, device_id, detail=False)
-                except Exception:  # a device half-registered mid-batch: skip its card this tick
-                    pass
-            s = self._series.get(device_id)
-            entry["series"] = s.take() if s is not None else {"t_s": []}
-            if kind in schemas.IMU_KINDS:
-                raw = raw_imu_summary(self._take_raw(schemas.imu_key(kind, device_id)), now_s)
-                entry["acc"] = raw["acc"]
-                if raw["link"]:
-                    entry["link"] = raw["link"]
-            elif kind == "ball" and full:
-                for raw_env in self._take_raw(schemas.env_key(device_id))[-1:]:
-                    with contextlib.suppress(ValueError):
-                        p = json.loads(raw_env)
-                        entry["link"] = {k: p[k] for k in ("battery_v", "rssi_dbm") if _finite(p.get(k)) is not None}
-            devices.append(entry)
+            try:  # one device's card must never stop the stream for all
+                devices.append(self._device_entry(device_id, kind, now_s, full))
+            except Exception:
+                self.entry_failures += 1
+                if now_s - self._entry_fail_logged_s >= 10.0:
+                    self._entry_fail_logged_s = now_s
+                    log.exception("tick: device %r skipped (%d skipped so far)", device_id[:80], self.entry_failures)
         frame = {"type": "tick", "wall_s": round(now_s, 3), "alarm_seq": self.alarm_seq, "full": full,
                  "devices": devices}  # fmt: skip
         if full:
             frame["spots"] = svc.pipeline.rank_spots(now_s).model_dump()["spots"]
         return frame
 
+    def _device_entry(self, device_id: str, kind: str, now_s: float, full: bool) -> dict[str, Any]:
+        svc = self.service
+        entry: dict[str, Any] = {"device_id": device_id, "kind": kind}
+        if full:
+            try:
+                entry = device_view(svc, device_id, detail=False)
+            except Exception:  # a device half-registered mid-batch: skip its card this tick
+                pass
+        s = self._series.get(device_id)
+        entry["series"] = s.take() if s is not None else {"t_s": []}
+        if kind in schemas.IMU_KINDS:
+            raw = raw_imu_summary(self._take_raw(schemas.imu_key(kind, device_id)), now_s)
+            entry["acc"] = raw["acc"]
+            if raw["link"]:
+                entry["link"] = raw["link"]
+        elif kind == "ball" and full:
+            for raw_env in self._take_raw(schemas.env_key(device_id))[-1:]:
+                with contextlib.suppress(ValueError):
+                    p = json.loads(raw_env)
+                    entry["link"] = {k: p[k] for k in ("battery_v", "rssi_dbm") if _finite(p.get(k)) is not None}
+        return entry
+
     async def run(self) -> None:
         """Tick loop; work is skipped while nobody listens (buffers are still bounded)."""
         while True:
             await asyncio.sleep(self.settings.tick_s)
+            self.prune_raw()
             if not self.clients:
                 continue
             try:
@@ -272,10 +313,28 @@ class LiveStream:
             self._task = None
 
 
+def stream_allowed(ws: WebSocket) -> bool:
+    """A browser page may open the stream only from the gateway's own origin (or `Settings.allowed_origins`),
+    else it needs the API token (`?token=` or `Authorization: Bearer`): any site the operator visits could
+    otherwise read the live data. Clients that send no Origin are not browsers and read as REST does."""
+    origin = ws.headers.get("origin")
+    settings = ws.app.state.service.settings
+    if origin is None or origin_allowed(origin, ws.headers.get("host"), settings.allowed_origins):
+        return True
+    auth = ws.headers.get("authorization", "")
+    given = ws.query_params.get("token") or (auth[7:] if auth.lower().startswith("bearer ") else None)
+    token: ApiToken = ws.app.state.token
+    return token.verify_token(given)
+
+
 @router.websocket("/ws/stream")
 async def stream(ws: WebSocket) -> None:
-    """Live frames (see module docstring); read-only, so no token."""
+    """Live frames (see module docstring); read-only: same origin, or the token from another origin."""
     live: LiveStream = ws.app.state.live
+    if not stream_allowed(ws):
+        log.warning("refused /ws/stream from origin %r", (ws.headers.get("origin") or "")[:100])
+        await ws.close(code=1008)  # before accept: the handshake gets a 403
+        return
     await ws.accept()
     q = ClientQueue(live.settings.queue_size)
     live.clients.add(q)

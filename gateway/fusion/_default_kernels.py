@@ -4,14 +4,16 @@ The method follows the ideas of VQF (D. Laidig, T. Seel, "VQF: Highly accurate I
 estimation and magnetic disturbance rejection", Information Fusion 91:187-204, 2023, doi:10.1016/j.inffus.2022.10.014):
 
 1. strapdown integration of the bias- and scale-corrected gyroscope into an almost-inertial frame I;
-2. the accelerometer is rotated into I and low-pass filtered there, so body rotation does not smear it;
+2. the accelerometer is rotated into I and low-pass filtered there, so body rotation does not smear it; samples of a
+   shock (|a| far from g: a tap rings the structure, aliased) are skipped;
 3. the filtered specific force, rotated by the inclination correction, is turned fully vertical each sample, which
    gives the 6D frame E6;
 4. the inclination corrections are explained by a gyro bias seen through the (equally filtered) rotation matrix,
    estimated by a Kalman filter in motion and directly from the low-passed gyro at rest. Our addition: per-axis
    gyro scale errors seen through the filtered R·diag(rate) join the same filter (6 states, not the paper's 3);
-5. heading: one angle delta between E6 and ENU, pulled towards the magnetometer's horizontal direction with a first-
-   order gain, frozen while the field's norm or dip departs from a tracked reference.
+5. heading: one angle delta between E6 and ENU, pulled towards the magnetometer's horizontal direction with the gain
+   of a scalar Kalman filter (steady state: time constant tau_mag; larger after a rejection), frozen while the field's
+   norm or dip (optionally: its bearing in E6) departs from a tracked reference.
 
 All time constants are in seconds, so one set of defaults serves 50 Hz .. 1 kHz. Everything here is scalar code on
 flat float64 arrays: no allocation per sample, so `step_device` streams one device and `step_devices` loops it over N.
@@ -23,6 +25,8 @@ import math
 
 import numpy as np
 from numba import njit, prange
+
+GRAVITY_M_S2 = 9.81
 
 # ---- settings vector (built by DefaultSettings.to_array) ----
 P_TAU_ACC = 0  # s, accelerometer low-pass in I
@@ -55,7 +59,12 @@ P_SCALE_ON = 26
 P_SCALE_SIGMA_INIT = 27  # 1, prior std of the per-axis gyro scale correction
 P_SCALE_WALK = 28  # 1, std gained per `P_BIAS_FORGET` seconds
 P_SCALE_CLIP = 29  # 1
-N_PARAMS = 30
+P_MAG_BEAR_TAU = 30  # s, the field's bearing in E6 is compared with its own average over about this long
+P_MAG_BEAR_TH = 31  # rad, a bearing further than this from that average marks a disturbance; <= 0 disables
+P_ACC_SPIKE_TH = 32  # m/s², a specific force this far from g is a shock (tap), not a reading; <= 0 disables
+P_MAG_BEAR_LAG = 33  # s, allowance for magnetometer/gyro timing: the threshold grows by |rate| × this
+P_MAG_HEADING_KF_ON = 34  # heading gain from a scalar Kalman filter (faster after a rejection); 0 = fixed gain
+N_PARAMS = 35
 
 # ---- state vector ----
 S_QG = 0  # 4: strapdown quaternion body -> I
@@ -83,7 +92,9 @@ S_MAG_DIST = 126  # 1.0 while the field is judged disturbed
 S_K_MAG_INIT = 127  # fast initial heading gain (running mean), 0 when done
 S_RU_LP = 128  # 9 + 18: R·diag(rate), low-passed (how a scale error shows in the earth frame)
 S_RUK_LP = 155  # 2 + 4: horizontal part of R·diag(rate)·k, low-passed
-N_STATE = 161
+S_MAG_BEAR = 161  # 2: the field's bearing in E6 (rad), smoothed like norm and dip, and its slow average
+S_MAG_P = 163  # heading variance in units of the magnetometer's (NaN: steady state)
+N_STATE = 164
 
 # ---- per-call coefficients (derived from settings and dt) ----
 C_ACC = 0  # 5: b0 b1 b2 a1 a2
@@ -98,7 +109,9 @@ C_W_VERT = 20
 C_W_REST = 21
 C_SCALE_V = 22
 C_SCALE_P0 = 23
-N_COEFFS = 24
+C_K_BEAR_FAST = 24  # first-order gains of the two bearing averages
+C_K_BEAR_SLOW = 25
+N_COEFFS = 26
 
 N_WORK = 80
 
@@ -121,6 +134,8 @@ def new_state(settings: np.ndarray) -> np.ndarray:
     s[S_MAG_REJECT_T] = settings[P_MAG_MAX_REJECT_T]
     s[S_MAG_CAND_NORM] = -1.0
     s[S_K_MAG_INIT] = 1.0
+    s[S_MAG_BEAR : S_MAG_BEAR + 2] = np.nan  # set from the first field
+    s[S_MAG_P] = np.nan
     return s
 
 
@@ -233,6 +248,8 @@ def coefficients(prm: np.ndarray, dt_s: float, c: np.ndarray) -> None:
     on = prm[P_SCALE_ON] != 0.0
     c[C_SCALE_V] = prm[P_SCALE_WALK] ** 2 * dt_s / prm[P_BIAS_FORGET] if on else 0.0
     c[C_SCALE_P0] = prm[P_SCALE_SIGMA_INIT] ** 2 if on else 0.0
+    c[C_K_BEAR_FAST] = _gain(prm[P_MAG_CUR_TAU], dt_s)
+    c[C_K_BEAR_SLOW] = _gain(prm[P_MAG_BEAR_TAU], dt_s)
 
 
 @njit(cache=True, error_model="numpy")
@@ -330,6 +347,11 @@ def _step_sample(
         return
     if not math.isfinite(ax + ay + az):
         ax = ay = az = 0.0
+    spike = prm[P_ACC_SPIKE_TH]
+    if spike > 0.0:  # | |a| - g | > spike, without a square root
+        a2 = ax * ax + ay * ay + az * az
+        if a2 > (GRAVITY_M_S2 + spike) ** 2 or (spike < GRAVITY_M_S2 and a2 < (GRAVITY_M_S2 - spike) ** 2):
+            ax = ay = az = 0.0  # a shock: the structure rings, and aliased samples of it do not average out
     rest_on = prm[P_REST_BIAS_ON] != 0.0
     # -- rest detection, gyro half: deviation from its own low-pass, and a low-pass that must look like a bias
     if rest_on or prm[P_MAG_REJECT_ON] != 0.0:
@@ -467,6 +489,7 @@ def _mag_step(s: np.ndarray, prm: np.ndarray, c: np.ndarray, mx: float, my: floa
     norm = math.sqrt(hx * hx + hy * hy + hz * hz)
     if not norm > 1e-9:
         return  # no usable field
+    bearing = math.atan2(hx, hy)  # ENU: the horizontal field points North (+y)
     if prm[P_MAG_REJECT_ON] != 0.0:
         dip = -math.asin(max(-1.0, min(1.0, hz / norm)))
         norm = _lowpass(norm, c, C_MAG, s, S_MAG_CUR + 2)
@@ -476,7 +499,10 @@ def _mag_step(s: np.ndarray, prm: np.ndarray, c: np.ndarray, mx: float, my: floa
         th_d = prm[P_MAG_DIP_TH]
         k_ref = c[C_K_REF]
         ref_n = s[S_MAG_REF_NORM]
-        if abs(norm - ref_n) < th_n * ref_n and abs(dip - s[S_MAG_REF_DIP]) < th_d:
+        # a homogeneous field keeps its bearing in the gyro-propagated frame E6; a magnet fixed to the body turns
+        # it with the body, a magnet in the room changes it along the path, often with little change of norm or dip
+        steady = _bearing_steady(s, prm, c, bearing)
+        if abs(norm - ref_n) < th_n * ref_n and abs(dip - s[S_MAG_REF_DIP]) < th_d and steady:
             s[S_MAG_UNDIST_T] += dt_s
             if s[S_MAG_UNDIST_T] >= prm[P_MAG_MIN_UNDIST_T]:
                 s[S_MAG_DIST] = 0.0
@@ -487,7 +513,7 @@ def _mag_step(s: np.ndarray, prm: np.ndarray, c: np.ndarray, mx: float, my: floa
             s[S_MAG_DIST] = 1.0
         # a new homogeneous field replaces the reference once it has stayed consistent while the body rotated
         cand_n = s[S_MAG_CAND_NORM]
-        if abs(norm - cand_n) < th_n * cand_n and abs(dip - s[S_MAG_CAND_DIP]) < th_d:
+        if abs(norm - cand_n) < th_n * cand_n and abs(dip - s[S_MAG_CAND_DIP]) < th_d and steady:
             g2 = s[S_REST_GYR] ** 2 + s[S_REST_GYR + 1] ** 2 + s[S_REST_GYR + 2] ** 2
             if g2 >= prm[P_MAG_NEW_MIN_GYR] ** 2:
                 s[S_MAG_CAND_T] += dt_s
@@ -505,7 +531,7 @@ def _mag_step(s: np.ndarray, prm: np.ndarray, c: np.ndarray, mx: float, my: floa
             s[S_MAG_CAND_T] = 0.0
             s[S_MAG_CAND_NORM] = norm
             s[S_MAG_CAND_DIP] = dip
-    err = _wrap(math.atan2(hx, hy) - s[S_DELTA])  # ENU: the horizontal field points North (+y)
+    err = _wrap(bearing - s[S_DELTA])
     k = c[C_K_MAG]
     if prm[P_MAG_REJECT_ON] != 0.0:
         if s[S_MAG_DIST] != 0.0:
@@ -516,12 +542,46 @@ def _mag_step(s: np.ndarray, prm: np.ndarray, c: np.ndarray, mx: float, my: floa
                 k /= prm[P_MAG_REJECT_FACTOR]
         else:
             s[S_MAG_REJECT_T] = max(s[S_MAG_REJECT_T] - prm[P_MAG_REJECT_FACTOR] * dt_s, 0.0)
+    kss = c[C_K_MAG]
+    if prm[P_MAG_HEADING_KF_ON] != 0.0 and 0.0 < kss < 1.0:
+        # heading as a scalar Kalman filter (measurement variance 1): the random walk q = kss²/(1 - kss) makes the
+        # steady-state gain exactly kss, so nothing changes while the field is used; while it is rejected the
+        # variance grows by q per sample, so after T seconds without correction the gain is about kss·(1 + T/tau):
+        # the drift gathered meanwhile is taken out quickly once the field is clean again
+        p = s[S_MAG_P]
+        if math.isnan(p):
+            p = kss
+        p += kss * kss / (1.0 - kss)
+        k = p / (p + 1.0) * (k / kss)  # rejection (0) and long rejection (1/factor) scale the gain
+        s[S_MAG_P] = (1.0 - k) * p
     ki = s[S_K_MAG_INIT]
     if ki != 0.0:  # start: average the first headings (gain 1, 1/2, 1/3, ...) until the regular gain takes over
         k = max(k, ki)
         ki = ki / (ki + 1.0)
         s[S_K_MAG_INIT] = 0.0 if ki * prm[P_TAU_MAG] < dt_s else ki
     s[S_DELTA] = _wrap(s[S_DELTA] + k * err)
+
+
+@njit(cache=True, error_model="numpy")
+def _bearing_steady(s: np.ndarray, prm: np.ndarray, c: np.ndarray, bearing: float) -> bool:
+    """Track the field's bearing in E6 (fast and slow first-order averages, wrap-aware); False while the smoothed
+    bearing is further than the threshold from its slow average, i.e. the field turns in a frame it should be fixed in.
+    """
+    if math.isnan(s[S_MAG_BEAR]):
+        s[S_MAG_BEAR] = bearing
+        s[S_MAG_BEAR + 1] = bearing
+    fast = _wrap(s[S_MAG_BEAR] + c[C_K_BEAR_FAST] * _wrap(bearing - s[S_MAG_BEAR]))
+    slow = _wrap(s[S_MAG_BEAR + 1] + c[C_K_BEAR_SLOW] * _wrap(fast - s[S_MAG_BEAR + 1]))
+    s[S_MAG_BEAR] = fast
+    s[S_MAG_BEAR + 1] = slow
+    dev = abs(_wrap(fast - slow))
+    th = prm[P_MAG_BEAR_TH]
+    if th <= 0.0:
+        return True
+    # a magnetometer sampled a few ms apart from the gyro sees the bearing shifted by rate × lag in fast rotation
+    g2 = s[S_REST_GYR] ** 2 + s[S_REST_GYR + 1] ** 2 + s[S_REST_GYR + 2] ** 2
+    allowed: float = th + math.sqrt(g2) * prm[P_MAG_BEAR_LAG]
+    return dev < allowed
 
 
 @njit(cache=True, error_model="numpy")

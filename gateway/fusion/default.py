@@ -27,7 +27,7 @@ class DefaultSettings:
     """
 
     tau_acc_s: float = 2.5  # specific force low-pass in the almost-inertial frame: rejects external acceleration
-    tau_mag_s: float = 15.0  # heading correction time constant
+    tau_mag_s: float = 20.0  # heading correction time constant (steady state; faster after a rejection)
     rest_tau_s: float = 0.5  # low-pass of gyro/acc for rest detection
     rest_gyr_th_deg_s: float = 2.0  # a sample deviating more from the low-pass is motion
     rest_acc_th_m_s2: float = 0.5
@@ -52,6 +52,18 @@ class DefaultSettings:
     mag_min_undisturbed_s: float = 0.5  # the field must look undisturbed this long before it is used again
     mag_max_reject_s: float = 60.0  # after this much rejection, use the field at a reduced gain
     mag_reject_factor: float = 2.0  # gain divisor after long rejection; also how fast the rejection budget refills
+    # Optional bearing test (off by default: on the BROAD trials it costs more than it gains, see docs/fusion.md).
+    # A homogeneous field keeps its bearing in the gyro-propagated frame; a magnet on the body turns it with the body,
+    # one in the room changes it along the path (a small magnet a few cm away swings the bearing by ~10° and the norm
+    # and dip by only a few %). The bearing is averaged over `mag_bearing_tau_s`; further than the threshold from that
+    # average marks a disturbance. The threshold grows by |rate| × `mag_bearing_lag_s`: magnetometer and gyro are
+    # not sampled at the same instant, which shifts the bearing in fast rotation (0.02 s: 9° at 450 °/s).
+    mag_bearing_tau_s: float = 2.0
+    mag_bearing_th_deg: float = 0.0  # e.g. 4; 0 disables the bearing test
+    mag_bearing_lag_s: float = 0.02
+    mag_heading_kf: bool = True  # gain grows with the time the field was rejected: the drift gathered meanwhile
+    # is taken out quickly once the field is clean (same steady-state gain as a fixed `tau_mag_s`)
+    acc_spike_m_s2: float = 60.0  # |specific force - g| above ~6 g is a shock (tap, knock), skipped; 0 disables
     motion_bias: bool = True
     rest_bias: bool = True
     mag_rejection: bool = True
@@ -90,6 +102,11 @@ class DefaultSettings:
         p[K.P_SCALE_SIGMA_INIT] = self.scale_sigma_init_pct / 100.0
         p[K.P_SCALE_WALK] = self.scale_walk_pct / 100.0
         p[K.P_SCALE_CLIP] = self.scale_clip_pct / 100.0
+        p[K.P_MAG_BEAR_TAU] = self.mag_bearing_tau_s
+        p[K.P_MAG_BEAR_TH] = self.mag_bearing_th_deg * _DEG
+        p[K.P_ACC_SPIKE_TH] = self.acc_spike_m_s2
+        p[K.P_MAG_BEAR_LAG] = self.mag_bearing_lag_s
+        p[K.P_MAG_HEADING_KF_ON] = float(self.mag_heading_kf)
         return p
 
     def __post_init__(self) -> None:

@@ -2,10 +2,15 @@
 
     python -m gateway.fusion.evaluate ../shared/data/broad --filter default --filter mahony --mode both --vqf
     python -m gateway.fusion.evaluate DATA_DIR --json > results.json
+    python -m gateway.fusion.evaluate ../shared/data/broad --cv --vqf --cache /tmp/cv.json   # honest figures
 
 Prints per trial and per group (undisturbed / disturbed / all) the RMSE in degrees of total, heading and
 inclination error, and the throughput of each filter's `run()` in samples/s (wall time of the run only, after a
 short warm-up so numba compilation is not counted). Data: BROAD (Laidig et al., Data 6(7):72, 2021, CC BY 4.0).
+
+`--cv` reports leave-one-trial-out figures instead (`gateway.fusion.tuning`): each filter's gains are chosen from its
+candidate table on all trials but one and scored on that one; these are the figures to quote, since every tuned
+filter's defaults were chosen on these same trials. The in-sample figure is printed beside it, labelled.
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from gateway.fusion import broad
+from gateway.fusion import broad, tuning
 from gateway.fusion.base import FloatArray
 from gateway.fusion.registry import FILTERS, make_filter
 
@@ -163,6 +168,106 @@ def format_table(results: dict[str, dict[str, list[TrialResult]]], per_trial: bo
     return "\n".join(lines)
 
 
+CvTable = dict[str, dict[str, "tuning.CvResult | np.ndarray"]]
+
+
+def run_cv(
+    trials: Sequence[broad.Trial],
+    names: Sequence[str],
+    modes: Sequence[broad.Mode],
+    with_vqf: bool,
+    cache: tuning.ScoreCache,
+    progress: bool = True,
+) -> CvTable:
+    """`{filter: {mode: CvResult}}` for tuned filters, plus `{"vqf": {mode: (n_trials, 3) scores}}` if asked."""
+    out: CvTable = {}
+    bar = tqdm(total=len(names) * len(modes), desc="cv", unit="filter", file=sys.stderr, disable=not progress)
+    for name in names:
+        for mode in modes:
+            out.setdefault(name, {})[mode] = tuning.cross_validate(
+                name, trials, mode, cache=cache, progress=bar.set_postfix_str if progress else None)
+            bar.update()
+    bar.close()
+    if with_vqf:
+        runner = vqf_runner()
+        for mode in modes:
+
+            def run_one(t: broad.Trial, m: broad.Mode = mode) -> FloatArray:
+                res = runner(t, m)
+                assert res is not None
+                return res[0]
+
+            out.setdefault(VQF_NAME, {})[mode] = tuning.untuned_scores(run_one, trials, mode)
+    return out
+
+
+def _rows(res: tuning.CvResult | np.ndarray, which: str) -> np.ndarray:
+    if isinstance(res, np.ndarray):
+        return res
+    return res.loo if which == "loo" else res.in_sample
+
+
+def _group_mean(rows: np.ndarray, groups: Sequence[tuple[str, ...]], group: str) -> np.ndarray:
+    sel = [rows[j] for j, gs in enumerate(groups) if group == "all" or group in gs]
+    return np.mean(sel, axis=0) if sel else np.full(3, np.nan)
+
+
+def cv_to_json(cv: CvTable, trials: Sequence[broad.Trial]) -> dict[str, Any]:
+    """`{"loo"|"in_sample": {filter: {mode: {group|trial: {total, heading, inclination}}}}, "choices": ...}`."""
+    groups = [t.groups for t in trials]
+    body: dict[str, Any] = {"loo": {}, "in_sample": {}, "choices": {}}
+    for name, by_mode in cv.items():
+        for mode, res in by_mode.items():
+            for which in ("loo", "in_sample"):
+                rows = _rows(res, which)
+                d: dict[str, Any] = {}
+                for g in ("all", *broad.GROUPS):
+                    d[g] = dict(zip(("total", "heading", "inclination"), map(float, _group_mean(rows, groups, g)),
+                                    strict=True))
+                d["trials"] = {t.name: dict(zip(("total", "heading", "inclination"), map(float, r), strict=True))
+                               for t, r in zip(trials, rows, strict=True)}
+                body[which].setdefault(name, {})[mode] = d
+            if isinstance(res, tuning.CvResult):
+                body["choices"].setdefault(name, {})[mode] = {
+                    "per_fold": [res.candidates[c] for c in res.loo_choice],
+                    "in_sample": res.candidates[res.in_sample_choice],
+                }
+    body["units"] = {"angles": "deg RMSE"}
+    return body
+
+
+def format_cv(cv: CvTable, trials: Sequence[broad.Trial], per_trial: bool = True) -> str:
+    """Group table (LOO and in-sample) per filter and mode; then, per trial, LOO total / inclination against VQF."""
+    groups = [t.groups for t in trials]
+    lines = ["leave-one-trial-out (gains chosen on the other trials; the figure to quote) and in-sample (chosen on all",
+             "trials, scored on the same trials): mean RMSE in degrees over the trials",
+             "",
+             f"{'filter':14s} {'mode':4s}  {'LOO total':>9s} {'undist':>6s} {'dist':>6s} {'heading':>7s} {'incl':>6s}"
+             f"  {'in-sample total':>15s} {'incl':>6s}  candidates"]
+    for name, by_mode in cv.items():
+        for mode, res in by_mode.items():
+            loo, ins = _rows(res, "loo"), _rows(res, "in_sample")
+            a, u, d = (_group_mean(loo, groups, g) for g in ("all", "undisturbed", "disturbed"))
+            ia = _group_mean(ins, groups, "all")
+            n_cand = len(res.candidates) if isinstance(res, tuning.CvResult) else 1
+            lines.append(f"{name:14s} {mode:4s}  {a[0]:9.2f} {u[0]:6.2f} {d[0]:6.2f} {a[1]:7.2f} {a[2]:6.2f}"
+                         f"  {ia[0]:15.2f} {ia[2]:6.2f}  {n_cand}")
+    if per_trial and VQF_NAME in cv:
+        for name, by_mode in cv.items():
+            if name == VQF_NAME:
+                continue
+            for mode, res in by_mode.items():
+                if mode not in cv[VQF_NAME]:
+                    continue
+                ref, loo = _rows(cv[VQF_NAME][mode], "loo"), _rows(res, "loo")
+                lines += ["", f"{name} {mode}, LOO per trial against {VQF_NAME} (total, inclination; ratio of totals)"]
+                for t, r, v in zip(trials, loo, ref, strict=True):
+                    flag = "" if r[0] <= 1.1 * v[0] and r[2] < v[2] else "  <-"
+                    lines.append(f"  {t.name[:44]:44s} {r[0]:6.2f} {r[2]:5.2f} | {v[0]:6.2f} {v[2]:5.2f}"
+                                 f"  {r[0] / v[0]:5.2f}{flag}")
+    return "\n".join(lines)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m gateway.fusion.evaluate",
@@ -178,6 +283,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON instead of the table")
     p.add_argument("--groups-only", action="store_true", help="table: group rows only")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--cv", action="store_true",
+                   help="leave-one-trial-out figures for the tuned filters (default: all of "
+                   f"{', '.join(tuning.SPECS)}); with --vqf, a per-trial comparison against VQF")
+    p.add_argument("--cache", type=Path, metavar="FILE", help="--cv: keep candidate scores in this JSON file")
     return p
 
 
@@ -187,10 +296,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not paths:
         print(f"no .mat files matching {args.trials!r} in {args.data_dir}", file=sys.stderr)
         return 2
-    names: list[str] = args.filters or sorted(FILTERS)
-    unknown = [n for n in names if n not in FILTERS]
+    known = tuning.SPECS if args.cv else FILTERS
+    names: list[str] = args.filters or list(known)
+    unknown = [n for n in names if n not in known]
     if unknown:
-        print(f"unknown filter(s) {', '.join(unknown)}; known: {', '.join(sorted(FILTERS))}", file=sys.stderr)
+        what = "tuned filter(s)" if args.cv else "filter(s)"
+        print(f"unknown {what} {', '.join(unknown)}; known: {', '.join(sorted(known))}", file=sys.stderr)
         return 2
     runners: dict[str, Runner] = {n: registered_runner(n) for n in names}
     if args.vqf:
@@ -198,6 +309,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     modes: tuple[broad.Mode, ...] = MODES if args.mode == "both" else (args.mode,)
     trials = [broad.load_trial(p) for p in tqdm(paths, desc="load", unit="trial", file=sys.stderr,
                                                 disable=args.no_progress)]
+    if args.cv:
+        cv = run_cv(trials, names, modes, args.vqf, tuning.ScoreCache(args.cache), progress=not args.no_progress)
+        print(json.dumps(cv_to_json(cv, trials), indent=1) if args.json else
+              format_cv(cv, trials, per_trial=not args.groups_only))
+        return 0
     results = evaluate(trials, runners, modes, progress=not args.no_progress)
     if args.json:
         print(json.dumps(to_json(results), indent=1))

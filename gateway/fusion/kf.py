@@ -15,6 +15,11 @@ them to the gyro there. 6D mode: roll and pitch are measured, yaw comes from the
 
 Beyond the paper (off with `KfSettings(paper=True)`): gyro bias learnt as the mean rate while at rest; roll/pitch R
 inflated (with a cap) as |a| departs from its rest norm, yaw R as |m| and the dip angle depart from theirs.
+
+Fig. 4's gyro correction (off unless `fig4_kp_rad_s` or `fig4_ki_rad_s2` > 0, in either mode): before the
+prediction step the rate is corrected by the cross product of measured and predicted gravity, Mahony-style,
+ω' = ω + kp · (â × v̂) + ∫ ki · (â × v̂) dt, with v̂ the up direction of the previous fused angles. The paper gives
+no gains; the registry's `kf-paper` uses `FIG4_KP_RAD_S` / `FIG4_KI_RAD_S2` (docs/fusion.md has the measurement).
 """
 
 from __future__ import annotations
@@ -24,11 +29,17 @@ from dataclasses import dataclass
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
+from gateway.fusion import quaternion as quat
 from gateway.fusion.base import AttitudeFilter, FloatArray
 from gateway.fusion.quaternion import njit
 
-# auxiliary state: E[f²] per angle (3), previous measurement angles (3), gyro bias (3), rest timer, have-previous
-AUX_SIZE = 11
+# auxiliary state: E[f²] per angle (3), previous measurement angles (3), gyro bias (3), rest timer, have-previous,
+# Fig. 4 integral (3, rad/s)
+AUX_SIZE = 14
+# Fig. 4 gains of the registry's `kf-paper` (the paper gives none): seed 004's Mahony defaults
+FIG4_KP_RAD_S = 0.2
+FIG4_KI_RAD_S2 = 0.0005
+FIG4_INTEGRAL_LIMIT_RAD_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -61,9 +72,13 @@ class KfSettings:
     """Time constant of the at-rest bias average (s)."""
     acc_gate_max: float = 5.0
     """Cap on the roll/pitch noise std multiplier (0: no cap), so long fast motion still sees some correction."""
+    fig4_kp_rad_s: float = 0.0
+    """Fig. 4 cross-product gyro correction, proportional gain (rad/s per unit of |â × v̂|); 0: off."""
+    fig4_ki_rad_s2: float = 0.0
+    """Fig. 4 correction, integral gain (rad/s² per unit error; integral clamped at ±0.1 rad/s); 0: off."""
 
     def as_array(self) -> FloatArray:
-        """Pack for the numba kernels: the paper flag zeroes every extension."""
+        """Pack for the numba kernels: the paper flag zeroes every extension (not Fig. 4's correction, the paper's)."""
         p = self.paper
         return np.array(
             [
@@ -79,6 +94,8 @@ class KfSettings:
                 self.rest_time_s,
                 self.bias_tau_s,
                 self.acc_gate_max,
+                self.fig4_kp_rad_s,
+                self.fig4_ki_rad_s2,
             ]
         )
 
@@ -169,6 +186,23 @@ def noise_estimate(mean_f2: float, f: float, alpha: float) -> float:
 
 
 @njit
+def fig4_corrected_rate(
+    q: FloatArray, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, aux: FloatArray, dt_s: float, kp: float, ki: float
+) -> FloatArray:
+    """ω + kp·e + ∫ki·e dt with e = â × v̂ (Fig. 4; seed 004's Mahony step); the integral lives in aux[11:14]."""
+    if kp <= 0.0 and ki <= 0.0:
+        return gyr_rad_s
+    e = quat.tilt_error4(q, acc_m_s2)
+    out = gyr_rad_s.copy()
+    for k in range(3):
+        if ki > 0.0:
+            lim = FIG4_INTEGRAL_LIMIT_RAD_S
+            aux[11 + k] = min(max(aux[11 + k] + ki * e[k] * dt_s, -lim), lim)
+        out[k] += kp * e[k] + aux[11 + k]
+    return out
+
+
+@njit
 def prepare(
     x: FloatArray,
     aux: FloatArray,
@@ -197,9 +231,10 @@ def prepare(
             aux[9] = 0.0
         if aux[9] >= params[9]:
             aux[6:9] += min(1.0, dt_s / params[10]) * (gyr_rad_s - aux[6:9])
-    # prediction (eq. 19-24, 37)
+    # prediction (eq. 19-24, 37), with the rate corrected by Fig. 4's cross product when its gains are set
     q_prev = quat_from_euler(x)
-    phi_g = euler_from_quat(first_order_step(q_prev, gyr_rad_s - aux[6:9], dt_s))
+    rate = fig4_corrected_rate(q_prev, gyr_rad_s - aux[6:9], acc_m_s2, aux, dt_s, params[12], params[13])
+    phi_g = euler_from_quat(first_order_step(q_prev, rate, dt_s))
     theta_am = measured_angles(acc_m_s2, mag_uT, use_mag)
     n_ang = 3 if use_mag else 2
     # online R (eq. 39-45)
@@ -337,6 +372,11 @@ class KalmanAngleFilter(AttitudeFilter):
     def measurement_noise_rad2(self) -> FloatArray:
         """Current online estimate R = cov(f)/2 per angle (rad², before gates and gimbal scaling; eq. 45)."""
         return 0.5 * self._aux[:3]
+
+    @property
+    def fig4_integral_rad_s(self) -> FloatArray:
+        """Integral of Fig. 4's cross-product correction (rad/s; minus the gyro bias on the tilt axes), 0 when off."""
+        return self._aux[11:14].copy()
 
     @property
     def gyro_bias_rad_s(self) -> FloatArray:

@@ -44,10 +44,21 @@ class Bus(Protocol):
     def close(self) -> None: ...
 
 
+_SETTING_OF_KEY = {"mode": "zenoh_mode", "listen/endpoints": "zenoh_listen", "connect/endpoints": "zenoh_connect",
+                   "scouting/multicast/enabled": "zenoh_multicast_scouting"}  # fmt: skip
+
+
 def zenoh_config(settings: Settings) -> zenoh.Config:
-    """zenoh Config from Settings (mode, listen/connect endpoints, multicast scouting)."""
-    conf = zenoh.Config()
+    """zenoh Config from Settings (mode, listen/connect endpoints, multicast scouting).
+
+    With `zenoh_config_file` (`--zenoh-config`) the file is the base, so TLS/mTLS, user/password authentication and
+    access control can be deployed (docs/security.md); only the zenoh settings given explicitly (options or RIG_*
+    variables) override its keys, the defaults do not."""
+    path = settings.zenoh_config_file
+    conf = zenoh.Config() if path is None else zenoh.Config.from_file(str(path))
     for key, value in settings.zenoh_config().items():
+        if path is not None and _SETTING_OF_KEY[key] not in settings.model_fields_set:
+            continue
         if key.endswith("/endpoints") and value == "[]":
             continue
         conf.insert_json5(key, value)

@@ -26,10 +26,14 @@ class Presence:
 
     def __init__(self) -> None:
         self.devices: dict[str, DevicePresence] = {}
+        self.invalid_tokens = 0  # tokens whose key is not `rig/{kind}/{valid device id}` (ignored)
 
     def update(self, token_key: str, alive: bool, now_s: float) -> DevicePresence | None:
         parts = token_key.split("/")
         if len(parts) != 3 or parts[0] != "rig" or parts[1] not in schemas.KINDS:
+            return None
+        if not schemas.valid_device_id(parts[2]):  # e.g. `rig/rod/evil.tok`: it would break key building later
+            self.invalid_tokens += 1
             return None
         kind, device_id = parts[1], parts[2]
         cur = self.devices.get(device_id)

@@ -14,21 +14,26 @@ from __future__ import annotations
 import asyncio
 import collections
 import logging
+import math
 import time
 from typing import Any
 
 from gateway import schemas
+from gateway.alarm.engine import Condition, Severity, presence_condition
 from gateway.config import Settings
 from gateway.hub import Hub
 from gateway.ingest.bus import Bus, key_matches
 from gateway.ingest.presence import Presence
 from gateway.ingest.stats import IngestCounters
-from gateway.pipeline import Output, Pipeline, PipelineSettings
-from gateway.store import Store
+from gateway.ingest.timecheck import wall_time_plausible
+from gateway.pipeline import AlarmOut, Output, Pipeline, PipelineSettings
+from gateway.store import Store, StoreWriter
 
 log = logging.getLogger("gateway.ingest")
 
 REJECTED_PER_S = 20
+BATCH_FAIL_LOG_S = 10.0
+CONFLICT_CLEAR_S = 10.0  # a device_conflict alarm clears this long after the last packet of a second publisher
 Received = tuple[str, bytes, float]
 
 
@@ -39,12 +44,14 @@ class Inbox:
         self.loop = loop
         self.maxsize = maxsize
         self.drops = 0
+        self.offered = 0
         self._items: collections.deque[Received] = collections.deque()
         self._ready = asyncio.Event()
         self._wake_pending = False
 
     def offer(self, key: str, payload: bytes) -> None:
         """Called on a bus thread: enqueue or count a drop; never blocks."""
+        self.offered += 1
         if len(self._items) >= self.maxsize:
             self.drops += 1
             return
@@ -91,11 +98,16 @@ class GatewayService:
         self.max_batch = max_batch
         self.diag_period_s = diag_period_s
         active, _ = store.list_alarms(status="active", limit=1_000_000)
+        stored = store.load_device_settings()
+        for bad in [d for d in stored if not schemas.valid_device_id(d)]:  # stored by an older gateway's REST
+            log.warning("ignoring stored settings of invalid device id %r", bad[:80])
+            del stored[bad]
         self.pipeline = Pipeline(
             pipeline_settings or pipeline_settings_from(settings),
-            store.load_defaults(), store.load_device_settings(), active,
+            store.load_defaults(), stored, [a for a in active if schemas.valid_device_id(a.device_id)],
         )  # fmt: skip
-        self.hub = Hub(bus, store)
+        self.writer = StoreWriter(store)
+        self.hub = Hub(bus, self.writer)
         self.counters = IngestCounters()
         self.presence = Presence()
         self.started_s = time.time()
@@ -104,8 +116,15 @@ class GatewayService:
         self.inbox: Inbox | None = None
         self._tasks: list[asyncio.Task[Any]] = []
         self._rejected_window = (0, 0)  # (second, published in it)
+        self.batch_failures = 0
+        self._batch_fail_logged_s = -math.inf
+        self.warming_since_s: float | None = None  # set while the fusion kernels are being prepared
 
-    async def start(self) -> None:
+    async def start(self, warm_up: bool = False) -> None:
+        """Subscribe, watch presence, serve the config queryable and start the tasks. With `warm_up` the ingest
+        task first compiles the fusion kernels (`Pipeline.warm_up`, in a thread): REST and presence work at once,
+        packets wait in the inbox meanwhile (a restart answers in seconds; a cold first compile shows in /health)."""
+        self.warming_since_s = time.time() if warm_up else None
         loop = asyncio.get_running_loop()
         self.inbox = Inbox(loop, self.settings.ingest_queue_size)
         for sel in schemas.SEL_DEVICE_DATA:
@@ -129,17 +148,32 @@ class GatewayService:
             except (asyncio.CancelledError, Exception):
                 pass
         self._tasks = []
+        await asyncio.to_thread(self.writer.close)  # store what is pending (bounded wait), stop the thread
 
     # -- ingest ---------------------------------------------------------------------------------------------
 
     async def _ingest_loop(self) -> None:
         assert self.inbox is not None
+        if self.warming_since_s is not None:
+            log.info("preparing fusion kernels (the first start after install compiles them: up to a minute)")
+            t0 = time.perf_counter()
+            try:
+                await asyncio.to_thread(self.pipeline.warm_up)
+                log.info("fusion kernels ready in %.1f s", time.perf_counter() - t0)
+            except Exception:  # the first packets will compile what is missing
+                log.exception("fusion kernel warm-up failed")
+            self.warming_since_s = None
         while True:
             items = await self.inbox.drain(self.max_batch)
             try:
                 self.handle(items)
-            except Exception:  # a pipeline bug must not stop ingest
-                log.exception("batch of %d packets failed", len(items))
+            except Exception:  # a pipeline bug must not stop ingest; one traceback per BATCH_FAIL_LOG_S
+                self.batch_failures += 1
+                now = time.monotonic()
+                if now - self._batch_fail_logged_s >= BATCH_FAIL_LOG_S:
+                    self._batch_fail_logged_s = now
+                    log.exception("batch of %d packets failed (%d batches failed so far)", len(items),
+                                  self.batch_failures)  # fmt: skip
             await asyncio.sleep(0)  # let REST handlers in between batches
 
     def handle(self, items: list[Received], now_wall_s: float | None = None) -> None:
@@ -157,9 +191,20 @@ class GatewayService:
                 c.reject(key, err, arrival)
                 self._publish_rejected(key, err, len(payload), now)
                 continue
+            if p.device_id not in c.devices and len(c.devices) >= self.settings.max_devices:  # type: ignore[union-attr]
+                self._device_limit(p.device_id, arrival)  # type: ignore[union-attr]
+                continue
             topic = key.rsplit("/", 1)[-1]
-            if c.accept(p.kind, p.device_id, topic, p.boot_id, p.seq, arrival):  # type: ignore[union-attr]
-                packets.append(p)
+            if not c.accept(p.kind, p.device_id, topic, p.boot_id, p.seq, arrival):  # type: ignore[union-attr]
+                continue
+            if isinstance(p, schemas.ImuPacket):
+                checked = self._check_time(p, now, arrival)
+                if checked is None:
+                    continue
+                p = checked
+            packets.append(p)
+        if c.conflicts_seen:
+            self._raise_conflicts(now)
         if packets:
             self.batches += 1
             out = self.pipeline.process(packets, now)
@@ -167,6 +212,59 @@ class GatewayService:
                 c.filter_failed(f.kind, f.device_id, f.reason, f.detail, items[-1][2])
             self.hub.emit(out)
             self.batch_delay_s.append(time.monotonic() - items[0][2])
+
+    def _check_time(self, p: schemas.ImuPacket, now: float, arrival: float) -> schemas.ImuPacket | None:
+        """Device-time sanity (`gateway.ingest.timecheck`): None drops the packet; counted by reason either way."""
+        c = self.counters
+        end_us = p.t0_us + int(round((p.n - 1) * 1e6 / p.rate_hz))
+        verdict = c.stream(p.kind, p.device_id).clock.check(p.boot_id, p.t0_us, end_us)
+        if not verdict.accept:
+            c.drop(p.kind, p.device_id, verdict.reason or "", f"t0_us {p.t0_us} (boot {p.boot_id}, seq {p.seq})",
+                   arrival)  # fmt: skip
+            return None
+        if verdict.restart:
+            c.drop(p.kind, p.device_id, "time_resync", f"device clock moved to t0_us {p.t0_us}; fusion restarts",
+                   arrival)  # fmt: skip
+            self.pipeline.restart(p.device_id)
+        if p.wall_t0_us is not None and not wall_time_plausible(p.wall_t0_us, now):
+            c.drop(p.kind, p.device_id, "wall_time_ignored", f"wall_t0_us {p.wall_t0_us} is far from the gateway's "
+                   "clock; the packet is used without it", arrival)  # fmt: skip
+            p = p.model_copy(update={"wall_t0_us": None})
+        return p
+
+    def _raise_conflicts(self, now: float) -> None:
+        """A `device_conflict` alarm for each device that just showed a second publisher (it clears in
+        `_clear_conflicts` once `CONFLICT_CLEAR_S` pass without one)."""
+        out = Output()
+        for device_id in sorted(self.counters.conflicts_seen):
+            kind = self.counters.devices[device_id].kind
+            cond = Condition(device_id, "device_conflict", Severity.CRITICAL, now, value=1.0, message=(
+                f"two publishers on {kind} {device_id}'s keys: spoofing or a duplicated device id; its data may "
+                "be mixed (see docs/security.md)"))  # fmt: skip
+            t_us = self._device_t_us(device_id)
+            out.alarms += [AlarmOut(kind, ch, t_us, None) for ch in self.pipeline.engine.evaluate([cond])]
+        self.counters.conflicts_seen.clear()
+        if out.alarms:
+            self.hub.emit(out)
+
+    def _clear_conflicts(self, now: float, mono: float) -> None:
+        out = Output()
+        for a in self.pipeline.engine.active():
+            if a.type != "device_conflict":
+                continue
+            dev = self.counters.devices.get(a.device_id)
+            last = None if dev is None else dev.conflict_last_s
+            if last is None or mono - last >= CONFLICT_CLEAR_S:
+                kind = dev.kind if dev is not None else self.pipeline.kinds.get(a.device_id, "rod")
+                cond = Condition(a.device_id, "device_conflict", None, now)
+                out.alarms += [AlarmOut(kind, ch, self._device_t_us(a.device_id), None)
+                               for ch in self.pipeline.engine.evaluate([cond])]  # fmt: skip
+        if out.alarms:
+            self.hub.emit(out)
+
+    def _device_t_us(self, device_id: str) -> int:
+        dev = self.pipeline.devices.get(device_id)
+        return dev.t_us if dev is not None else 0
 
     def _publish_rejected(self, key: str, err: schemas.DecodeError, size: int, now: float) -> None:
         second, n = self._rejected_window
@@ -184,6 +282,7 @@ class GatewayService:
             try:
                 if self.inbox is not None:
                     self.counters.queue_drops = self.inbox.drops
+                self._clear_conflicts(time.time(), time.monotonic())
                 stats = self.counters.snapshot(int(time.time() * 1e6))
                 self.bus.put(schemas.DIAG_INGEST_KEY, stats.to_json(), encoding=schemas.ENCODING_GW)
             except Exception:
@@ -205,26 +304,39 @@ class GatewayService:
             self.hub.emit(out)
         for e in out.reel_events:
             log.warning("rod %s: %s, reel stop sent", e.device_id, e.kind)
-            try:
-                self.store.log_event(e.t_s, e.kind, e.device_id, e.details)
-            except Exception:
-                log.exception("event log write failed")
+            self.writer.log_event(e.t_s, e.kind, e.device_id, e.details)
 
     # -- presence and config --------------------------------------------------------------------------------
 
+    def _device_limit(self, device_id: str, now_s: float) -> None:
+        """A new device id beyond `max_devices`: counted and logged (rate-limited), never given state."""
+        self.counters.rejected["device_limit"] += 1
+        self.counters.log.warning("device_limit", f"new device {device_id[:64]!r} ignored: already "
+                                  f"{self.settings.max_devices} devices (--max-devices)", now_s)  # fmt: skip
+
     def _on_presence(self, key: str, alive: bool) -> None:
+        parts = key.split("/")
+        if (len(parts) == 3 and parts[2] not in self.presence.devices
+                and len(self.presence.devices) >= self.settings.max_devices):  # fmt: skip
+            self._device_limit(parts[2], time.monotonic())
+            return
         change = self.presence.update(key, alive, time.time())
         if change is None:
             return
         self.pipeline.kinds.setdefault(change.device_id, change.kind)
         log.info("device %s %s", change.device_id, "online" if alive else "offline")
-        try:
-            self.store.log_event(change.since_s, "online" if alive else "offline", change.device_id,
-                                 {"kind": change.kind})  # fmt: skip
-        except Exception:
-            log.exception("event log write failed")
+        self.writer.log_event(change.since_s, "online" if alive else "offline", change.device_id, {"kind": change.kind})
         if not alive:
             self._emit_reel(self.pipeline.reel_offline(change.device_id, change.since_s))
+        # device-offline alarm: raised when the token goes, cleared when it is back (one row per outage)
+        cond = presence_condition(change.device_id, alive, change.since_s)
+        t_us = int(change.since_s * 1e6)
+        alarms = [AlarmOut(change.kind, c, t_us, None) for c in self.pipeline.engine.evaluate([cond])]
+        if alarms:
+            try:
+                self.hub.emit(Output(alarms=alarms))
+            except Exception:
+                log.exception("offline alarm publish failed")
 
     def device_config(self, kind: str, device_id: str) -> schemas.DeviceConfig:
         """Current thresholds of a device (the kind defaults when it has no override)."""

@@ -11,6 +11,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 from gateway import schemas
+from gateway.ingest.timecheck import DeviceClock
 
 log = logging.getLogger("gateway.ingest")
 
@@ -28,6 +29,8 @@ class DeviceStream:
     filter_restarts: Counter[str] = field(default_factory=Counter)
     last_arrival_s: float | None = None
     packets: int = 0
+    clock: DeviceClock = field(default_factory=lambda: DeviceClock())
+    conflict_last_s: float | None = None  # arrival (monotonic s) of the newest packet that showed a second publisher
 
     def main(self) -> schemas.SequenceTracker:
         for topic in MAIN_TOPICS:
@@ -71,6 +74,7 @@ class IngestCounters:
         self.rejected: Counter[str] = Counter()
         self.filter_restarts: Counter[str] = Counter()
         self.devices: dict[str, DeviceStream] = {}
+        self.conflicts_seen: set[str] = set()  # devices with a new conflict packet; the service takes and clears it
         self.log = RateLimitedLog()
 
     def stream(self, kind: str, device_id: str) -> DeviceStream:
@@ -80,7 +84,8 @@ class IngestCounters:
         return dev
 
     def accept(self, kind: str, device_id: str, topic: str, boot_id: int, seq: int, now_s: float) -> bool:
-        """Sequence-check one decoded packet; False for a duplicate (drop it)."""
+        """Sequence-check one decoded packet; False for a duplicate or a rival publisher's packet (drop it).
+        A second publisher on the key is counted as `device_conflict` and remembered in `conflicts_seen`."""
         dev = self.stream(kind, device_id)
         tracker = dev.trackers.get(topic)
         if tracker is None:
@@ -88,7 +93,19 @@ class IngestCounters:
         res = tracker.update(boot_id, seq)
         dev.last_arrival_s = now_s
         dev.packets += 1
+        if res.conflict:
+            dev.conflict_last_s = now_s
+            self.conflicts_seen.add(device_id)
+            self.drop(kind, device_id, "device_conflict",
+                      f"a second publisher on rig/{kind}/{device_id}/{topic} (boot {boot_id}, seq {seq})", now_s)
         return res.accept
+
+    def drop(self, kind: str, device_id: str, reason: str, detail: str, now_s: float) -> None:
+        """Count a decoded packet dropped (or a field of it ignored) for `reason`; log it, at most once per 5 s and
+        reason (not per device: a hostile peer can make up any number of ids)."""
+        self.rejected[reason] += 1
+        self.stream(kind, device_id).rejected[reason] += 1
+        self.log.warning(reason, f"device {device_id}: {reason}: {detail}", now_s)  # per reason: ids are many
 
     def reject(self, key: str, err: schemas.DecodeError, now_s: float) -> None:
         """Count a rejected packet by reason (and per device when the key names a known device)."""

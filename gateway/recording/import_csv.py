@@ -7,11 +7,15 @@ The header row must name each column with its unit: `time (s)` or `time_ms`, `ac
 `gyro_x (deg/s)` or `gyr_x_rad/s`, optional `mag_x (uT)`. Units are converted to SI (s, m/s², rad/s, µT), and the
 samples are resampled linearly to a uniform grid (median rate, or --rate). `--flip-acc` negates the accelerometer
 for apps that report acceleration rather than specific force (iOS reads -1 g on z lying flat; we need +9.81).
+Optional one-value columns `temp (C)`, `depth (m)`, `lat (deg)`, `lon (deg)`, `alt (m)`, `speed (m/s)`,
+`fix_quality (nmea)` (what `python -m gateway.recording.export` writes) become each packet's `temp_c`, `depth_m`
+and `gnss` (from the first sample of the packet that has them), so an exported log reads back as it was recorded.
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -27,7 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     p.add_argument("csv", type=Path, help="sensor log with a header row naming columns and units")
     p.add_argument("-o", "--out", type=Path, required=True, help="output directory")
-    p.add_argument("--device-id", default="phone-1", help="device id (default: phone-1)")
+    p.add_argument("--device-id", default=None,
+                   help="device id (default: the id an exported log is named by, `ID-YYYYmmddT...Z.csv`, else phone-1)")
     p.add_argument("--kind", choices=["rod", "hook"], default="rod", help="device kind (default: rod)")
     p.add_argument("--rate", type=float, default=None, help="resample to this rate in Hz (default: median rate)")
     p.add_argument("--samples-per-packet", type=int, default=10, help="samples per ImuPacket (default: 10)")
@@ -36,8 +41,18 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+_EXPORT_NAME = re.compile(r"^(?P<id>[A-Za-z0-9_-]{1,64})-\d{8}T\d{6}\.\d{6}Z(_\d{4})?$")
+
+
+def device_id_from_name(path: Path) -> str | None:
+    """The device id of a file named by `gateway.recording.export` (`rod-1-20260101T000000.000000Z.csv`), else None."""
+    m = _EXPORT_NAME.match(path.stem)
+    return m.group("id") if m else None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    args.device_id = args.device_id or device_id_from_name(args.csv) or "phone-1"
     try:
         imp = read_sensor_csv(args.csv, args.rate, args.flip_acc)
     except (CsvFormatError, ValueError, OSError) as exc:

@@ -18,7 +18,7 @@ import json
 import math
 import re
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -53,9 +53,12 @@ def _rows(a: FloatArray) -> list[list[float]]:
 def imu_records(
     stream: ImuStream, device_id: str, kind: str = "rod", samples_per_packet: int = 10, boot_id: int = 1,
     seq0: int = 0, t0_us: int = DEFAULT_T0_US, wall_start_us: int = DEFAULT_WALL_START_US,
+    extras: dict[str, FloatArray] | None = None,
 ) -> Iterator[tuple[int, int, int, Record]]:  # fmt: skip
     """(first sample, n, packet t0_us, Record) per ImuPacket; record time = wall time of its last sample (the
-    moment a device would send it). Packet k starts at sample k·n, t0_us + round(k·n·1e6/rate)."""
+    moment a device would send it). Packet k starts at sample k·n, t0_us + round(k·n·1e6/rate). `extras`
+    (per-sample arrays named as `EXTRA_QUANTITIES`, NaN = none) fill `temp_c`, `depth_m` and `gnss` from the first
+    sample of the packet that has them."""
     n_total = stream.gyr_rad_s.shape[0]
     key = schemas.imu_key(kind, device_id)
     for k, i0 in enumerate(range(0, n_total, samples_per_packet)):
@@ -69,9 +72,40 @@ def imu_records(
         if stream.mag_uT is not None:
             d["mag_uT"] = _rows(stream.mag_uT[i0:i1])
         d["wall_t0_us"] = wall_start_us + (t_pkt - t0_us)
+        if extras:
+            d.update(packet_extras(extras, i0, i1))
         t_send = wall_start_us + int(round((i1 - 1) * 1e6 / stream.rate_hz))
         payload = json.dumps(d, separators=(",", ":"), allow_nan=False).encode()
         yield i0, i1 - i0, t_pkt, Record(key, payload, t_send, schemas.ENCODING_IMU)
+
+
+def _first(a: FloatArray | None, i0: int, i1: int) -> int | None:
+    """Index of the first finite value of a[i0:i1], None without one."""
+    if a is None:
+        return None
+    ok = np.flatnonzero(np.isfinite(a[i0:i1]))
+    return i0 + int(ok[0]) if ok.size else None
+
+
+def packet_extras(extras: dict[str, FloatArray], i0: int, i1: int) -> dict[str, Any]:
+    """`temp_c`, `depth_m` and `gnss` of the ImuPacket holding samples i0:i1 (only those present)."""
+    out: dict[str, Any] = {}
+    for q, name in (("temp", "temp_c"), ("depth", "depth_m")):
+        j = _first(extras.get(q), i0, i1)
+        if j is not None:
+            out[name] = float(extras[q][j])
+    lat, lon = extras.get("lat"), extras.get("lon")
+    if lat is not None and lon is not None:
+        j = _first(np.where(np.isfinite(lon), lat, np.nan), i0, i1)
+        if j is not None:
+            fix: dict[str, Any] = {"lat_deg": float(lat[j]), "lon_deg": float(lon[j])}
+            for q, name in (("alt", "alt_m"), ("speed", "speed_m_s")):
+                if q in extras and np.isfinite(extras[q][j]):
+                    fix[name] = float(extras[q][j])
+            if "fix" in extras and np.isfinite(extras["fix"][j]):
+                fix["fix_quality"] = int(extras["fix"][j])
+            out["gnss"] = fix
+    return out
 
 
 def _opt(a: FloatArray) -> list[list[float] | None]:
@@ -124,6 +158,20 @@ _QUANTITIES = (
 )
 
 
+# Optional one-value columns (the logger of seed 004 and `gateway.recording.export`): (quantity, names, units); a
+# column whose unit is not listed is ignored rather than refused, so phone logs with odd extra columns still import.
+_EXTRAS: tuple[tuple[str, tuple[str, ...], dict[str, float]], ...] = (
+    ("temp", ("temperature", "temp"), {"c": 1.0, "°c": 1.0, "degc": 1.0}),
+    ("depth", ("depth",), {"m": 1.0}),
+    ("lat", ("latitude", "lat"), {"deg": 1.0, "°": 1.0}),
+    ("lon", ("longitude", "lon", "lng"), {"deg": 1.0, "°": 1.0}),
+    ("alt", ("altitude", "alt"), {"m": 1.0}),
+    ("speed", ("speed",), {"m/s": 1.0, "km/h": 1.0 / 3.6}),
+    ("fix", ("fixquality",), {"nmea": 1.0}),
+)
+EXTRA_QUANTITIES: tuple[str, ...] = tuple(q for q, _, _ in _EXTRAS)
+
+
 class CsvFormatError(ValueError):
     """A column header without a recognisable quantity or unit."""
 
@@ -159,6 +207,11 @@ def parse_header(name: str) -> Column | None:
             if key not in units:
                 raise CsvFormatError(f"column {name!r}: unknown {quantity} unit {unit!r}; known: {', '.join(units)}")
             return Column(quantity, axis, units[key])
+    if axis == -1:
+        unit_key = unit.lower().replace(" ", "")
+        for extra, extra_names, extra_units in _EXTRAS:
+            if word in extra_names and unit_key in extra_units:
+                return Column(extra, -1, extra_units[unit_key])
     return None
 
 
@@ -168,6 +221,8 @@ class CsvImport:
     t_s: FloatArray  # uniform grid, from the first sample
     raw_rate_hz: float
     max_gap_s: float
+    extras: dict[str, FloatArray] = field(default_factory=dict)
+    """Optional columns (`EXTRA_QUANTITIES`) on the grid: each raw value at its nearest grid sample, NaN between."""
 
 
 def read_sensor_csv(path: str | Path, rate_hz: float | None = None, flip_acc: bool = False) -> CsvImport:
@@ -210,8 +265,24 @@ def read_sensor_csv(path: str | Path, rate_hz: float | None = None, flip_acc: bo
     assert acc is not None and gyr is not None
     if flip_acc:
         acc = -acc
+    extras = {}
+    for q in EXTRA_QUANTITIES:
+        if (q, -1) in found:
+            i, sc = found[(q, -1)]
+            extras[q] = nearest_on_grid(t, data[:, i] * sc, grid[0], rate, grid.shape[0])
     stream = ImuStream(float(rate), gyr, acc, vec("mag"))
-    return CsvImport(stream, grid - grid[0], raw_rate, float(dt.max()) if dt.size else 0.0)
+    return CsvImport(stream, grid - grid[0], raw_rate, float(dt.max()) if dt.size else 0.0, extras)
+
+
+def nearest_on_grid(t_s: FloatArray, values: FloatArray, t0_s: float, rate_hz: float, n: int) -> FloatArray:
+    """Each finite value placed at its nearest grid sample (later values win), NaN elsewhere; sparse columns such as
+    GNSS fixes stay sparse instead of being interpolated."""
+    out = np.full(n, np.nan)
+    ok = np.isfinite(values)
+    idx = np.rint((t_s[ok] - t0_s) * rate_hz).astype(np.int64)
+    keep = (idx >= 0) & (idx < n)
+    out[idx[keep]] = values[ok][keep]
+    return out
 
 
 def csv_meta(path: str | Path, imp: CsvImport, device_id: str, kind: str, samples_per_packet: int) -> dict[str, Any]:
@@ -224,7 +295,7 @@ def csv_meta(path: str | Path, imp: CsvImport, device_id: str, kind: str, sample
 
 def csv_records(imp: CsvImport, device_id: str, kind: str = "rod", samples_per_packet: int = 10,
                 boot_id: int = 1) -> Iterator[Record]:  # fmt: skip
-    for _, _, _, rec in imu_records(imp.stream, device_id, kind, samples_per_packet, boot_id):
+    for _, _, _, rec in imu_records(imp.stream, device_id, kind, samples_per_packet, boot_id, extras=imp.extras):
         yield rec
 
 

@@ -100,7 +100,8 @@ def test_hysteresis_level_never_flips_inside_the_band(peaks, hyst):
 
 
 def test_hook_swing_hysteresis_and_torsion_wrap():
-    hook = HookAlarms("hook-1", HookThresholds())  # swing 5 / 10 deg, torsion 30 / 60 deg, hysteresis 1 deg
+    # swing 5 / 10 deg, torsion 30 / 60 deg, hysteresis 1 deg; no hold-off, to see the hysteresis alone
+    hook = HookAlarms("hook-1", HookThresholds(), clear_hold_s=0.0)
     engine = make_engine()
     seq_deg = [0.0, 6.0, 4.5, 5.5, 4.2, 3.9, 11.0, 9.5, 8.0, 2.0]
     log = []
@@ -127,3 +128,35 @@ def test_hook_torsion_raises_at_sample_time():
 def test_wrap_abs_deg_reference_values():
     np.testing.assert_allclose(wrap_abs_deg(np.radians([0.0, 190.0, -190.0, 350.0, 720.0 + 45.0])),
                                [0.0, 170.0, 170.0, 10.0, 45.0], atol=1e-9)  # fmt: skip
+
+
+def _run_hook(hook, engine, torsion_deg, rate_hz=100.0, block=10, t0=0.0):
+    changes = []
+    for k in range(0, len(torsion_deg), block):
+        t = t0 + np.arange(k, min(k + block, len(torsion_deg))) / rate_hz
+        tor = np.radians(torsion_deg[k : k + block])
+        changes += engine.evaluate(hook.update(t, np.zeros(len(t)), tor))
+    return changes
+
+
+def test_hook_torsion_oscillating_around_the_limit_raises_once_then_clears_after_the_hold():
+    """Issue 17: torsion swinging 25..35 deg around the 30 deg warning flapped on every half period."""
+    hook, engine = HookAlarms("hook-1"), make_engine()  # default hold-off 10 s, hysteresis 1 deg
+    t = np.arange(0, 60.0, 0.01)
+    flapping = _run_hook(hook, engine, 30.0 + 5.0 * np.sin(2 * np.pi * t / 6.0))
+    assert [(c.kind, c.alarm.severity.value) for c in flapping] == [("raised", "warning")]
+    raised = flapping[0].alarm
+    assert raised.value >= raised.threshold == 30.0 and "≥ warning limit 30.0°" in raised.message
+    calm = _run_hook(hook, engine, np.full(2000, 10.0), t0=60.0)  # 20 s at 10 deg
+    [cleared] = calm
+    assert cleared.kind == "cleared"
+    assert cleared.alarm.cleared_at == pytest.approx(60.0 + 10.0, abs=0.11)  # after the 10 s hold, not at once
+    assert "peak 35.0°" in cleared.alarm.message and "back to 10.0°" in cleared.alarm.message
+
+
+def test_hook_hold_off_without_hold_would_flap():
+    """The same signal with no hold-off: the test above can fail (hysteresis alone flaps)."""
+    hook, engine = HookAlarms("hook-1", clear_hold_s=0.0), make_engine()
+    t = np.arange(0, 60.0, 0.01)
+    changes = _run_hook(hook, engine, 30.0 + 5.0 * np.sin(2 * np.pi * t / 6.0))
+    assert sum(c.kind == "raised" for c in changes) >= 5

@@ -27,7 +27,18 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic"
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]  # fmt: skip
 REPO = Path(__file__).resolve().parents[2]
 OUT = REPO / "test-output"
-BITE_AT_S = 15.0  # device time of the scripted bite: after the page is open and the first tests ran
+BITE_AT_S = 30.0  # device time of the scripted bite: after the page is open and the first tests ran
+
+
+def wait_js(page: Any, expression: str, timeout: float = 30_000) -> None:
+    """Wait until a JS expression is truthy in the page. Polls `page.evaluate` (DevTools evaluation) instead of
+    `page.wait_for_function`, whose in-page polling compiles the string and so breaks the dashboard's CSP
+    (no 'unsafe-eval'): the tests keep the real CSP and would see any violation by the page itself."""
+    deadline = time.monotonic() + timeout / 1000.0
+    while not page.evaluate(expression):
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"not true within {timeout / 1000.0:g} s: {expression}")
+        time.sleep(0.05)
 
 
 def free_port() -> int:
@@ -127,25 +138,53 @@ class Browser:
     console: list[str]
     page_errors: list[str]
 
-    def shot(self, name: str) -> Path:
+    def errors(self) -> list[str]:
+        """Console errors and uncaught exceptions so far."""
+        return [c for c in self.console if c.startswith("error")] + self.page_errors
+
+    def shot(self, name: str, full_page: bool = True) -> Path:
         OUT.mkdir(exist_ok=True)
         path = OUT / f"{name}.png"
-        self.page.evaluate("window.scrollTo(0, 0)")  # else the sticky header lands mid-page in full-page shots
-        self.page.screenshot(path=str(path), full_page=True)
+        self.page.evaluate("window.scrollTo(0, 0)")  # else the sticky banner lands mid-page in full-page shots
+        self.page.screenshot(path=str(path), full_page=full_page)
         return path
 
 
 @pytest.fixture(scope="module")
-def browser(system: System, chromium_path: Path) -> Iterator[Browser]:
+def chromium(chromium_path: Path) -> Iterator[Any]:
+    """One headless Chromium per module (Playwright's sync API allows one driver per thread at a time)."""
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as pw:
         b = pw.chromium.launch(executable_path=str(chromium_path), args=CHROMIUM_ARGS)
-        ctx = b.new_context(viewport={"width": 1400, "height": 1000})
-        rec = Browser(ctx.new_page(), [], [], [])
-        ctx.on("request", lambda r: rec.requests.append(r.url))
-        rec.page.on("console", lambda m: rec.console.append(f"{m.type}: {m.text}"))
-        rec.page.on("pageerror", lambda e: rec.page_errors.append(str(e)))
-        yield rec
-        ctx.close()
+        yield b
         b.close()
+
+
+DESKTOP = {"width": 1280, "height": 800}
+PHONE = {"width": 390, "height": 844}
+
+
+def _recorder(ctx: Any) -> Browser:
+    rec = Browser(ctx.new_page(), [], [], [])
+    ctx.on("request", lambda r: rec.requests.append(r.url))
+    rec.page.on("console", lambda m: rec.console.append(f"{m.type}: {m.text}"))
+    rec.page.on("pageerror", lambda e: rec.page_errors.append(str(e)))
+    return rec
+
+
+@pytest.fixture(scope="module")
+def browser(system: System, chromium: Any) -> Iterator[Browser]:
+    """A 1280 x 800 desktop page (light theme)."""
+    ctx = chromium.new_context(viewport=DESKTOP, accept_downloads=True)
+    yield _recorder(ctx)
+    ctx.close()
+
+
+@pytest.fixture(scope="module")
+def phone(system: System, chromium: Any) -> Iterator[Browser]:
+    """A 390 x 844 touch screen in dark mode (the system setting the page follows)."""
+    ctx = chromium.new_context(viewport=PHONE, is_mobile=True, has_touch=True, device_scale_factor=2,
+                               color_scheme="dark")  # fmt: skip
+    yield _recorder(ctx)
+    ctx.close()

@@ -91,3 +91,30 @@ def test_noise_is_applied_with_the_configured_std() -> None:
     err = np.array(water) - np.array(truth)
     assert abs(err.mean()) < 0.01
     assert err.std() == pytest.approx(ball.BallNoise().water_temp_c, rel=0.1)
+
+
+def test_ball_reports_where_it_was_thrown_within_the_receiver_noise() -> None:
+    """Each packet's GNSS fix lies at the spot the ball was thrown to: over 200 readings the mean is within 0.5 m
+    and the spread is the configured 2.5 m std (±20 %); a re-throw moves it to the new spot; --no-gnss: no fix."""
+    fl = ball.BallFleet(FleetSettings(count=1, seed=7, rate_hz=1.0, samples_per_packet=1, id_prefix="ball"))
+    fixes = []
+    for k in range(200):
+        (msgs,), _ = fl.tick(k)
+        p = schemas.decode(msgs[0].key, msgs[0].payload)
+        assert isinstance(p, schemas.EnvPacket) and p.gnss is not None
+        fixes.append((p.gnss.lat_deg, p.gnss.lon_deg))
+    spot = ball.SPOT_BY_NAME[p.spot]
+    f = np.array(fixes)
+    north_m = (f[:, 0] - spot.lat_deg) * 111_320.0
+    east_m = (f[:, 1] - spot.lon_deg) * 111_320.0 * np.cos(np.radians(spot.lat_deg))
+    assert abs(north_m.mean()) < 0.5 and abs(east_m.mean()) < 0.5
+    assert 2.0 < north_m.std() < 3.0 and 2.0 < east_m.std() < 3.0
+    fl.rethrow(0, 200.0, "dam_wall")
+    (msgs,), _ = fl.tick(201)
+    p = schemas.decode(msgs[0].key, msgs[0].payload)
+    assert isinstance(p, schemas.EnvPacket) and p.gnss is not None
+    assert abs(p.gnss.lat_deg - ball.SPOT_BY_NAME["dam_wall"].lat_deg) * 111_320.0 < 15.0
+    quiet = ball.make_fleet(ball.build_parser().parse_args(["--no-gnss"]),
+                            FleetSettings(count=1, seed=7, rate_hz=1.0, samples_per_packet=1, id_prefix="ball"))
+    (msgs,), _ = quiet.tick(0)
+    assert b"gnss" not in msgs[0].payload

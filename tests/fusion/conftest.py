@@ -49,9 +49,22 @@ def _load(path: str) -> broad.Trial:
     return broad.load_trial(path)
 
 
+def trial_path(broad_dir: Path, name: str) -> Path:
+    """Path of a named trial; skips the test if the folder (e.g. one set by RIG_BROAD_DIR) does not hold it."""
+    path = broad_dir / f"{name}.mat"
+    if not path.is_file():
+        pytest.skip(f"{name}.mat is not in {broad_dir} (this test needs that trial of the development set)")
+    return path
+
+
+def load_named(broad_dir: Path, name: str) -> broad.Trial:
+    """A whole named trial, cached across tests (skips when absent, as `trial_path`)."""
+    return _load(str(trial_path(broad_dir, name)))
+
+
 def trial_slice(broad_dir: Path, name: str, seconds: float) -> broad.Trial:
     """The first `seconds` of a BROAD trial (it starts at rest), cached across tests."""
-    t = _load(str(broad_dir / f"{name}.mat"))
+    t = load_named(broad_dir, name)
     return t.slice(0, int(seconds * t.rate_hz))
 
 

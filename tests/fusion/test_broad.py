@@ -10,6 +10,7 @@ import pytest
 
 from gateway.fusion import broad
 from gateway.fusion import quaternion as quat
+from tests.fusion.conftest import load_named
 
 DEG = np.pi / 180
 
@@ -75,7 +76,7 @@ def test_groups_from_file_names():
 
 
 def test_load_trial_fields(broad_dir):
-    t = broad.load_trial(broad_dir / "24_disturbed_tapping_A.mat")
+    t = load_named(broad_dir, "24_disturbed_tapping_A")
     assert t.rate_hz == pytest.approx(285.714, abs=1e-3)
     assert t.gyr_rad_s.shape == t.acc_m_s2.shape == t.mag_uT.shape == (t.n, 3)
     assert t.quat_ref.shape == (t.n, 4) and t.movement.dtype == bool
@@ -89,7 +90,7 @@ def test_load_trial_fields(broad_dir):
 def test_initial_attitude_is_near_the_reference(broad_dir):
     # the acc+mag start (no reference used) agrees with the first valid optical sample (still at rest) to 0.79°
     # on this trial (measured); a wrong ENU convention would be off by tens of degrees
-    t = broad.load_trial(broad_dir / "03_undisturbed_slow_rotation_C.mat")
+    t = load_named(broad_dir, "03_undisturbed_slow_rotation_C")
     first_valid = int(np.argmax(np.all(np.isfinite(t.quat_ref), axis=1)))
     assert first_valid < np.argmax(t.movement)
     ref = t.quat_ref[first_valid]
@@ -108,7 +109,7 @@ def test_initial_attitude_is_near_the_reference(broad_dir):
 )
 def test_scorer_reproduces_vqf_reference_figures(broad_dir, name, expected_9d, expected_6d):
     vqf = pytest.importorskip("vqf")
-    t = broad.load_trial(broad_dir / f"{name}.mat")
+    t = load_named(broad_dir, name)
     out = vqf.VQF(t.dt_s).updateBatch(t.gyr_rad_s, t.acc_m_s2, t.mag_uT)
     for key, mode, expected in (("quat9D", "9D", expected_9d), ("quat6D", "6D", expected_6d)):
         s = broad.score(out[key], t, mode)

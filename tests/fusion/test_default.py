@@ -6,6 +6,9 @@ large without the mechanism under test (so a broken mechanism fails the test).""
 
 from __future__ import annotations
 
+from functools import lru_cache
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given
@@ -16,9 +19,11 @@ from gateway.fusion import broad
 from gateway.fusion import quaternion as quat
 from gateway.fusion.default import DefaultFilter, DefaultSettings, attitude_from_rest
 from gateway.fusion.registry import make_filter
+from tests.conftest import BROAD_DIR
 from tests.fusion.conftest import (
     FIELD_ENU_UT,
     assert_quat_close,
+    load_named,
     static_imu,
     synthetic_imu,
     trial_slice,
@@ -135,7 +140,7 @@ def test_rest_bias_converges_to_injected_bias():
     off = DefaultFilter(DefaultSettings(rest_bias=False, motion_bias=False), use_mag=False)
     off.initialise(d["acc"][0], None)
     q_off = off.run(gyr, d["acc"], None, d["dt_s"])
-    assert _deg(q_off[-1], q_true) > 10.0 * _deg(q[-1], q_true)  # the uncorrected bias drifts the heading
+    assert _deg(q_off[-1], q_true) > 5.0 * _deg(q[-1], q_true)  # the uncorrected bias drifts the heading (10° vs 1°)
 
 
 def test_motion_bias_and_scale_estimated():
@@ -263,8 +268,8 @@ def test_same_accuracy_at_50_200_and_1000_hz(use_mag):
 
 # ---- BROAD (real data, short slices) -----------------------------------------------------------------------
 # First 100 s of each trial (movement starts after ~35-45 s, so 53-62 s of movement are scored). Measured with the
-# defaults, total / inclination: 04 9D 0.88 / 0.55, 06 6D 0.73 / 0.65, 30 9D 2.21 / 1.12; VQF's C++ defaults on the
-# same slices 1.08 / 0.60, 0.73 / 0.65, 2.04 / 1.27. Thresholds leave ~30 % margin.
+# defaults, total / inclination: 04 9D 0.75 / 0.55, 06 6D 0.73 / 0.65, 30 9D 1.70 / 1.12 (before issue 14: 0.88, 0.73,
+# 2.21); VQF's C++ defaults on the same slices 1.08 / 0.60, 0.73 / 0.65, 2.04 / 1.27. Thresholds leave >= 30 % margin.
 
 BROAD_CASES = [
     ("04_undisturbed_slow_rotation_with_breaks_A", "9D", 1.15, 0.75),
@@ -280,3 +285,154 @@ def test_broad_slices(broad_dir, name, mode, max_total_deg, max_incl_deg):
     s = broad.score(q, trial, mode)
     assert s.total_deg < max_total_deg
     assert s.inclination_deg < max_incl_deg
+
+
+# ---- disturbances: shocks, small magnets, re-acquisition, bias --------------------------------------------------
+
+
+def test_shock_samples_skipped():
+    """A tap rings the structure: a few samples of tens of g whose aliased values do not average out. A still device
+    tapped every 0.5 s keeps its tilt within 0.05° (measured 0.0°); taking those samples drifts it by about a degree."""
+    q_true = quat.normalise(np.array([0.97, 0.1, -0.15, 0.2]))
+    d = static_imu(q_true, 30.0, rate_hz=200.0)
+    acc = d["acc"].copy()
+    rng = np.random.default_rng(3)
+    for start in range(400, 6000, 100):  # after 2 s, every 0.5 s: 6 samples of ±(70..90) m/s² on random axes
+        acc[start : start + 6] += rng.choice([-1.0, 1.0], size=(6, 3)) * rng.uniform(70.0, 90.0, size=(6, 3))
+    tilt = {}
+    for spike in (60.0, 0.0):
+        f = DefaultFilter(DefaultSettings(acc_spike_m_s2=spike), use_mag=False)
+        f.initialise(d["acc"][0], None)
+        tilt[spike] = float(_tilt_deg(f.run(d["gyr"], acc, None, d["dt_s"]), np.tile(q_true, (len(acc), 1))).max())
+    assert tilt[60.0] < 0.05
+    assert tilt[0.0] > 0.3
+
+
+def _attached_magnet(offset_uT: float, seed: int = 8, rate_amp_rad_s: float = 1.0) -> tuple[dict, np.ndarray, slice]:
+    """Rotating device; from 30 s to 70 s a magnet fixed to the body adds `offset_uT` in a fixed body direction."""
+    d = synthetic_imu(100.0, rate_hz=100.0, seed=seed, rate_amp_rad_s=rate_amp_rad_s)
+    mag = d["mag"].copy()
+    on = slice(3000, 7000)
+    mag[on] += offset_uT * np.array([0.6, -0.48, 0.64])
+    return d, mag, on
+
+
+def test_bearing_test_sees_a_small_attached_magnet():
+    """A small magnet on the body (4 µT: norm and dip change by less than the 10 % / 10° thresholds) turns the field's
+    bearing with the body. Norm and dip never flag it; the optional bearing test flags 46 % of the magnet's 40 s
+    (measured) and nothing before or after it."""
+    d, mag, on = _attached_magnet(4.0, rate_amp_rad_s=2.0)
+    h = quat.rotate(d["q_true"][on], mag[on])
+    norm = np.linalg.norm(h, axis=1)
+    dip = np.degrees(np.arcsin(-h[:, 2] / norm))
+    dip0 = np.degrees(np.arcsin(-FIELD_ENU_UT[2] / np.linalg.norm(FIELD_ENU_UT)))
+    assert np.abs(norm / np.linalg.norm(FIELD_ENU_UT) - 1).max() < 0.1 and np.abs(dip - dip0).max() < 10.0
+    assert np.degrees(np.ptp(np.arctan2(h[:, 0], h[:, 1]))) > 15.0  # the bearing swings
+    flagged = {}
+    for th in (4.0, 0.0):
+        f = DefaultFilter(DefaultSettings(mag_bearing_th_deg=th))
+        f.initialise(d["acc"][0], d["mag"][0])
+        dist = []
+        for i in range(0, len(mag), 10):
+            f.update_block(d["gyr"][i : i + 10], d["acc"][i : i + 10], mag[i : i + 10], d["dt_s"])
+            dist.append(f.mag_disturbed)
+        flagged[th] = np.array(dist)
+    assert flagged[4.0][300:700].mean() > 0.3
+    assert not flagged[4.0][50:300].any() and not flagged[4.0][750:].any()
+    assert not flagged[0.0].any()
+
+
+def test_heading_reacquired_quickly_after_rejection():
+    """After 30 s of rejected field the heading variance has grown, so the gain is larger (about 1 + 30 s / tau_mag
+    at first): a 10° heading error (as gyro drift would leave) is down to 1/e within 0.7 tau_mag of the field coming
+    back (measured 12.2 s with tau_mag 20 s); the fixed gain takes about tau_mag (measured 20.6 s)."""
+    q_true = quat.normalise(np.array([0.95, 0.05, -0.05, 0.3]))
+    d = static_imu(q_true, 70.0, rate_hz=100.0)
+    mag = d["mag"].copy()
+    mag[500:3500] *= 1.5  # rejected (norm +50 %) from 5 s to 35 s
+    t_1e = {}
+    for kf in (True, False):
+        f = DefaultFilter(DefaultSettings(mag_heading_kf=kf))
+        f.initialise(d["acc"][0], d["mag"][0])
+        f.run(d["gyr"][:1000], d["acc"][:1000], mag[:1000], d["dt_s"])
+        assert f.mag_disturbed
+        f.state[K.S_DELTA] += np.radians(10.0)  # heading error gathered while the field was rejected
+        q = f.run(d["gyr"][1000:], d["acc"][1000:], mag[1000:], d["dt_s"])
+        err = _heading_deg(q, np.tile(q_true, (len(q), 1)))
+        back = 2500  # 35 s
+        assert err[back - 1] == pytest.approx(10.0, abs=0.1)  # nothing corrected while rejected
+        t_1e[kf] = float(np.argmax(err[back:] < 10.0 / np.e) * d["dt_s"])
+    tau = DefaultSettings().tau_mag_s
+    assert t_1e[True] < 0.7 * tau
+    assert t_1e[False] > 0.9 * tau
+
+
+def test_magnetic_disturbance_leaves_gyro_bias_alone():
+    """The field never feeds the bias/scale filter, so a strong disturbance (an attached magnet) cannot drag the bias:
+    the estimates are identical with and without it, and they are the injected bias."""
+    d, mag, _ = _attached_magnet(30.0)
+    bias = np.radians([0.4, -0.3, 0.2])
+    out = []
+    for m in (d["mag"], mag):
+        f = DefaultFilter()
+        f.initialise(d["acc"][0], d["mag"][0])
+        f.run(d["gyr"] + bias, d["acc"], m, d["dt_s"])
+        out.append(f.state[K.S_BIAS : K.S_SCALE + 3].copy())
+    np.testing.assert_array_equal(out[0], out[1])
+    assert np.abs(np.degrees(out[0][:3]) - [0.4, -0.3, 0.2]).max() < 0.1  # and it is the injected bias
+
+
+# ---- BROAD, whole trials, against VQF: the per-trial guard ---------------------------------------------------
+# Every trial in the BROAD folder (RIG_BROAD_DIR or ../shared/data/broad), each its own test so a failing trial names
+# itself. The targets (issue 14): 9D total at most 1.1x VQF's on every trial and 0.9x on the mean; inclination not
+# behind VQF's (a tie within 0.01° passes: trials 14 and 15, both translation, are 0.005-0.007° behind); 6D mean
+# ahead. On the 15 development trials, defaults: worst 9D ratio 1.04 (trial 34), mean 0.75x; these are in-sample
+# figures, the cross-validated ones are in docs/fusion.md.
+
+BROAD_TRIALS = sorted(p.stem for p in BROAD_DIR.glob("*.mat")) or ["no-broad-data"]
+
+
+@lru_cache(maxsize=64)
+def _scores(folder: str, name: str, mode: broad.Mode) -> tuple[broad.Score, broad.Score]:
+    """(default filter, VQF defaults) on one whole trial."""
+    vqf = pytest.importorskip("vqf")
+    t = load_named(Path(folder), name)
+    ours = broad.score(broad.run_filter(DefaultFilter(use_mag=mode == "9D"), t, mode), t, mode)
+    out = vqf.VQF(t.dt_s).updateBatch(t.gyr_rad_s, t.acc_m_s2, t.mag_uT if mode == "9D" else None)
+    return ours, broad.score(out["quat9D" if mode == "9D" else "quat6D"], t, mode)
+
+
+@pytest.mark.parametrize("name", BROAD_TRIALS)
+def test_broad_trial_not_behind_vqf(broad_dir, name):
+    ours, ref = _scores(str(broad_dir), name, "9D")
+    assert ours.total_deg <= 1.1 * ref.total_deg, f"{name}: 9D total {ours.total_deg:.2f} vs VQF {ref.total_deg:.2f}"
+    assert ours.inclination_deg <= ref.inclination_deg + 0.01, (
+        f"{name}: inclination {ours.inclination_deg:.3f} vs VQF {ref.inclination_deg:.3f}")
+    ours6, ref6 = _scores(str(broad_dir), name, "6D")
+    assert ours6.total_deg <= 1.2 * ref6.total_deg, (
+        f"{name}: 6D total {ours6.total_deg:.2f} vs VQF {ref6.total_deg:.2f}")
+
+
+def test_broad_means_ahead_of_vqf(broad_dir):
+    names = sorted(p.stem for p in broad_dir.glob("*.mat"))
+    for mode, factor in (("9D", 0.9), ("6D", 1.0)):
+        pairs = [_scores(str(broad_dir), n, mode) for n in names]
+        ours = np.mean([o.total_deg for o, _ in pairs])
+        ref = np.mean([r.total_deg for _, r in pairs])
+        assert ours <= factor * ref, f"{mode}: mean total {ours:.3f} vs VQF {ref:.3f} (target {factor}x)"
+
+
+@given(st.floats(2.0, 60.0), st.sampled_from([0.002, 0.005, 0.01, 0.02]), st.floats(-170.0, 170.0))
+def test_heading_kalman_gain_equals_fixed_gain_while_field_is_used(tau_mag_s, dt_s, error_deg):
+    """The Kalman heading gain's random walk is chosen so that its steady-state gain is the fixed gain of `tau_mag_s`:
+    with the field never rejected the two filters agree to rounding, whatever the heading error they correct."""
+    q_true = quat.normalise(np.array([0.9, 0.2, -0.1, 0.35]))
+    d = static_imu(q_true, 200 * dt_s, rate_hz=1.0 / dt_s)
+    out = []
+    for kf in (True, False):
+        f = DefaultFilter(DefaultSettings(tau_mag_s=tau_mag_s, mag_heading_kf=kf, mag_rejection=False))
+        f.initialise(d["acc"][0], d["mag"][0])
+        f.state[K.S_DELTA] += np.radians(error_deg)
+        out.append(f.run(d["gyr"], d["acc"], d["mag"], d["dt_s"]))
+    np.testing.assert_allclose(out[0], out[1], atol=1e-12, rtol=0)
+    assert _heading_deg(out[0][-1], q_true) < abs(error_deg) + 1e-9  # and it did correct

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import scipy.io
 
-from gateway.fusion import broad, evaluate, registry
-from gateway.fusion.mahony import MahonyFilter
+from gateway.fusion import broad, evaluate, registry, tuning
+from gateway.fusion.mahony import MahonyFilter, MahonySettings
 from tests.fusion.conftest import trial_slice
 
 
@@ -79,3 +79,42 @@ def test_table_is_aligned_and_filters_by_glob(short_dir, capsys):
 def test_unknown_filter_and_empty_folder_fail_cleanly(tmp_path, capsys):
     assert evaluate.main([str(tmp_path)]) == 2
     assert evaluate.main([str(tmp_path), "--filter", "nope"]) == 2
+
+
+def test_cv_scores_each_trial_with_gains_chosen_on_the_others(short_dir, capsys, monkeypatch, tmp_path):
+    """--cv on two trials: each trial is scored with the candidate that is best on the *other* trial (checked by
+    running both candidates directly), and the in-sample row is the best mean over both."""
+    spec = tuning.TuningSpec("gateway.fusion.mahony:MahonyFilter", "gateway.fusion.mahony:MahonySettings",
+                             tuning.product(kp=(0.05, 1.0)))
+    monkeypatch.setattr(tuning, "SPECS", {"mahony": spec})
+    cache = tmp_path / "cv.json"
+    args = [str(short_dir), "--cv", "--mode", "9D", "--json", "--no-progress", "--cache", str(cache)]
+    assert evaluate.main(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    trials = [broad.load_trial(p) for p in broad.find_trials(short_dir)]
+    direct = np.array([[broad.score(broad.run_filter(MahonyFilter(MahonySettings(kp=kp)), t, "9D"), t, "9D").total_deg
+                        for t in trials] for kp in (0.05, 1.0)])  # (candidate, trial)
+    assert direct[0, 0] != pytest.approx(direct[1, 0], abs=1e-3)  # the candidates differ, so the choice matters
+    loo = out["loo"]["mahony"]["9D"]
+    for j, t in enumerate(trials):
+        chosen = int(np.argmin(direct[:, 1 - j]))  # best on the other trial
+        assert loo["trials"][t.name]["total"] == pytest.approx(direct[chosen, j], abs=1e-9)
+        assert out["choices"]["mahony"]["9D"]["per_fold"][j] == {"kp": (0.05, 1.0)[chosen]}
+    assert out["in_sample"]["mahony"]["9D"]["all"]["total"] == pytest.approx(direct.mean(axis=1).min(), abs=1e-9)
+    # the cache is used: a planted score comes back instead of a new run
+    data = json.loads(cache.read_text())
+    data = {k: [42.0, 42.0, 42.0] for k in data}
+    cache.write_text(json.dumps(data))
+    assert evaluate.main(args) == 0
+    assert json.loads(capsys.readouterr().out)["loo"]["mahony"]["9D"]["all"]["total"] == 42.0
+
+
+def test_cv_table_names_filters_and_rejects_untuned(short_dir, capsys, monkeypatch):
+    spec = tuning.TuningSpec("gateway.fusion.mahony:MahonyFilter", "gateway.fusion.mahony:MahonySettings",
+                             tuning.product(kp=(0.2,)))
+    monkeypatch.setattr(tuning, "SPECS", {"mahony": spec})
+    assert evaluate.main([str(short_dir), "--cv", "--mode", "6D", "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "leave-one-trial-out" in text and "in-sample" in text
+    assert any(ln.split()[:2] == ["mahony", "6D"] for ln in text.splitlines())
+    assert evaluate.main([str(short_dir), "--cv", "--filter", "hook", "--no-progress"]) == 2

@@ -202,3 +202,13 @@ def test_ball_thresholds_are_stored_under_ball(running: Callable[[], Running], s
     assert app.client.get("/api/thresholds/ball").json()["species"] == ["pike"]
     with Store(settings.db_path) as store:
         assert set(store.load_defaults()) == {"ball"}
+
+
+@pytest.mark.parametrize("name", ["kf-paper", "ekf-paper", "mahony-paper"])
+def test_paper_filter_variants_are_selectable_per_device(running: Callable[[], Running], name: str) -> None:
+    """The papers' filters as written are registry names, so REST accepts them as a device's filter."""
+    app = running()
+    r = app.client.put("/api/devices/rod-1/settings", json={"kind": "rod", "filter_name": name}, headers=app.auth)
+    assert r.status_code == 200, r.text
+    got = app.client.get("/api/devices/rod-1/settings").json()
+    assert got["effective"]["filter_name"] == name

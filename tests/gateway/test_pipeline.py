@@ -221,3 +221,53 @@ def test_warmup_bias_seed_can_be_turned_off() -> None:
     assert np.linalg.norm(gyr_mean) > 0.03  # the simulated gyro bias, rad/s
     np.testing.assert_allclose(bias[True], gyr_mean, atol=0.002)  # seeded, then barely moved in 0.5 s
     assert np.linalg.norm(bias[False]) < 0.1 * np.linalg.norm(gyr_mean)  # from zero
+
+
+def _hoist_packets(with_depth: bool) -> list[schemas.ImuPacket]:
+    """A level hook lifted 2 m in 4 s between 3 s rests (analytic acceleration), 10 samples per packet at 100 Hz;
+    with_depth: the packets carry depth = 5 m − height at their first sample."""
+    from tests.fusion.test_heave import hoist_profile
+
+    z, a = hoist_profile()
+    n = (z.shape[0] // 10) * 10
+    acc = np.zeros((n, 3))
+    acc[:, 2] = 9.81 + a[:n]
+    pkts = []
+    for k in range(n // 10):
+        s = slice(10 * k, 10 * k + 10)
+        extra = {"depth_m": float(5.0 - z[10 * k])} if with_depth else {}
+        pkts.append(schemas.ImuPacket(v=1, device_id="hook-7", kind="hook", boot_id=1, seq=k, t0_us=100_000 * k,
+                                      rate_hz=100.0, gyr_rad_s=[(0.0, 0.0, 0.0)] * 10,
+                                      acc_m_s2=[tuple(r) for r in acc[s]], **extra))  # fmt: skip
+    return pkts
+
+
+def test_height_is_published_per_device_at_10_hz_and_follows_a_hoist() -> None:
+    """Through the real pipeline (hook, default hook filter): a Height every 0.1 s of device time, at rest before and
+    after, ending at the 2 m lift within 5 cm; with a depth sensor the height is −depth (−3 m at the end) and says
+    it is depth-aided."""
+    for with_depth in (False, True):
+        pkts = _hoist_packets(with_depth)
+        p = Pipeline(PipelineSettings(attitude_interval_s=0.0))
+        hs = [h for i in range(len(pkts)) for h in p.process([pkts[i]], now_wall_s=1e9 + 0.1 * i).heights]
+        assert len(hs) == len(pkts)  # the 0.5 s warm-up packets are fused (and get heights) with the fifth
+        assert np.allclose(np.diff([h.t_us for h in hs]), 100_000)
+        want = -3.0 if with_depth else 2.0
+        assert abs(hs[-1].height_m - want) < 0.05, hs[-1]
+        assert hs[-1].at_rest and abs(hs[-1].vz_m_s) < 1e-9
+        assert hs[-1].aided == ("depth" if with_depth else "rest")
+        assert max(h.vz_m_s for h in hs) > 0.9  # the lift's 1 m/s peak
+        assert schemas.Height.model_validate_json(hs[-1].to_json()) == hs[-1]
+
+
+def test_spots_carry_the_position_of_their_ball_and_scores_are_0_to_1() -> None:
+    fix = schemas.GnssFix(lat_deg=30.2468, lon_deg=120.1473, fix_quality=1)
+    no_fix = schemas.GnssFix(lat_deg=0.0, lon_deg=0.0, fix_quality=0)
+    a = env("ball-1", "deep", 8.0).model_copy(update={"gnss": fix})
+    b = env("ball-2", "bay", 8.0).model_copy(update={"gnss": no_fix})
+    out = Pipeline().process([a, b, env("ball-3", "reeds", 8.0)], now_wall_s=1e9)
+    assert out.spots is not None
+    by = {s.spot: s for s in out.spots.spots}
+    assert (by["deep"].lat_deg, by["deep"].lon_deg) == (30.2468, 120.1473)
+    assert by["bay"].lat_deg is None and by["reeds"].lat_deg is None  # invalid fix, no receiver
+    assert all(0.0 <= s.score <= 1.0 for s in out.spots.spots) and by["deep"].score > 0.5

@@ -116,6 +116,7 @@ def test_watchdog_stops_the_reel_when_attitude_stops_and_auto_resumes_on_fresh_d
             last_data_s, n_before = rec.attitude_s[-1], len(rec.cmds)
             await _until(lambda: any(c.action == "stop" for _, c in rec.cmds[n_before:]), 2.0)
             stop_s = next(t for t, c in rec.cmds[n_before:] if c.action == "stop")
+            assert await asyncio.to_thread(svc.writer.flush)  # the event log is written by the store writer thread
             events = [e for e in store.events() if e["kind"] == "reel_data_lost"]
             assert len(events) == 1 and events[0]["device_id"] == ROD, events
             puts = _reel_puts(bus)
@@ -125,6 +126,7 @@ def test_watchdog_stops_the_reel_when_attitude_stops_and_auto_resumes_on_fresh_d
             n_stop = len(rec.cmds)
             await _feed(bus, rec, again, live=True)
             assert any(c.action == "speed" for _, c in rec.cmds[n_stop:]), rec.cmds[n_stop:]
+            assert await asyncio.to_thread(svc.writer.flush)  # the event log is written by the store writer thread
             assert len([e for e in store.events() if e["kind"] == "reel_data_lost"]) == 1, "logged once per loss"
             return last_data_s, stop_s
         finally:
@@ -151,6 +153,7 @@ def test_rod_going_offline_in_auto_stops_the_reel_at_once(tmp_path: Path) -> Non
             bus.set_alive(token, False)
             await _until(lambda: any(c.action == "stop" for _, c in rec.cmds[n:]), 1.0)
             stop_s = next(t for t, c in rec.cmds[n:] if c.action == "stop")
+            assert await asyncio.to_thread(svc.writer.flush)  # the event log is written by the store writer thread
             kinds = [e["kind"] for e in store.events() if e["device_id"] == ROD]
             assert "reel_offline" in kinds and "offline" in kinds, kinds
             assert _reel_puts(bus)[n][1] is True  # BLOCK

@@ -8,9 +8,11 @@ from typing import Annotated, Any
 from fastapi import APIRouter, HTTPException, Query
 
 from gateway.alarm.engine import Alarm, AlarmStatus, Severity
-from gateway.api.deps import ServiceDep, WriterDep
+from gateway.api.deps import AlarmIdPath, DeviceIdQuery, ServiceDep, WriterDep
 
 router = APIRouter(prefix="/alarms", tags=["alarms"])
+READ_WAIT_S = 1.0  # longest wait for pending alarm writes before a read (the store may be failing)
+MAX_OFFSET = 2**53  # SQLite integers stop at 2**63 - 1: a larger OFFSET was a 500
 
 
 def alarm_json(a: Alarm) -> dict[str, Any]:
@@ -26,24 +28,26 @@ def alarm_json(a: Alarm) -> dict[str, Any]:
 @router.get("")
 def list_alarms(
     service: ServiceDep,
-    device_id: str | None = None,
-    type: str | None = None,
+    device_id: DeviceIdQuery = None,
+    type: Annotated[str | None, Query(max_length=64)] = None,
     status: AlarmStatus | None = None,
     severity: Severity | None = None,
     acknowledged: bool | None = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
 ) -> dict[str, Any]:
     """Alarms newest first; `total` counts every match, `items` is one page."""
+    service.writer.flush(READ_WAIT_S)  # read what ingest has handed the writer so far (unless the store is failing)
     rows, total = service.store.list_alarms(device_id, type, status, severity, acknowledged, limit=limit, offset=offset)
     return {"total": total, "limit": limit, "offset": offset, "items": [alarm_json(a) for a in rows],
             "counts": service.store.counts(device_id)}  # fmt: skip
 
 
 @router.post("/{alarm_id}/ack")
-def ack_alarm(alarm_id: str, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
+def ack_alarm(alarm_id: AlarmIdPath, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
     """Acknowledge an alarm (it stays active until its condition clears)."""
     now = time.time()
+    service.writer.flush(READ_WAIT_S)  # a pending upsert of this alarm must not overwrite the acknowledgement
     service.pipeline.engine.acknowledge(alarm_id, who, now)
     alarm = service.store.acknowledge(alarm_id, who, now)
     if alarm is None:

@@ -12,7 +12,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Body, HTTPException
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from gateway.api.deps import ServiceDep, WriterDep
+from gateway.api.deps import DeviceIdPath, ServiceDep, WriterDep
 from gateway.config import THRESHOLD_MODELS, CalibrationJson, DeviceSettings
 
 router = APIRouter(tags=["config"])
@@ -68,7 +68,7 @@ def _kind_of(service: ServiceDep, device_id: str, given: str | None) -> str:
 
 
 @router.get("/devices/{device_id}/settings")
-def get_settings(device_id: str, service: ServiceDep) -> dict[str, Any]:
+def get_settings(device_id: DeviceIdPath, service: ServiceDep) -> dict[str, Any]:
     """Stored settings of a device and the thresholds in effect."""
     kind = service.pipeline.kinds.get(device_id)
     if kind is None:
@@ -83,7 +83,7 @@ def get_settings(device_id: str, service: ServiceDep) -> dict[str, Any]:
 
 
 @router.put("/devices/{device_id}/settings")
-def put_settings(device_id: str, body: DeviceSettingsIn, service: ServiceDep, _: WriterDep) -> dict[str, Any]:
+def put_settings(device_id: DeviceIdPath, body: DeviceSettingsIn, service: ServiceDep, _: WriterDep) -> dict[str, Any]:
     """Replace a device's settings (validated against its kind's defaults), applied live and stored."""
     kind = _kind_of(service, device_id, body.kind)
     auto = service.pipeline.auto_reel.get(device_id, False) if body.auto_reel is None else body.auto_reel
@@ -98,7 +98,7 @@ def put_settings(device_id: str, body: DeviceSettingsIn, service: ServiceDep, _:
 
 
 @router.delete("/devices/{device_id}/settings")
-def delete_settings(device_id: str, service: ServiceDep, _: WriterDep) -> dict[str, Any]:
+def delete_settings(device_id: DeviceIdPath, service: ServiceDep, _: WriterDep) -> dict[str, Any]:
     """Forget a device's filter and threshold overrides: it follows its kind's defaults again (auto reel and the IMU
     calibration, properties of the hardware, stay)."""
     kind = _kind_of(service, device_id, None)

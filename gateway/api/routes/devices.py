@@ -7,7 +7,7 @@ from typing import Any
 
 from fastapi import APIRouter, HTTPException
 
-from gateway.api.deps import ServiceDep
+from gateway.api.deps import DeviceIdPath, ServiceDep
 from gateway.ingest.runner import GatewayService
 
 router = APIRouter(prefix="/devices", tags=["devices"])
@@ -37,6 +37,8 @@ def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dic
         }  # fmt: skip
         if dev.swing is not None:
             out["swing"] = dev.swing.model_dump()
+        if dev.height is not None:
+            out["height"] = dev.height.model_dump()
         if kind == "rod":
             out["auto_reel"] = pl.auto_reel.get(device_id, False)
     if device_id in pl.env:
@@ -60,7 +62,7 @@ def list_devices(service: ServiceDep) -> list[dict[str, Any]]:
 
 
 @router.get("/{device_id}")
-def get_device(device_id: str, service: ServiceDep) -> dict[str, Any]:
+def get_device(device_id: DeviceIdPath, service: ServiceDep) -> dict[str, Any]:
     """Live state of one device, with stream counters and the gyro bias estimate."""
     if device_id not in service.pipeline.kinds:
         raise HTTPException(404, f"unknown device {device_id!r}")

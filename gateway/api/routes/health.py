@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 
 from gateway.api.deps import ServiceDep
 
@@ -13,11 +13,23 @@ router = APIRouter(tags=["health"])
 
 
 @router.get("/health")
-def health(service: ServiceDep) -> dict[str, Any]:
-    """Liveness: uptime, devices online, zenoh mode and endpoints."""
+def health(service: ServiceDep, request: Request) -> dict[str, Any]:
+    """Liveness: `ok`, or `degraded` with `reasons` (e.g. store writes failing: alarms are still published and their
+    rows wait in the writer's journal); `ready` is false while the gateway warms up (fusion kernels loading, ingest
+    not started yet); uptime, devices online, zenoh mode and endpoints, the store writer's state."""
     s = service.settings
+    store = service.writer.status()
+    reasons = [store["reason"]] if store["reason"] else []
+    status = "degraded" if reasons else "ok"
+    if service.warming_since_s is not None:  # packets are queued, not yet processed
+        reasons.append(f"preparing fusion kernels for {time.time() - service.warming_since_s:.0f} s "
+                       "(the first start after install compiles them)")  # fmt: skip
+        status = "starting"
     return {
-        "status": "ok",
+        "status": status,
+        "reasons": reasons,
+        "ready": bool(getattr(request.app.state, "ready", False)),
+        "store": {k: v for k, v in store.items() if k != "reason"},
         "uptime_s": round(time.time() - service.started_s, 3),
         "devices_online": sum(p.online for p in service.presence.devices.values()),
         "zenoh": {"mode": s.zenoh_mode, "listen": s.zenoh_listen, "connect": s.zenoh_connect},
@@ -31,6 +43,7 @@ def stats(service: ServiceDep) -> dict[str, Any]:
     if service.inbox is not None:
         snap["queue_drops"] = service.inbox.drops
         snap["queue_depth"] = len(service.inbox)
+        snap["offered"] = service.inbox.offered
     snap["batches"] = service.batches
     delays = sorted(service.batch_delay_s)
     if delays:  # arrival of a batch's oldest packet -> its results handed to zenoh, last 2000 batches
@@ -39,4 +52,5 @@ def stats(service: ServiceDep) -> dict[str, Any]:
             "max": 1e3 * delays[-1], "n": len(delays),
         }  # fmt: skip
     snap["published"] = service.hub.published
+    snap["invalid_tokens"] = service.presence.invalid_tokens  # liveliness tokens with a bad key (ignored)
     return snap

@@ -8,7 +8,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, HTTPException
 from pydantic import BaseModel, ConfigDict, Field
 
-from gateway.api.deps import ServiceDep, WriterDep
+from gateway.api.deps import DeviceIdPath, ServiceDep, WriterDep
 
 router = APIRouter(prefix="/rods", tags=["reel"])
 
@@ -24,7 +24,7 @@ class ReelRequest(BaseModel):
 
 
 @router.post("/{device_id}/reel")
-def reel(device_id: str, body: ReelRequest, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
+def reel(device_id: DeviceIdPath, body: ReelRequest, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
     """Send a ReelCommand to `rig/rod/{id}/reel/cmd` (CongestionControl.BLOCK), or switch auto mode on."""
     if service.pipeline.kinds.get(device_id) not in (None, "rod"):
         raise HTTPException(422, [f"device {device_id!r} is not a rod"])

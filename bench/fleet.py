@@ -1,0 +1,376 @@
+"""Fleet load: N rods and hooks at 100 Hz through real zenoh into the real gateway, and what it costs.
+
+    python -m bench.fleet                              # N = 100, 300, 1000 (80 % rods, 20 % hooks), 30 s each
+    python -m bench.fleet --counts 100 --duration 600  # one 10-minute soak (RSS over time)
+    python -m bench.fleet --counts 50 --duration 10 --procs 1   # quick look
+
+For each N it starts `python -m gateway` (zenoh peer on a free loopback port, REST on another), a cheap load
+generator and an observer, each its own process, then prints one row:
+
+- sent / processed / lost: IMU packets the generators put, the gateway's `received` counter and the sum of
+  per-device `ok`, queue drops (packets the gateway's inbox had to drop);
+- gateway CPU per packet (ms): user + system CPU of the gateway and all its child processes over the measured
+  window, divided by the packets processed in it (all-in: decode, fusion, rules, outputs, REST);
+- latency p50/p99 (ms): observer receipt time minus the device wall time of the packet's last sample, over every
+  `gw/*/*/attitude` message; alarms the same over `gw/*/*/alarm`;
+- attitudes received vs expected (one per packet end at the default attitude interval);
+- gateway RSS (MiB) at the start and end of the window and its maximum;
+- the generators' own CPU (share of one core).
+
+The generator does not simulate physics while it runs: it replays pre-built streams (a pool of simulated rods and
+hooks, `--pool` of each, built once with the real simulators and sensor model), patching only `seq`, `t0_us` and
+`wall_t0_us` into the JSON text, so it costs a few microseconds per packet and the gateway is what is measured.
+Devices are spread evenly over each packet period (no synchronised bursts). A pooled stream loops every
+`--pool-seconds`; the loop joint is a small jump in the signals, not a gap in time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import pickle
+import re
+import tempfile
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from bench.bite_latency import free_port, observer_config, start_gateway, stop_gateway, wait_http
+
+RATE_HZ = 100.0
+HEADER_KEYS = ("v", "device_id", "kind", "boot_id", "seq", "t0_us", "wall_t0_us")
+WALL_RE = re.compile(rb'"wall_t_us":\s*(\d+)')
+
+
+# -- the pool of pre-built streams ----------------------------------------------------------------------------
+
+def build_pool(kind: str, count: int, seconds: float, spp: int, seed: int) -> list[list[str]]:
+    """`count` simulated streams of `kind`, `seconds` long: per stream, the JSON body of each packet without its
+    header fields (what the generator patches in), in packet order."""
+    from devices.common import FleetSettings
+
+    fleet_settings = FleetSettings(count=count, seed=seed, samples_per_packet=spp, truth=False,
+                                   id_prefix=f"pool-{kind}", progress=False)  # fmt: skip
+    if kind == "rod":
+        from devices.sim_rod import RodFleet
+
+        fleet: Any = RodFleet(fleet_settings)
+    else:
+        from devices.hook_physics import HookPhysicsSettings, HookScenario
+        from devices.sim_hook import HookFleet
+
+        scenario = HookScenario(duration_s=seconds + 1.0, initial_swing_rad=0.05)
+        fleet = HookFleet(fleet_settings, HookPhysicsSettings(), scenario)
+    packets = max(1, round(seconds * RATE_HZ / spp))
+    bodies: list[list[str]] = [[] for _ in range(count)]
+    for k in range(packets):
+        data, _ = fleet.tick(k)
+        for i, msgs in enumerate(data):
+            d = json.loads(msgs[0].payload)
+            body = {key: v for key, v in d.items() if key not in HEADER_KEYS}
+            bodies[i].append(json.dumps(body, separators=(",", ":"))[1:-1])
+    return bodies
+
+
+@dataclass(frozen=True)
+class GenJob:
+    """One generator process: its devices (kind, id, pool stream index) and when to run."""
+
+    port: int
+    devices: tuple[tuple[str, str, int], ...]
+    pool_path: str
+    spp: int
+    start_wall_s: float
+    duration_s: float
+    result_path: str
+
+
+def generator(job: GenJob) -> None:
+    """Publish every device's packets at 100 Hz / spp, spread over the period; write (sent, cpu_s) to result_path."""
+    with open(job.pool_path, "rb") as f:
+        pools: dict[str, list[list[str]]] = pickle.load(f)
+    period_s = job.spp / RATE_HZ
+    n = len(job.devices)
+    conf = observer_config(job.port)
+    sent = 0
+    with zenoh.open(conf) as session:
+        pubs, tokens, heads = [], [], []
+        for j, (kind, dev, _) in enumerate(job.devices):
+            pubs.append(session.declare_publisher(
+                f"rig/{kind}/{dev}/imu", encoding="application/json;schema=rig.imu.v1",
+                congestion_control=zenoh.CongestionControl.BLOCK,
+            ))  # fmt: skip
+            tokens.append(session.liveliness().declare_token(f"rig/{kind}/{dev}"))
+            heads.append(f'{{"v":1,"device_id":"{dev}","kind":"{kind}","boot_id":{1000 + j},')
+        deadline = time.time() + 60.0  # the gateway's subscription must reach this session before the first put
+        while not all(p.matching_status.matching for p in pubs) and time.time() < deadline:
+            time.sleep(0.05)
+        time.sleep(max(2.0, job.start_wall_s - time.time()))  # peers' gossip links settle after the first match
+        cpu0 = time.process_time()
+        t_start = time.time()
+        k = 0
+        while True:
+            tick_wall = t_start + k * period_s
+            if tick_wall - t_start >= job.duration_s:
+                break
+            for j, (kind, _, stream) in enumerate(job.devices):
+                slot_wall = tick_wall + period_s * j / n
+                delay = slot_wall - time.time()
+                if delay > 0.0005:
+                    time.sleep(delay)
+                body = pools[kind][stream]
+                t0_us = k * round(period_s * 1e6)
+                wall_last_us = int(slot_wall * 1e6)
+                wall_t0_us = wall_last_us - round((job.spp - 1) * 1e6 / RATE_HZ)
+                payload = f'{heads[j]}"seq":{k},"t0_us":{t0_us},"wall_t0_us":{wall_t0_us},{body[k % len(body)]}}}'
+                pubs[j].put(payload)
+                sent += 1
+            k += 1
+        cpu = time.process_time() - cpu0
+        wall_s = time.time() - t_start
+        time.sleep(1.0)  # closing the session at once drops what is still in its transmit queue
+        for p in pubs:
+            p.undeclare()
+        for t in tokens:
+            t.undeclare()
+    Path(job.result_path).write_text(json.dumps({"sent": sent, "cpu_s": cpu, "wall_s": wall_s}))
+
+
+# -- observer and process accounting ---------------------------------------------------------------------------
+
+@dataclass
+class Observer:
+    """Receipt-time latencies of attitude and alarm messages (a cheap regex, not a JSON parse)."""
+
+    attitude_ms: list[float] = field(default_factory=list)
+    alarm_ms: list[float] = field(default_factory=list)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    measuring: bool = False
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        t_us = time.time() * 1e6
+        if not self.measuring:
+            return
+        key = str(sample.key_expr)
+        m = WALL_RE.search(sample.payload.to_bytes())
+        if m is None:
+            return
+        lat = (t_us - int(m.group(1))) / 1e3
+        with self.lock:
+            (self.alarm_ms if key.endswith("/alarm") else self.attitude_ms).append(lat)
+
+
+def process_tree(pid: int) -> list[int]:
+    """pid and all its descendants (from /proc)."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            continue
+        children.setdefault(ppid, []).append(int(entry))
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        todo += children.get(p, [])
+    return out
+
+
+def tree_cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process tree (live processes only)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0.0
+    for p in process_tree(pid):
+        try:
+            with open(f"/proc/{p}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / tick
+        except (OSError, IndexError, ValueError):
+            pass
+    return total
+
+
+def tree_rss_mib(pid: int) -> float:
+    """Resident memory of a process tree, MiB."""
+    total = 0
+    for p in process_tree(pid):
+        try:
+            with open(f"/proc/{p}/status") as f:
+                for line in f:
+                    if line.startswith("VmRSS:"):
+                        total += int(line.split()[1])
+        except OSError:
+            pass
+    return total / 1024.0
+
+
+def stats(http_port: int) -> dict[str, Any]:
+    import httpx
+
+    try:
+        got: dict[str, Any] = httpx.get(f"http://127.0.0.1:{http_port}/api/stats", timeout=30.0).json()
+        return got
+    except httpx.HTTPError:
+        return {}
+
+
+def processed(s: dict[str, Any]) -> int:
+    return int(sum(d.get("ok", 0) for d in s.get("devices", [])))
+
+
+def pct(xs: Sequence[float], q: float) -> float:
+    if not xs:
+        return float("nan")
+    ys = sorted(xs)
+    return ys[min(len(ys) - 1, int(q * len(ys)))]
+
+
+# -- one fleet size ----------------------------------------------------------------------------------------------
+
+@dataclass
+class Row:
+    n: int
+    sent: int
+    received: int
+    processed: int
+    queue_drops: int
+    cpu_ms_per_packet: float
+    attitude_p50_ms: float
+    attitude_p99_ms: float
+    attitudes: int
+    attitudes_expected: int
+    alarms: int
+    alarm_p99_ms: float
+    rss_start_mib: float
+    rss_end_mib: float
+    rss_max_mib: float
+    generator_core_share: float
+    devices_seen: int
+
+
+def run_one(n: int, hook_share: float, pools: dict[str, list[list[str]]], pool_path: Path, spp: int, procs: int,
+            duration_s: float, warmup_s: float, work: Path) -> Row:
+    """Start a gateway, run n devices for warmup + duration seconds, measure the last `duration_s`."""
+    zport, hport = free_port(), free_port()
+    n_hook = round(n * hook_share)
+    devices = [("hook", f"fleet-hook-{i + 1:04d}", i % len(pools["hook"])) for i in range(n_hook)]
+    devices += [("rod", f"fleet-rod-{i + 1:04d}", i % len(pools["rod"])) for i in range(n - n_hook)]
+    gw = start_gateway(work / f"gw-{n}", zport, hport, work / f"gw-{n}.log")
+    try:
+        wait_http(hport, timeout_s=600.0)
+        obs = Observer()
+        with zenoh.open(observer_config(zport)) as session:
+            session.declare_subscriber("gw/*/*/attitude", obs.on_sample)
+            session.declare_subscriber("gw/*/*/alarm", obs.on_sample)
+            imu_seen = [0]
+            session.declare_subscriber("rig/*/*/imu", lambda _s: imu_seen.__setitem__(0, imu_seen[0] + 1))
+            time.sleep(1.0)
+            start = time.time() + 3.0  # generators connect and declare first
+            ctx = mp.get_context("spawn")  # zenoh sessions do not survive fork
+            jobs = [GenJob(zport, tuple(devices[g::procs]), str(pool_path), spp, start, warmup_s + duration_s,
+                           str(work / f"gen-{n}-{g}.json")) for g in range(procs)]  # fmt: skip
+            gens = [ctx.Process(target=generator, args=(job,)) for job in jobs]
+            for g in gens:
+                g.start()
+            time.sleep(max(0.0, start + warmup_s - time.time()))
+            s0, cpu0 = stats(hport), tree_cpu_s(gw.pid)
+            obs.measuring = True
+            rss: list[float] = []
+            while time.time() < start + warmup_s + duration_s:
+                rss.append(tree_rss_mib(gw.pid))
+                time.sleep(1.0)
+            cpu1 = tree_cpu_s(gw.pid)
+            obs.measuring = False
+            for g in gens:
+                g.join(timeout=60)
+            time.sleep(5.0)  # let the gateway drain its queue before the final count
+            s1 = stats(hport)
+    finally:
+        stop_gateway(gw)
+    gen = [json.loads(Path(j.result_path).read_text()) for j in jobs if Path(j.result_path).exists()]
+    sent = sum(g["sent"] for g in gen)
+    lost_seq = sum(d.get("lost", 0) for d in s1.get("devices", []))
+    if sent != int(s1.get("received", 0)) or s1.get("rejected") or lost_seq:  # where were packets lost?
+        print(f"  loss: observer got {imu_seen[0]} of {sent} imu packets from zenoh, the gateway's callbacks "
+              f"{s1.get('offered')}, its ingest {s1.get('received')}; rejected {s1.get('rejected')}, "
+              f"sequence gaps {lost_seq}")
+    # packets in the measured window: what the gateway processed between the two stats calls
+    done = processed(s1) - processed(s0)
+    cpu_ms = 1e3 * (cpu1 - cpu0) / max(1, done)
+    expected_att = int(n * duration_s * RATE_HZ / spp)
+    gen_share = sum(g["cpu_s"] for g in gen) / max(1e-9, max((g["wall_s"] for g in gen), default=1.0))
+    return Row(
+        n=n, sent=sent, received=int(s1.get("received", 0)), processed=processed(s1),
+        queue_drops=int(s1.get("queue_drops", 0)), cpu_ms_per_packet=cpu_ms,
+        attitude_p50_ms=pct(obs.attitude_ms, 0.5), attitude_p99_ms=pct(obs.attitude_ms, 0.99),
+        attitudes=len(obs.attitude_ms), attitudes_expected=expected_att, alarms=len(obs.alarm_ms),
+        alarm_p99_ms=pct(obs.alarm_ms, 0.99), rss_start_mib=rss[0] if rss else float("nan"),
+        rss_end_mib=rss[-1] if rss else float("nan"), rss_max_mib=max(rss) if rss else float("nan"),
+        generator_core_share=gen_share, devices_seen=len(s1.get("devices", [])),
+    )  # fmt: skip
+
+
+def print_table(rows: Sequence[Row]) -> None:
+    print(f"{'N':>5} {'sent':>8} {'received':>8} {'processed':>9} {'lost':>7} {'q.drop':>6} {'CPU ms/pkt':>10} "
+          f"{'att p50':>8} {'att p99':>8} {'att rx/exp':>13} {'alarms':>6} {'RSS MiB start/end/max':>22} "
+          f"{'gen core':>8}")
+    for r in rows:
+        lost = r.sent - r.processed
+        print(f"{r.n:>5} {r.sent:>8} {r.received:>8} {r.processed:>9} {lost:>7} {r.queue_drops:>6} "
+              f"{r.cpu_ms_per_packet:>10.3f} {r.attitude_p50_ms:>8.1f} {r.attitude_p99_ms:>8.1f} "
+              f"{r.attitudes:>6}/{r.attitudes_expected:<6} "
+              f"{r.alarms:>6} {r.rss_start_mib:>7.0f}/{r.rss_end_mib:>6.0f}/{r.rss_max_mib:>6.0f} "
+              f"{r.generator_core_share:>8.2f}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m bench.fleet", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--counts", type=int, nargs="+", default=[100, 300, 1000], help="fleet sizes (default 100 300 1000)")
+    p.add_argument("--hook-share", type=float, default=0.2, help="share of hooks in the fleet (default 0.2)")
+    p.add_argument("--duration", type=float, default=30.0, help="measured seconds per fleet size (default 30)")
+    p.add_argument("--warmup", type=float, default=8.0, help="seconds before measuring (filter warm-up; default 8)")
+    p.add_argument("--samples-per-packet", type=int, default=5, help="samples per packet (default 5, as sim_rod)")
+    p.add_argument("--procs", type=int, default=2, help="generator processes (default 2)")
+    p.add_argument("--pool", type=int, default=16, help="distinct simulated streams per kind (default 16)")
+    p.add_argument("--pool-seconds", type=float, default=20.0, help="length of each pooled stream (default 20 s)")
+    p.add_argument("--json", type=Path, help="also write the rows as JSON to this file")
+    args = p.parse_args(argv)
+    spp = args.samples_per_packet
+    print(f"building the stream pool: {args.pool} rods + {args.pool} hooks x {args.pool_seconds:g} s ...", flush=True)
+    pools = {kind: build_pool(kind, args.pool, args.pool_seconds, spp, seed=7) for kind in ("rod", "hook")}
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="rig-fleet-") as tmp:
+        work = Path(tmp)
+        pool_path = work / "pool.pickle"
+        pool_path.write_bytes(pickle.dumps(pools))
+        for n in args.counts:
+            print(f"N = {n}: {args.warmup:g} s warm-up + {args.duration:g} s measured ...", flush=True)
+            rows.append(run_one(n, args.hook_share, pools, pool_path, spp, args.procs, args.duration, args.warmup,
+                                work))  # fmt: skip
+            print_table(rows[-1:])
+            logs = (work / f"gw-{n}.log").read_text(errors="replace").strip().splitlines()
+            errors = [x for x in logs if "ERROR" in x or "Traceback" in x]
+            if errors:
+                print(f"  gateway log: {len(errors)} error lines, first: {errors[0][:160]}")
+    print(f"\nfleet at {RATE_HZ:g} Hz, {spp} samples/packet, {args.hook_share:.0%} hooks, {args.procs} generator "
+          f"process(es), {os.cpu_count()} cores; gateway = `python -m gateway` (all its processes)")
+    print_table(rows)
+    if args.json:
+        args.json.write_text(json.dumps([r.__dict__ for r in rows], indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

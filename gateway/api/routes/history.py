@@ -1,0 +1,224 @@
+"""Per-device history for the dashboard's plots: bounded and decimated, so a reload shows the last hour, not the
+last few seconds.
+
+Samples are folded into buckets of `bucket_s` (0.5 s): angles and readings keep the bucket mean, except the
+swing direction (an angle that wraps at ±180°: its last value, a mean across the wrap would be wrong) and peaks
+such as |a| and line tension (the bucket maximum, so a short spike stays visible). Each device keeps at most
+`keep_s / bucket_s` buckets (7200 for an hour), about 0.5 MB per device with every field.
+
+Owner: the event loop. Attitude and swing arrive through the hub listener (ingest task); reel tension and water
+readings are sampled from the pipeline once per `poll_s` by a task on the same loop; the routes are `async def`,
+so they read on that loop too and never see a half-written bucket.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import contextlib
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, HTTPException, Query, Request
+
+from gateway import schemas
+from gateway.ingest.runner import GatewayService
+
+router = APIRouter(prefix="/history", tags=["history"])
+Agg = Literal["mean", "max", "last"]
+FIELDS: dict[str, Agg] = {
+    "roll_deg": "mean", "pitch_deg": "mean", "yaw_deg": "mean",  # yaw is unwrapped: a mean is fine
+    "swing_deg": "max", "direction_deg": "last", "torsion_deg": "mean",
+    "tension_n": "max", "line_out_m": "last",
+    "water_temp_c": "mean", "air_temp_c": "mean", "oxygen_mg_l": "mean",
+}  # fmt: skip
+"""Every field a history can hold (units in the names) and how a bucket aggregates it."""
+
+
+@dataclass(frozen=True)
+class HistorySettings:
+    """`bucket_s`: decimation step; `keep_s`: history length per device; `poll_s`: reel/env sampling period."""
+
+    bucket_s: float = 0.5
+    keep_s: float = 3600.0
+    poll_s: float = 1.0
+
+
+@dataclass
+class _Bucket:
+    t0_s: float
+    t_s: float = 0.0
+    n: dict[str, int] = field(default_factory=dict)
+    value: dict[str, float] = field(default_factory=dict)
+
+    def add(self, t_s: float, vals: dict[str, float]) -> None:
+        self.t_s = max(self.t_s, t_s)
+        for k, v in vals.items():
+            if not math.isfinite(v):
+                continue
+            n = self.n.get(k, 0)
+            agg = FIELDS.get(k, "mean")
+            if n == 0 or agg == "last":
+                self.value[k] = v
+            elif agg == "max":
+                self.value[k] = max(self.value[k], v)
+            else:
+                self.value[k] += (v - self.value[k]) / (n + 1)
+            self.n[k] = n + 1
+
+
+class DeviceHistory:
+    """Closed buckets (bounded deque) plus the open one."""
+
+    def __init__(self, bucket_s: float, maxlen: int) -> None:
+        self.bucket_s = bucket_s
+        self.rows: collections.deque[tuple[float, dict[str, float]]] = collections.deque(maxlen=maxlen)
+        self._open: _Bucket | None = None
+
+    def add(self, t_s: float, **vals: float) -> None:
+        b = self._open
+        if b is not None and t_s < b.t0_s:  # late sample of a closed bucket: dropped (histories are monotonic)
+            return
+        if b is None or t_s >= b.t0_s + self.bucket_s:
+            if b is not None and b.value:
+                self.rows.append((round(b.t_s, 3), {k: round(v, 4) for k, v in b.value.items()}))
+            b = self._open = _Bucket(t0_s=math.floor(t_s / self.bucket_s) * self.bucket_s)
+        b.add(t_s, vals)
+
+    def columns(self, since_s: float, max_points: int) -> dict[str, list[float | None]]:
+        """Columnar `{"t_s": [...], field: [...]}` from `since_s`, at most `max_points` rows (every k-th bucket
+        when there are more; fields a bucket lacks are null)."""
+        rows = [r for r in self.rows if r[0] >= since_s]
+        if self._open is not None and self._open.value and self._open.t_s >= since_s:
+            rows.append((round(self._open.t_s, 3), dict(self._open.value)))
+        if len(rows) > max_points:
+            step = math.ceil(len(rows) / max_points)
+            rows = rows[len(rows) - 1 - step * ((len(rows) - 1) // step) :: step]  # keep the newest row
+        keys = sorted({k for _, vals in rows for k in vals})
+        out: dict[str, list[float | None]] = {"t_s": [t for t, _ in rows]}
+        for k in keys:
+            out[k] = [vals.get(k) for _, vals in rows]
+        return out
+
+
+class History:
+    """Histories of every device, fed by the hub and a poll of the pipeline (see the module docstring)."""
+
+    def __init__(self, service: GatewayService, settings: HistorySettings | None = None) -> None:
+        self.service = service
+        self.settings = settings or HistorySettings()
+        self.devices: dict[str, DeviceHistory] = {}
+        self._task: asyncio.Task[None] | None = None
+        self._seen: dict[tuple[str, str], tuple[Any, Any]] = {}
+
+    def device(self, device_id: str) -> DeviceHistory:
+        h = self.devices.get(device_id)
+        if h is None:
+            s = self.settings
+            h = self.devices[device_id] = DeviceHistory(s.bucket_s, int(s.keep_s / s.bucket_s))
+        return h
+
+    def on_hub(self, topic: str, model: schemas.WireModel) -> None:
+        """Hub listener (ingest task): fold attitude and swing in."""
+        if isinstance(model, schemas.Attitude):
+            t = (model.wall_t_us or time.time() * 1e6) / 1e6
+            self.device(model.device_id).add(
+                t, roll_deg=math.degrees(model.roll_rad), pitch_deg=math.degrees(model.pitch_rad),
+                yaw_deg=math.degrees(model.yaw_unwrapped_rad),
+            )  # fmt: skip
+        elif isinstance(model, schemas.Swing):
+            t = (model.wall_t_us or time.time() * 1e6) / 1e6
+            self.device(model.device_id).add(
+                t, swing_deg=math.degrees(model.swing_angle_rad), direction_deg=math.degrees(model.swing_direction_rad),
+                torsion_deg=math.degrees(model.torsion_rad),
+            )  # fmt: skip
+
+    def poll(self, now_s: float) -> None:
+        """Sample reel tension and environment readings from the pipeline (event loop); only packets that are new
+        since the last poll, so an offline device's last values are not repeated into its history."""
+        pl = self.service.pipeline
+        latest: list[tuple[str, schemas.WireModel, tuple[str, ...]]] = [
+            (d, st, ("tension_n", "line_out_m")) for d, (st, _) in pl.reel.items()
+        ]
+        latest += [(d, env, ("water_temp_c", "air_temp_c", "oxygen_mg_l")) for d, env in pl.env.items()]
+        for device_id, packet, names in latest:
+            key = (device_id, type(packet).__name__)
+            mark = (getattr(packet, "boot_id", None), getattr(packet, "seq", None))
+            if self._seen.get(key) == mark:
+                continue
+            self._seen[key] = mark
+            vals = {k: float(v) for k in names if isinstance(v := getattr(packet, k, None), float | int)}
+            if vals:
+                self.device(device_id).add(now_s, **vals)
+
+    async def run(self) -> None:
+        while True:
+            await asyncio.sleep(self.settings.poll_s)
+            try:
+                self.poll(time.time())
+            except Exception:  # a half-registered device must not end the history
+                continue
+
+    def start(self) -> None:
+        self.service.hub.listeners.append(self.on_hub)
+        self._task = asyncio.get_running_loop().create_task(self.run())
+
+    async def stop(self) -> None:
+        if self.on_hub in self.service.hub.listeners:
+            self.service.hub.listeners.remove(self.on_hub)
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+
+
+def start_history(app: Any, service: GatewayService) -> History:
+    """Lifespan hook (on the event loop, after the service started)."""
+    h = History(service)
+    h.start()
+    app.state.history = h
+    return h
+
+
+async def stop_history(app: Any) -> None:
+    h: History | None = getattr(app.state, "history", None)
+    if h is not None:
+        await h.stop()
+
+
+def _history(request: Request) -> History:
+    h: History | None = getattr(request.app.state, "history", None)
+    if h is None:
+        raise HTTPException(503, "history not started yet (gateway warming up)")
+    return h
+
+
+Seconds = Annotated[float, Query(gt=0.0, le=86400.0, description="how far back, s")]
+MaxPoints = Annotated[int, Query(ge=2, le=20000, description="at most this many rows (decimated by stride)")]
+
+
+@router.get("")
+async def all_history(request: Request, seconds: Seconds = 300.0, max_points: MaxPoints = 60) -> dict[str, Any]:
+    """Every device's history (small `max_points` by default: the fleet overview's sparklines)."""
+    h = _history(request)
+    since = time.time() - seconds
+    return {"bucket_s": h.settings.bucket_s,
+            "devices": {d: hist.columns(since, max_points) for d, hist in sorted(h.devices.items())}}  # fmt: skip
+
+
+@router.get("/{device_id}")
+async def device_history(
+    device_id: str, request: Request, seconds: Seconds = 600.0, max_points: MaxPoints = 4000
+) -> dict[str, Any]:
+    """One device's history: wall time `t_s` (s since 1970) and one column per field, units in the names."""
+    h = _history(request)
+    hist = h.devices.get(device_id)
+    if hist is None:
+        if device_id not in request.app.state.service.pipeline.kinds:
+            raise HTTPException(404, f"unknown device {device_id!r}")
+        return {"device_id": device_id, "bucket_s": h.settings.bucket_s, "series": {"t_s": []}}
+    return {"device_id": device_id, "bucket_s": h.settings.bucket_s,
+            "series": hist.columns(time.time() - seconds, max_points)}  # fmt: skip
