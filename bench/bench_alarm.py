@@ -1,4 +1,5 @@
-"""Alarm-layer figures: per-block cost of the rod rules, and bite detection on the simulated rod.
+"""Alarm-layer figures: per-block cost of the rod rules, and bite detection on the physics rod (true pitch + noise).
+For the bite alarm on the rod scenario suite (fusion included, untuned seeds) see `python -m bench.bite_suite`.
 
     python -m bench.bench_alarm --help
     python -m bench.bench_alarm                         # cost on 1000 rods, detection on 50 rods x 10 min
@@ -10,7 +11,8 @@ microseconds per block and the share of one core that 1000 rods at 100 Hz would 
 Detection: `devices.rod_physics.RodBank` rods get bites (depth 12-30 deg, 0.5-3 s) every 40-80 s, with wind,
 waves and handling (roll/yaw turns) in between. The detector sees the true tip pitch plus 0.2 deg noise and the
 tip's earth-frame vertical acceleration (gravity removed) plus 0.1 m/s^2 noise, in blocks. A bite alarm within
-1.5 s after a bite starts is a hit (latency = alarm sample time - bite start); any other bite alarm is false.
+1.5 s after a bite starts is a hit (latency = alarm sample time - bite start, not the theta1 crossing); any other
+bite alarm is false.
 Latency excludes transport and block buffering: add up to (block - 1) / rate for a block-buffering device.
 """
 
@@ -118,7 +120,7 @@ def main() -> None:
     ap.add_argument("--rods", type=int, default=50, help="simulated rods in the detection benchmark")
     ap.add_argument("--minutes", type=float, default=10.0, help="simulated minutes per rod")
     ap.add_argument("--block", type=int, default=10, help="samples per block (100 Hz)")
-    ap.add_argument("--seed", type=int, default=5, help="seeds 1-2 were used to tune the cue; 5 is held out")
+    ap.add_argument("--seed", type=int, default=5, help="physics seed (nothing is tuned on this bench)")
     ap.add_argument("--sensitivity", type=int, default=3, choices=range(1, 6), help="bite sensitivity step")
     ap.add_argument("--skip-cost", action="store_true")
     ap.add_argument("--skip-detection", action="store_true")

@@ -328,6 +328,14 @@ def main_suite(first_seed: int, n_rods: int, minutes: float, offline: bool) -> i
     if d:
         print(f"gateway batch delay (packet arrival -> results to zenoh): p50 {d['p50']:.2f} ms, "
               f"p99 {d['p99']:.2f} ms, max {d['max']:.2f} ms over {d['n']} batches")
+    devs = {c["device_id"]: c for c in rec.gateway_stats.get("devices", [])}
+    gaps = {k: (c["lost"], c["reordered"], c["duplicates"]) for k, c in devs.items() if any(
+        (c["lost"], c["reordered"], c["duplicates"]))}  # fmt: skip
+    print(f"gateway ingest: {sum(c['ok'] for c in devs.values())} rod packets in order, queue drops "
+          f"{rec.gateway_stats.get('queue_drops', '?')}; (lost, reordered, duplicate) packets by rod: {gaps or 'none'}")
+    rod_log = [ln for ln in rod.stderr.decode(errors="replace").splitlines() if "ticks" in ln and "sent" in ln]
+    if rod_log:
+        print("rod process:", rod_log[-1].removeprefix("INFO "))
     print(f"{'':34s} {'bites':7s} {'runs':7s} {'latency from true θ1 ms (device time)':38s} false bite alarms, "
           "drop-backs, false")
     print(f"{'':34s} {'':7s} {'':7s} {'p50':>5s} {'p99':>5s} {'max':>5s}")

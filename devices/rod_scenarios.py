@@ -16,14 +16,17 @@ Events (kinds and ranges from issue 10; "down" = tip pulled below rest, in degre
 - handling: picked up and turned, yaw 10-60°, roll 5-40°, pitch within 2.5°, over 1-3 s;
 - drop_back: the line goes slack, tip up 8-20° (rise 0.3-1.5 s) for 2-8 s, then re-tensioned over 0.5-2 s.
 
-Tip model: the pull (a command in degrees) drives a second-order tip mode (2-3 Hz, damping 0.2-0.35, per rod),
-integrated at 1 kHz; ringing and overshoot come from that mode, both on the pull and on the release. Jolts
-(taps, knocks) are high-frequency damped sines added to pitch and yaw with their exact derivatives, so the tip's
-specific force and rates follow from the kinematics (`rod_physics.tip_kinematics`, 0.8 m lever) like every other
-motion. Each 100 Hz sample is the mean of 10 such 1 kHz values (a stand-in for the sensor's low-pass), then goes
-through `devices.common.SensorModel` with the MPU-6050 error model at ±2 g (AFS_SEL=0: knocks, taps and fast
-bites clip) and ±500 °/s (FS_SEL=1, as the simulators; the fastest turn in the suite is ~250 °/s). Between events
-the rod is quiet (6-14 s) but for a slow ±0.1-0.3° wave ripple; the first 8 s are quiet (gateway warm-up).
+Tip model: a pull (bites, runs, nibbles, drop-backs; a command in degrees) drives a second-order tip mode (2-3 Hz,
+damping 0.2-0.35, per rod; Tustin-discretised at 1 kHz), so ringing and overshoot come from that mode, on the pull
+and on the release. Wind and handling move the angles directly. Jolts (taps, knocks) are smooth bursts (a
+sin^2-windowed sine of 15-40 Hz) added to pitch and yaw, scaled so the tip's tangential acceleration peaks at the
+drawn value (gravity comes on top). Rates and accelerations are central differences at 1 kHz, and the tip's
+specific force and body rates follow from the kinematics (`rod_physics.tip_kinematics`, 0.8 m lever). Each
+100 Hz sample is the mean of 10 such 1 kHz values (a stand-in for the sensor's low-pass), then goes through
+`devices.common.SensorModel` with the MPU-6050 datasheet errors of `ImuErrorModel()` (20 mg accelerometer offset,
+1 °/s gyro bias, noise, scale, misalignment, 5 µT hard iron) at ±2 g (AFS_SEL=0: knocks, taps and fast bites
+clip) and ±500 °/s (FS_SEL=1, as the simulators; the fastest turn in the suite is ~250 °/s). Between events the
+rod is quiet (6-14 s) but for a slow ±0.1-0.3° wave ripple; the first 8 s are quiet (gateway warm-up).
 """
 
 from __future__ import annotations

@@ -224,6 +224,14 @@ def test_block_size_does_not_change_detections(block, rng):
     assert got == ref and len(ref) == 3
 
 
+def taps(n: int, rng: np.random.Generator) -> np.ndarray:
+    """Vertical tip acceleration (m/s^2): 0.1 noise with 3-sample downward taps of 1-6 g, about 2 per second."""
+    acc = 0.1 * rng.standard_normal(n)
+    for i in np.flatnonzero(rng.random(n) < 0.02):
+        acc[i : i + 3] -= rng.uniform(10.0, 60.0)
+    return acc
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     sensitivity=st.integers(1, 5),
@@ -236,7 +244,8 @@ def test_block_size_does_not_change_detections(block, rng):
 def test_property_pitch_within_09_theta1_of_baseline_never_bites(sensitivity, seed, n, block, shape, with_acc):
     """Every sample stays within a band 0.9 * theta1 wide; the baseline is an average of past samples, so it lies
     in the same band and |pitch - baseline| < 0.9 theta1 always: no bite, whatever the shape, block or cue input.
-    The acceleration (when given) stays under the cue threshold."""
+    The acceleration (when given) has sharp downward taps of 1-6 g (30 ms) on a quiet floor, the shape that made
+    the old cue fire at 0.2 theta1: the cue can never lower theta1 (issue 10)."""
     th = RodThresholds(sensitivity=sensitivity)
     band = 0.9 * th.effective_bite_deg
     rng = np.random.default_rng(seed)
@@ -249,10 +258,7 @@ def test_property_pitch_within_09_theta1_of_baseline_never_bites(sensitivity, se
     else:
         u = (np.sin(2 * np.pi * rng.uniform(0.1, 5.0) * t) > 0).astype(float)
     pitch = REST_DEG + band * (0.999 * u - 0.5)
-    from gateway.config import SENSITIVITY_STEPS
-
-    cue_acc = SENSITIVITY_STEPS[sensitivity][3]
-    acc = rng.uniform(-0.99 * cue_acc, 5.0, t.size) if with_acc else None
+    acc = taps(t.size, rng) if with_acc else None
     run = run_rod(t, pitch, acc, th=th, block=block)
     assert run.of("bite") == []
     assert math.isfinite(run.baselines[-1])
@@ -318,3 +324,22 @@ def test_block_spanning_warm_up_end_learns_from_its_head_only():
         rest = REST_DEG - 20.0 / 200  # the mean of the first 200 samples
         np.testing.assert_allclose(dev[200:210], np.degrees(pitch[200:210]) - rest, atol=1e-9)  # first frame after
         assert 0.0 < dev[210] < dev[200]  # then the baseline follows the quiet rod (the 0.1 s frames move it)
+
+
+@settings(max_examples=60, deadline=None)
+@given(sensitivity=st.integers(1, 5), seed=st.integers(0, 2**32 - 1), block=st.integers(1, 64))
+def test_property_every_bite_alarm_measured_at_least_theta1_and_says_so(sensitivity, seed, block):
+    """Random pulls of 0-20 deg with arbitrary accelerometer input: each bite alarm's sample is >= theta1 below
+    the rest it was judged from, and its message states that deviation and theta1 in degrees."""
+    th = RodThresholds(sensitivity=sensitivity)
+    rng = np.random.default_rng(seed)
+    t = times(60.0)
+    rel = np.zeros_like(t)
+    for t0 in np.arange(4.0, 55.0, 8.0):
+        rel -= pulse(t, t0, rng.uniform(0.05, 0.8), rng.uniform(0.0, 2.0), rng.uniform(0.0, 20.0))
+    acc = taps(t.size, rng) + rng.uniform(-20.0, 20.0, t.size) * (rng.random() < 0.5)
+    run = run_rod(t, noisy(t, rel, 0.3, rng), acc, th=th, block=block)
+    theta1 = th.effective_bite_deg
+    for c in [c for c in run.conditions if c.type == "bite" and c.severity is not None]:
+        assert c.value <= -theta1 + 1e-9 and c.threshold == pytest.approx(-theta1)
+        assert c.message.startswith(f"bite: pitch {-c.value:.1f}° below rest ≥ θ1 {theta1:.1f}°")
