@@ -6,8 +6,8 @@
 
 Every run: devices.hook_physics (l = 10 m by default) through devices.common.SensorModel (MPU-6050/HMC5883L
 errors: ~1 °/s gyro bias, 1 % scale, 20 mg accelerometer bias...), hook hanging still for the first 2 s (the
-filters initialise from the first 0.5 s; the hook filter also takes its mean gyro as the starting bias when
-the gyro std is below 0.01 rad/s, as gateway.pipeline does), then the scenario. Every estimate goes through the same
+filters initialise from the first 0.5 s, the hook filter through `HookFilter.start` as gateway.pipeline does),
+then the scenario. Every estimate goes through the same
 gateway.fusion.hook functions. Figures, over the scored window (from `--settle` s after the excitation ends):
 
 - swing RMSE / max: |Θ_est - Θ_true| in degrees;
@@ -73,11 +73,9 @@ def estimate(name: str, gyr, acc, mag, rope_length_m: float) -> np.ndarray | Non
         out = offlineVQF(np.ascontiguousarray(gyr), np.ascontiguousarray(acc),
                          None if mag is None else np.ascontiguousarray(mag), 1.0 / RATE_HZ)
         return np.asarray(out["quat6D" if mag is None else "quat9D"])
-    if name == "hook":
-        f = HookFilter(HookFilterSettings(rope_length_m=rope_length_m), use_mag=mag is not None)
-        f.initialise(acc[rest].mean(axis=0), None if mag is None else mag[rest].mean(axis=0))
-        if np.all(gyr[rest].std(axis=0) < 0.01):  # as gateway.pipeline does after a warm-up at rest
-            f.seed_gyro_bias(gyr[rest].mean(axis=0))
+    if name == "hook":  # started as gateway.pipeline starts it (HookFilter.start on the warm-up window)
+        f = HookFilter(HookFilterSettings(rope_length_m=rope_length_m, rope_length_known=True), use_mag=mag is not None)
+        f.start(gyr[rest], acc[rest], None if mag is None else mag[rest], 1.0 / RATE_HZ)
         return np.asarray(f.run(gyr, acc, mag, 1.0 / RATE_HZ))
     else:
         from gateway.fusion.registry import make_filter

@@ -3,6 +3,7 @@
     python -m bench.hook_suite --help
     python -m bench.hook_suite --seeds 101-110              # held-out seeds (never used for tuning), 9D
     python -m bench.hook_suite --seeds 1-6 --duration 120   # the tuning seeds
+    python -m bench.hook_suite --paper-ekf                  # also paper 001's EKF as published
 
 Each seed draws a crane (issue 11): rope 2-30 m (log-uniform), hook + load 0.5-20 t, torsion stiffness and
 inertia (twist period 4-20 s), the IMU 0.1 ± 0.02 m off the rope axis (the filter assumes 0.1 m and learns the
@@ -13,7 +14,7 @@ direction, then let go), trolley traverses (2-15 m at 0.2-0.5 m/s²), slewing mo
 (steady 0-60 N, gusts 10-40 % of it + 0-10 N std) and torque gusts about the rope (initial twist up to ±90°).
 Sensor errors: `devices.common.ImuErrorModel` preset (default `calibrated`, what the simulators publish).
 
-Both filters start as the gateway starts them (`HookFilter.start` on the first 0.5 s, VQF offline on the same
+The filters start as the gateway starts them (`HookFilter.start` on the first 0.5 s, VQF offline on the same
 samples); the hook filter is told the rope length at t = 0 (as a user sets it over REST) unless `--no-length`
 (then it starts from its default prior). Figures per seed, over the whole run after the 0.5 s warm-up and by
 phase (`free`: no event active; `pull`: a tag-line pull and the 5 s after it; `move`: trolley, slewing or
@@ -159,6 +160,16 @@ def hook_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rope
     return np.asarray(q), np.asarray(length)
 
 
+def paper_ekf_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None) -> np.ndarray:
+    """Paper 001's quaternion EKF as published (`gateway.fusion.ekf`, `paper=True`): accelerometer as gravity."""
+    from gateway.fusion.ekf import EkfSettings, QuaternionEkf
+
+    f = QuaternionEkf(EkfSettings(paper=True), use_mag=mag is not None)
+    n = int(WARMUP_S * RATE_HZ)
+    f.initialise(acc[:n].mean(axis=0), None if mag is None else mag[:n].mean(axis=0))
+    return np.asarray(f.run(gyr, acc, mag, 1.0 / RATE_HZ))
+
+
 def vqf_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None) -> np.ndarray:
     from vqf import offlineVQF
 
@@ -189,7 +200,7 @@ def score(q: np.ndarray, truth: HookTruth, keep: np.ndarray, absolute: bool) -> 
     }  # fmt: skip
 
 
-def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length: bool
+def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length: bool, paper_ekf: bool = False
              ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed."""
     case = make_case(seed, duration_s)
@@ -201,7 +212,10 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
     phase = case.phase(truth.t_s)
     out: dict[str, dict[str, dict[str, float]]] = {}
     q_hook, length = hook_estimate(gyr, acc, mag, case.physics.rope_length_m if tell_length else None)
-    for name, q in (("hook", q_hook), ("vqf", vqf_estimate(gyr, acc, mag))):
+    others = [("vqf", vqf_estimate(gyr, acc, mag))]
+    if paper_ekf:
+        others.append(("ekf001", paper_ekf_estimate(gyr, acc, mag)))
+    for name, q in [("hook", q_hook), *others]:
         out[name] = {"all": score(q, truth, scored, use_mag)}
         for k, ph in enumerate(PHASES):
             out[name][ph] = score(q, truth, scored & (phase == k), use_mag)
@@ -229,17 +243,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--6d", dest="six_d", action="store_true", help="no magnetometer")
     p.add_argument("--no-length", action="store_true", help="do not tell the filter the rope length")
     p.add_argument("--phases", action="store_true", help="also print each seed's figures by phase")
+    p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
     print(f"hook suite, {'6D' if args.six_d else '9D'}, IMU {args.imu}, {args.duration:g} s per seed, rope length "
           f"{'not told' if args.no_length else 'told at t = 0'}; degrees; whole run after {WARMUP_S:g} s")
     print(f"{'seed':>4} {'crane':<44}{'':>6}{'Θ RMSE':>8}{'Θ max':>7}{'dir':>7}{'tors':>7}{'rope m':>8}")
-    rows: dict[str, list[dict[str, dict[str, float]]]] = {"hook": [], "vqf": []}
+    names = ["hook", "vqf"] + (["ekf001"] if args.paper_ekf else [])
+    rows: dict[str, list[dict[str, dict[str, float]]]] = {n: [] for n in names}
     t0 = time.perf_counter()
     for seed in seeds:
         case = make_case(seed, args.duration)
-        r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length)
-        for name in ("hook", "vqf"):
+        r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf)
+        for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]
             rope = f"{a['rope_rms_m']:8.2f}" if "rope_rms_m" in a else ""
@@ -253,7 +269,7 @@ def main(argv: list[str] | None = None) -> int:
                         print(f"{'':>4} {'':<44}{ph:>6}{f['swing_rmse']:8.3f}{f['swing_max']:7.2f}"
                               f"{f['dir_rmse']:7.2f}{f['torsion_rmse']:7.2f}")
     print(f"summary over {len(seeds)} seeds (mean of RMSEs, worst max; phases pooled by seed)")
-    for name in ("hook", "vqf"):
+    for name in names:
         for ph in ("all", *PHASES):
             vals = [r[ph] for r in rows[name] if r.get(ph)]
             if not vals:
@@ -261,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
             m = {k: float(np.nanmean([v[k] for v in vals])) for k in ("swing_rmse", "dir_rmse", "torsion_rmse")}
             worst = max(v["swing_max"] for v in vals)
             worst_rmse = max(v["swing_rmse"] for v in vals)
-            print(f"  {name:<5}{ph:<5} Θ RMSE {m['swing_rmse']:.3f} (worst seed {worst_rmse:.3f})  Θ max {worst:.2f}  "
+            print(f"  {name:<7}{ph:<5} Θ RMSE {m['swing_rmse']:.3f} (worst seed {worst_rmse:.3f})  Θ max {worst:.2f}  "
                   f"dir {m['dir_rmse']:.2f}  torsion {m['torsion_rmse']:.2f}")
     pairs = zip(rows["hook"], rows["vqf"], strict=True)
     beaten = sum(h["all"]["swing_rmse"] < v["all"]["swing_rmse"] for h, v in pairs)

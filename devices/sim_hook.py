@@ -10,6 +10,7 @@ Examples:
     python -m devices.sim_hook                                        # one hook swinging 5°, twisting in gusts
     python -m devices.sim_hook --swing-deg 0 --trolley 5,4,90         # at rest, then a 4 m trolley move north
     python -m devices.sim_hook --count 3 --auto-trolley-s 40 --wind 0.2 --duration 120
+    python -m devices.sim_hook --load-kg 2000 --pull 10,3,200,45 --hoist 20,10,0.5 --slew 40,20,60
 """
 
 from __future__ import annotations
@@ -24,10 +25,13 @@ import numpy as np
 from devices import common
 from devices.common import FleetSettings, ImuErrorModel, Message, SensorModel
 from devices.hook_physics import (
+    Hoist,
     HookPhysicsSettings,
     HookScenario,
     HookStream,
     HookTruth,
+    Pull,
+    SlewMove,
     TrolleyMove,
     trolley_traverse,
 )
@@ -121,6 +125,25 @@ def parse_trolley(text: str) -> tuple[TrolleyMove, ...]:
     return trolley_traverse(t_s, dist_m, math.radians(bearing_deg))
 
 
+def parse_pull(text: str) -> Pull:
+    """`T,DUR,FORCE_N,BEARING_DEG`: a tag line pulls the load with FORCE_N towards BEARING_DEG (CCW from East)."""
+    t_s, dur_s, force_n, bearing_deg = (float(x) for x in text.split(","))
+    b = math.radians(bearing_deg)
+    return Pull(t_s, dur_s, (force_n * math.cos(b), force_n * math.sin(b)))
+
+
+def parse_hoist(text: str) -> Hoist:
+    """`T,DUR,SPEED_M_S`: pay rope out (> 0, lowering) or in (< 0, hoisting) for DUR s, 1 s ramps."""
+    t_s, dur_s, speed = (float(x) for x in text.split(","))
+    return Hoist(t_s, dur_s, speed)
+
+
+def parse_slew(text: str) -> SlewMove:
+    """`T,DUR,ANGLE_DEG[,RADIUS_M]`: turn the jib by ANGLE_DEG (CCW from above) in DUR s, the tip RADIUS_M (30) out."""
+    parts = [float(x) for x in text.split(",")]
+    return SlewMove(parts[0], parts[1], math.radians(parts[2]), parts[3] if len(parts) > 3 else 30.0)
+
+
 def auto_trolley(period_s: float, horizon_s: float, rng: np.random.Generator) -> tuple[TrolleyMove, ...]:
     """A traverse of 1-6 m in a random direction every `period_s` up to `horizon_s`."""
     moves: list[TrolleyMove] = []
@@ -146,6 +169,12 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--twist-deg", type=float, default=0.0, help="initial torsion about the rope, degrees")
     g.add_argument("--trolley", action="append", default=[], metavar="T,DIST,BEARING_DEG",
                    help="trolley traverse at T s over DIST m towards BEARING_DEG (repeatable)")
+    g.add_argument("--pull", action="append", default=[], metavar="T,DUR,FORCE_N,BEARING_DEG",
+                   help="tag-line pull on the load (repeatable; force per unit mass uses --load-kg, default 500 kg)")
+    g.add_argument("--hoist", action="append", default=[], metavar="T,DUR,SPEED_M_S",
+                   help="rope paid out (> 0) or in (< 0) at SPEED for DUR s from T (repeatable)")
+    g.add_argument("--slew", action="append", default=[], metavar="T,DUR,ANGLE_DEG[,RADIUS_M]",
+                   help="slew the jib by ANGLE_DEG in DUR s from T (repeatable)")
     g.add_argument("--auto-trolley-s", type=float, default=0.0, help="random traverse every this many s (0: off)")
     g.add_argument("--wind", type=float, default=0.05, help="gust force per unit mass, std, m/s² (default: 0.05)")
     g.add_argument("--wind-tau", type=float, default=2.0, help="gust correlation time, s")
@@ -155,7 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--damping", type=float, default=0.002, help="swing air damping, 1/s")
     g.add_argument("--lever-arm", type=float, nargs=3, default=(0.1, 0.0, 0.0), metavar=("X", "Y", "Z"),
                    help="IMU position from the rope axis, body frame, m")
-    g.add_argument("--load-kg", type=float, default=None, help="load on the hook, reported in the truth")
+    g.add_argument("--load-kg", type=float, default=None, help="hook + load mass, kg (default 500; also in the truth)")
     g.add_argument("--no-mag", action="store_true", help="no magnetometer (6-axis IMU)")
     return p
 
@@ -165,6 +194,7 @@ def make_fleet(args: argparse.Namespace, fleet: FleetSettings) -> HookFleet:
     physics = HookPhysicsSettings(
         rope_length_m=args.rope_length, gravity_m_s2=common.G_M_S2, earth_field_uT=common.EARTH_FIELD_ENU_UT,
         swing_damping_1_s=args.damping, lever_arm_m=tuple(args.lever_arm),
+        **({} if args.load_kg is None else {"hook_mass_kg": args.load_kg}),
     )  # fmt: skip
     moves: tuple[TrolleyMove, ...] = tuple(m for t in args.trolley for m in parse_trolley(t))
     if args.auto_trolley_s > 0:
@@ -175,6 +205,8 @@ def make_fleet(args: argparse.Namespace, fleet: FleetSettings) -> HookFleet:
         initial_swing_bearing_rad=math.radians(args.swing_bearing_deg), hold_s=args.hold,
         initial_torsion_rad=math.radians(args.twist_deg), trolley_moves=moves, wind_mean_m_s2=tuple(args.wind_mean),
         wind_std_m_s2=args.wind, wind_tau_s=args.wind_tau, wind_torque_std_n_m=args.twist_torque,
+        pulls=tuple(parse_pull(t) for t in args.pull), hoists=tuple(parse_hoist(t) for t in args.hoist),
+        slews=tuple(parse_slew(t) for t in args.slew),
     )  # fmt: skip
     return HookFleet(fleet, physics, scenario, with_mag=not args.no_mag, load_kg=args.load_kg,
                      error_model=ImuErrorModel.preset(args.imu))

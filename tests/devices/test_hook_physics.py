@@ -147,3 +147,51 @@ def test_held_hook_reads_gravity_then_swings_after_release():
     assert truth.swing_rad[-1] < theta0 - math.radians(1.0)
     # After release the accelerometer reads tension along the rope again.
     np.testing.assert_allclose(truth.acc_m_s2[~held, :2], 0.0, atol=1e-9)
+
+
+def test_steady_pull_tilts_the_hook_to_force_over_weight_and_the_imu_reads_it_across_the_rope():
+    """A 200 N pull on 1000 kg held for 40 s (ramped over 5 s, damped swing): the rope settles at atan(F / (m g))
+    from the vertical, displaced along the pull, and the accelerometer's x/y read the pull per unit mass."""
+    from devices.hook_physics import Pull
+
+    settings = HookPhysicsSettings(rope_length_m=5.0, hook_mass_kg=1000.0, swing_damping_1_s=0.5,
+                                   lever_arm_m=(0.0, 0.0, 0.0), internal_rate_hz=500.0)  # fmt: skip
+    truth = simulate(settings, HookScenario(duration_s=40.0, pulls=(Pull(0.0, 60.0, (0.0, 200.0), ramp_s=5.0),)))
+    end = truth.t_s > 35.0
+    expected = math.atan2(200.0, 1000.0 * settings.gravity_m_s2)
+    np.testing.assert_allclose(truth.swing_rad[end], expected, atol=1e-4)
+    np.testing.assert_allclose(truth.swing_bearing_rad[end], math.pi / 2, atol=1e-3)
+    np.testing.assert_allclose(np.hypot(truth.acc_m_s2[end, 0], truth.acc_m_s2[end, 1]),
+                               0.2 * math.cos(expected), atol=2e-3)  # fmt: skip
+
+
+def test_hoisting_follows_the_profile_and_lowering_damps_the_swing():
+    """Lowering 5 -> 15 m at 0.5 m/s: the rope length follows the trapezoid exactly, tension at rest = g - l'', and
+    the swing amplitude falls as the adiabatic invariant of a lengthening pendulum predicts (θ ∝ l^-3/4, 10 %)."""
+    from devices.hook_physics import Hoist, rope_length
+
+    settings = HookPhysicsSettings(rope_length_m=5.0, lever_arm_m=(0.0, 0.0, 0.0), internal_rate_hz=500.0)
+    hoist = Hoist(5.0, 22.0, 0.5, ramp_s=2.0)  # trapezoid area (22 - 2) s × 0.5 m/s = 10 m
+    l_ref, _, l_acc = rope_length(5.0, (hoist,), np.array([4.0, 27.0, 40.0]))
+    assert l_ref[0] == pytest.approx(5.0) and l_ref[1] == pytest.approx(15.0) and l_acc[2] == 0.0
+    still = simulate(settings, HookScenario(duration_s=8.0, hoists=(hoist,)))
+    ramp = (still.t_s > 5.2) & (still.t_s < 6.8)
+    np.testing.assert_allclose(still.tension_per_mass_m_s2[ramp], settings.gravity_m_s2 - 0.25, atol=1e-9)
+    swing = simulate(settings, HookScenario(duration_s=60.0, initial_swing_rad=math.radians(4.0), hoists=(hoist,)))
+    np.testing.assert_allclose(swing.extra["rope_length_m"][-1], 15.0, atol=1e-9)
+    before = swing.swing_rad[swing.t_s < 5.0].max()
+    after = swing.swing_rad[swing.t_s > 40.0].max()
+    assert after / before == pytest.approx((15.0 / 5.0) ** -0.75, rel=0.1)
+
+
+def test_slewing_turns_the_boom_tip_by_the_angle_and_ends_at_rest():
+    """A 60° slew at 30 m: the tip travels the chord between the two ends of the arc and stops."""
+    from devices.hook_physics import SlewMove
+
+    settings = HookPhysicsSettings(rope_length_m=5.0, internal_rate_hz=500.0)
+    move = SlewMove(1.0, 20.0, math.radians(60.0), 30.0, 0.0, ramp_s=5.0)
+    truth = simulate(settings, HookScenario(duration_s=25.0, slews=(move,)))
+    end = truth.suspension_pos_m[-1, :2]
+    np.testing.assert_allclose(end, [30.0 * (math.cos(math.radians(60.0)) - 1.0), 30.0 * math.sin(math.radians(60.0))],
+                               atol=0.02)  # fmt: skip
+    np.testing.assert_allclose(truth.suspension_vel_m_s[-1, :2], 0.0, atol=1e-3)

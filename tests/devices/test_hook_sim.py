@@ -53,3 +53,16 @@ def test_fleet_packets_decode_and_truth_matches_the_attitude():
 def test_main_runs_briefly_without_a_gateway():
     """The whole CLI path with a real zenoh session (no peers): it starts, publishes and stops on --duration."""
     assert sim_hook.main(["--duration", "0.3", "--connect", "none", "--no-progress", "--seed", "1"]) == 0
+
+
+def test_cli_pulls_hoists_and_slews_reach_the_physics():
+    args = sim_hook.build_parser().parse_args(["--load-kg", "2000", "--pull", "10,3,200,90", "--hoist", "20,10,-0.5",
+                                               "--slew", "40,20,60,25", "--no-progress", "--seed", "1"])  # fmt: skip
+    fleet = sim_hook.make_fleet(args, FleetSettings.from_args(args))
+    sc, physics = fleet.streams[0].scenario, fleet.streams[0].settings
+    assert physics.hook_mass_kg == 2000.0
+    (pull,) = sc.pulls
+    assert pull.start_s == 10.0 and pull.duration_s == 3.0
+    np.testing.assert_allclose(pull.force_n, (0.0, 200.0), atol=1e-9)
+    assert sc.hoists[0].speed_m_s == -0.5
+    assert sc.slews[0].angle_rad == math.radians(60.0) and sc.slews[0].radius_m == 25.0

@@ -133,3 +133,24 @@ def test_agrees_with_the_physics_truth():
     moving = truth.swing_rad > 1e-3
     assert np.all(angle_diff(hook.displacement_bearing(truth.quat), truth.swing_bearing_rad)[moving] < 1e-9)
     np.testing.assert_allclose(hook.torsion(truth.quat, settings.rest_heading_rad), truth.torsion_rad, atol=ATOL)
+
+
+def test_the_worked_example_of_protocol_section_3_5():
+    """docs/protocol.md 3.5's worked example and the `swing` example payload: the quaternion gives the published
+    Θ, displacement bearing, Φ (eq. 7), torsion and θx/θy to the printed digits, and the other half period flips Φ."""
+    from gateway.schemas import examples
+
+    swing = examples()["swing"][1]
+    q = np.array([0.94292, 0.03305, -0.02827, 0.33016])
+    psi = swing.rest_heading_rad
+    assert float(hook.swing_angle(q)) == pytest.approx(swing.swing_angle_rad, abs=1e-4)
+    assert float(hook.displacement_bearing(q)) == pytest.approx(swing.swing_direction_rad, abs=1e-4)
+    assert float(hook.swing_direction_paper(q, psi)) == pytest.approx(swing.swing_phi_rad, abs=1e-4)
+    assert float(hook.torsion(q, psi)) == pytest.approx(swing.torsion_rad, abs=1e-4)
+    tx, ty = hook.swing_components(q, psi)
+    assert (math.degrees(float(tx)), math.degrees(float(ty))) == pytest.approx((3.89, 3.12), abs=0.005)
+    other = hook.hook_attitude(swing.swing_angle_rad, swing.swing_direction_rad + math.pi, psi + swing.torsion_rad)
+    phi = float(hook.swing_direction_paper(other, psi))
+    assert phi == pytest.approx(-swing.swing_phi_rad, abs=1e-9)
+    assert math.remainder(psi + math.pi - phi - float(hook.displacement_bearing(other)), 2 * math.pi) == pytest.approx(
+        0.0, abs=1e-9)
