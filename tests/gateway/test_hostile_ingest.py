@@ -109,6 +109,19 @@ def test_a_spoofed_seq_jump_in_the_same_boot_does_not_silence_the_device(tmp_pat
         assert [a["state"] for a in alarms(bus, "rod-1", "device_conflict")] == ["raised"]
 
 
+def test_a_new_boot_id_on_every_spoofed_packet_is_reported(tmp_path: Path) -> None:
+    """Several spoofed boots between two real packets never let the boot left behind deliver 2 packets in a row;
+    boots flapping are reported as device_conflict all the same."""
+    real = fleet_imu(3.0)
+    mixed = list(real[:20])
+    for i, m in enumerate(real[20:40]):
+        mixed += [edit(real[0], boot_id=1000 + 2 * i, seq=5), edit(real[0], boot_id=1001 + 2 * i, seq=9), m]
+    with service(tmp_path) as (svc, bus, _):
+        run(svc, mixed + real[40:])
+        assert svc.counters.snapshot(0).rejected["device_conflict"] >= 20
+        assert [a["state"] for a in alarms(bus, "rod-1", "device_conflict")] == ["raised"]
+
+
 def test_a_real_reboot_is_not_a_conflict(tmp_path: Path) -> None:
     msgs = fleet_imu(2.0)
     rebooted = [edit(m, boot_id=777, seq=i) for i, m in enumerate(msgs[20:])]
