@@ -65,6 +65,8 @@ def test_alarms_survive_a_full_disk(running: Callable[[], Running]) -> None:
     health = app.client.get("/api/health").json()
     assert "database or disk is full" in health["reasons"][0] and health["store"]["pending"] >= 1
     assert app.client.get("/api/devices/rod-1").json()["attitude"]  # ingest went on meanwhile
+    r = app.client.put("/api/thresholds/rod", json={"sensitivity": 4}, headers=app.auth)
+    assert r.status_code == 503 and "database or disk is full" in r.json()["detail"]  # a clear error, not a 500
 
     free(svc.store)
     wait_for(lambda: app.client.get("/api/health").json()["status"] == "ok")
