@@ -206,3 +206,17 @@ def test_a_resumed_alarm_without_its_cause_clears(tmp_path: Path) -> None:
         assert [(e["alarm_id"], e["state"]) for e in events] == [("stale1", "cleared")]
         assert svc.writer.flush()
         assert store.counts("rod-1")["active"] == 0
+
+
+def test_an_extreme_env_wall_time_does_not_pin_a_spot(tmp_path: Path) -> None:
+    """A ball's reading with wall_t_us 2**63 - 1 stayed the spot's newest reading for good (the ranking keeps the
+    reading with the latest wall time); now its wall time is ignored and counted."""
+    key, env = schemas.examples()["env"]
+    now_us = int(time.time() * 1e6)
+    first = env.model_copy(update={"wall_t_us": 2**63 - 1, "water_temp_c": 30.0, "seq": 1})
+    second = env.model_copy(update={"wall_t_us": now_us, "water_temp_c": 12.0, "seq": 2})
+    with service(tmp_path) as (svc, _, _):
+        run(svc, [(key, first.to_json()), (key, second.to_json())], batch=1)
+        spot = svc.pipeline.rank_spots(time.time()).spots[0]
+        assert spot.last_seen_wall_us == now_us
+        assert svc.counters.snapshot(0).rejected["wall_time_ignored"] == 1
