@@ -802,8 +802,10 @@ class SequenceTracker:
     classifies the newcomer's boot as `rival` (dropped, counted in `conflicts`): a forged boot_id can no longer
     make the real stream look stale. The same holds within one boot: after a jump ahead by `window` or more, when
     the sequence left behind goes on (`CONFLICT_EVIDENCE` packets), the tracker follows it again and packets near
-    the jumped-to sequence are `rival`. Which of the two is genuine cannot be known without authentication (zenoh
-    access control, docs/security.md); the gateway raises a `device_conflict` alarm.
+    the jumped-to sequence are `rival`. A reboot after a boot that delivered fewer than `CONFLICT_EVIDENCE` packets
+    (boots flapping, e.g. a spoofer with a new boot_id per packet) is accepted but reported as `conflict`.
+    Which publisher is genuine cannot be known without authentication (zenoh access control, docs/security.md);
+    the gateway raises a `device_conflict` alarm.
     Counters accumulate in `ok`, `lost`, `duplicates`, `reordered`, `reboots`, `conflicts`.
     """
 
@@ -817,6 +819,7 @@ class SequenceTracker:
     jump_lost: int = 0
     jump_fresh: int = 0
     rival_seq: tuple[int, int] | None = None  # (boot, newest seq) of a second publisher using the same boot_id
+    _boot_ok0: int = 0  # `ok` when the current boot started
     newest: int = 0
     _seen: set[int] = field(default_factory=set)
     ok: int = 0
@@ -853,7 +856,10 @@ class SequenceTracker:
             status: SeqStatus = "first" if self.boot_id is None else "reboot"
             if status == "reboot":
                 self.reboots += 1
-            self.boot_id, self.newest, self._seen = boot_id, seq, {seq}
+                if self.ok - self._boot_ok0 < CONFLICT_EVIDENCE:  # boots flapping: more than one publisher
+                    status = "conflict"
+                    self.conflicts += 1
+            self.boot_id, self.newest, self._seen, self._boot_ok0 = boot_id, seq, {seq}, self.ok
             self.ok += 1
             return SeqResult(status)
         ahead = (seq - self.newest) % UINT32
@@ -898,7 +904,7 @@ class SequenceTracker:
         """Two publishers: follow the boot seen first again; the newcomer's boot becomes the rival."""
         self.rival_boot_id = self.boot_id
         self.boot_id, self.previous_boot_id, self.previous_fresh = self.previous_boot_id, None, 0
-        self.newest, self._seen = seq, {seq}
+        self.newest, self._seen, self._boot_ok0 = seq, {seq}, self.ok
         self.reboots = max(0, self.reboots - 1)  # it was not a reboot
         self.conflicts += 1
         self.ok += 1

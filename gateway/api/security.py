@@ -22,6 +22,7 @@ CSP = ("default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline';
        "connect-src 'self' {ws}; object-src 'none'; base-uri 'none'; form-action 'self'; "
        "frame-ancestors 'none'")  # fmt: skip
 _HOST_RE = re.compile(r"(\[[0-9a-f:.]+\]|[a-z0-9.-]+)(:[0-9]{1,5})?")
+MAX_BODY_BYTES = 1024 * 1024  # the largest REST body (device settings with a calibration) is a few kB
 NO_CSP_PREFIXES = ("/docs", "/redoc")  # FastAPI's API docs pages load Swagger UI / ReDoc with inline script
 
 
@@ -59,8 +60,9 @@ def origin_allowed(origin: str, host_header: str | None, allowed: Iterable[str] 
 
 
 class BrowserGuard:
-    """ASGI middleware: 421 for a Host that fails `host_allowed` (HTTP and websocket), and security headers on
-    every HTTP response (CSP except on the API docs pages, X-Frame-Options, nosniff, no referrer)."""
+    """ASGI middleware: 421 for a Host that fails `host_allowed` (HTTP and websocket), 413 for a request body over
+    `MAX_BODY_BYTES`, and security headers on every HTTP response (CSP except on the API docs pages,
+    X-Frame-Options, nosniff, no referrer)."""
 
     def __init__(self, app: ASGIApp, allowed_hosts: Iterable[str] = ()) -> None:
         self.app = app
@@ -93,4 +95,34 @@ class BrowserGuard:
                 message = {**message, "headers": headers}
             await send(message)
 
-        await self.app(scope, receive, send_with_headers)
+        too_large = PlainTextResponse(f"request body over {MAX_BODY_BYTES} bytes", status_code=413)
+        length = Headers(scope=scope).get("content-length")
+        if length is not None and (not length.isdigit() or int(length) > MAX_BODY_BYTES):
+            await too_large(scope, receive, send_with_headers)
+            return
+        # A body without Content-Length (chunked) is counted as it arrives: FastAPI reads a body before it checks
+        # the token, so an unauthenticated client could otherwise make the server hold any amount of memory.
+        state = {"received": 0, "over": False, "started": False}
+
+        async def limited_receive() -> Message:
+            message = await receive()
+            if message["type"] == "http.request":
+                state["received"] += len(message.get("body", b""))
+                if state["received"] > MAX_BODY_BYTES:
+                    state["over"] = True
+                    return {"type": "http.disconnect"}
+            return message
+
+        async def guarded_send(message: Message) -> None:
+            if state["over"]:
+                return  # the app's answer to a body it never got whole
+            state["started"] = True
+            await send_with_headers(message)
+
+        try:
+            await self.app(scope, limited_receive, guarded_send)
+        except Exception:
+            if not state["over"]:
+                raise
+        if state["over"] and not state["started"]:
+            await too_large(scope, receive, send_with_headers)

@@ -202,6 +202,12 @@ class GatewayService:
                 if checked is None:
                     continue
                 p = checked
+            elif isinstance(p, schemas.EnvPacket | schemas.ReelStatus) and p.wall_t_us is not None \
+                    and not wall_time_plausible(p.wall_t_us, now):  # fmt: skip
+                # e.g. 2**63 - 1 would stay the spot's "newest" reading for good
+                c.drop(p.kind, p.device_id, "wall_time_ignored", f"wall_t_us {p.wall_t_us} is far from the gateway's "
+                       "clock; the packet is used without it", arrival)  # fmt: skip
+                p = p.model_copy(update={"wall_t_us": None})
             packets.append(p)
         if c.conflicts_seen:
             self._raise_conflicts(now)

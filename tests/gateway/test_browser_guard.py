@@ -83,3 +83,21 @@ def test_database_and_folder_are_owner_only(tmp_path: Path) -> None:
         assert stat.S_IMODE((loose / "gateway.sqlite3").stat().st_mode) == 0o600
     finally:
         os.umask(old)
+
+
+def test_huge_request_bodies_are_refused_before_the_token_check(running: Callable[[], Running]) -> None:
+    """FastAPI reads a body before its dependencies check the token: a 20 MB body without a token was read whole."""
+    app = running()
+    big = b'{"x": "' + b"y" * 20_000_000 + b'"}'
+    r = app.client.put("/api/thresholds/rod", content=big, headers={"Content-Type": "application/json"})
+    assert r.status_code == 413
+
+    def chunks():  # no Content-Length: counted as it arrives
+        for _ in range(40):
+            yield b"y" * 100_000
+
+    r = app.client.put("/api/thresholds/rod", content=chunks(), headers={"Content-Type": "application/json"})
+    assert r.status_code == 413
+    ok = app.client.put("/api/thresholds/rod", json={"sensitivity": 4}, headers=app.auth)
+    assert ok.status_code == 200, ok.text
+    assert app.client.get("/api/health").status_code == 200

@@ -30,7 +30,16 @@ def fill(store: Store) -> None:
                 store.log_event(0.0, "filler", None, {"x": "y" * size})
             except Exception:
                 break
-    for size in (4000, 1000, 300, 100, 30, 0):  # each table has its own pages: fill the alarms' too
+    for size in (4000, 1000, 300, 100, 30, 0):  # each table has its own pages: fill device settings' too
+        for _ in range(10_000):
+            k += 1
+            try:
+                with store._tx():
+                    row = (f"filler{k}", "y" * size)
+                    store._conn.execute("INSERT INTO device_settings VALUES (?, 'rod', ?, 0)", row)
+            except Exception:
+                break
+    for size in (4000, 1000, 300, 100, 30, 0):  # ... and the alarms'
         for _ in range(10_000):
             k += 1
             try:
@@ -65,6 +74,10 @@ def test_alarms_survive_a_full_disk(running: Callable[[], Running]) -> None:
     health = app.client.get("/api/health").json()
     assert "database or disk is full" in health["reasons"][0] and health["store"]["pending"] >= 1
     assert app.client.get("/api/devices/rod-1").json()["attitude"]  # ingest went on meanwhile
+    # A REST write either fits (stored and applied) or gets a clear 503 and is not applied; never a 500.
+    r = app.client.put("/api/devices/rod-1/settings", json={"thresholds": {"sensitivity": 2}}, headers=app.auth)
+    assert r.status_code == 503 and "database or disk is full" in r.json()["detail"]
+    assert app.client.get("/api/devices/rod-1/settings").json()["settings"]["thresholds"] == {}
 
     free(svc.store)
     wait_for(lambda: app.client.get("/api/health").json()["status"] == "ok")

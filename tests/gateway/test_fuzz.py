@@ -31,4 +31,5 @@ def test_hostile_zenoh_packets_cost_nothing_else(tmp_path: Path) -> None:
     for reason in ("bad_json", "too_large", "unknown_key", "key_mismatch", "out_of_range", "schema"):
         assert z["rejected"].get(reason, 0) > 0, (reason, z["rejected"])
     assert z["rejected"].get("wall_time_ignored", 0) > 0 and z["rejected"].get("time_range", 0) > 0
+    assert z["rejected"].get("device_conflict", 0) > 0  # the spoofed boots on rod-1 are reported
     assert z["raw_buffers"] <= 2 * z["devices_known"]

@@ -97,6 +97,8 @@ def test_rest_rejects_invalid_device_ids_with_422(running: Callable[[], Running]
         ("post", f"/api/rods/{path}/reel", {"action": "in", "speed_m_s": 0.5}),
         ("get", f"/api/alarms?device_id={path}", None),
         ("post", f"/api/alarms/{path}/ack", None),
+        ("post", f"/api/alarms/{path}/clear", None),
+        ("get", f"/api/history/{path}", None),
     ]
     for method, url, body in calls:
         r = app.client.request(method.upper(), url, json=body, headers=app.auth)

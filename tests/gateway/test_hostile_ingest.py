@@ -109,6 +109,19 @@ def test_a_spoofed_seq_jump_in_the_same_boot_does_not_silence_the_device(tmp_pat
         assert [a["state"] for a in alarms(bus, "rod-1", "device_conflict")] == ["raised"]
 
 
+def test_a_new_boot_id_on_every_spoofed_packet_is_reported(tmp_path: Path) -> None:
+    """Several spoofed boots between two real packets never let the boot left behind deliver 2 packets in a row;
+    boots flapping are reported as device_conflict all the same."""
+    real = fleet_imu(3.0)
+    mixed = list(real[:20])
+    for i, m in enumerate(real[20:40]):
+        mixed += [edit(real[0], boot_id=1000 + 2 * i, seq=5), edit(real[0], boot_id=1001 + 2 * i, seq=9), m]
+    with service(tmp_path) as (svc, bus, _):
+        run(svc, mixed + real[40:])
+        assert svc.counters.snapshot(0).rejected["device_conflict"] >= 20
+        assert [a["state"] for a in alarms(bus, "rod-1", "device_conflict")] == ["raised"]
+
+
 def test_a_real_reboot_is_not_a_conflict(tmp_path: Path) -> None:
     msgs = fleet_imu(2.0)
     rebooted = [edit(m, boot_id=777, seq=i) for i, m in enumerate(msgs[20:])]
@@ -193,3 +206,17 @@ def test_a_resumed_alarm_without_its_cause_clears(tmp_path: Path) -> None:
         assert [(e["alarm_id"], e["state"]) for e in events] == [("stale1", "cleared")]
         assert svc.writer.flush()
         assert store.counts("rod-1")["active"] == 0
+
+
+def test_an_extreme_env_wall_time_does_not_pin_a_spot(tmp_path: Path) -> None:
+    """A ball's reading with wall_t_us 2**63 - 1 stayed the spot's newest reading for good (the ranking keeps the
+    reading with the latest wall time); now its wall time is ignored and counted."""
+    key, env = schemas.examples()["env"]
+    now_us = int(time.time() * 1e6)
+    first = env.model_copy(update={"wall_t_us": 2**63 - 1, "water_temp_c": 30.0, "seq": 1})
+    second = env.model_copy(update={"wall_t_us": now_us, "water_temp_c": 12.0, "seq": 2})
+    with service(tmp_path) as (svc, _, _):
+        run(svc, [(key, first.to_json()), (key, second.to_json())], batch=1)
+        spot = svc.pipeline.rank_spots(time.time()).spots[0]
+        assert spot.last_seen_wall_us == now_us
+        assert svc.counters.snapshot(0).rejected["wall_time_ignored"] == 1

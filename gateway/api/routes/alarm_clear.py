@@ -10,7 +10,7 @@ from typing import Any
 from fastapi import APIRouter, HTTPException
 
 from gateway.alarm.engine import AlarmChange, AlarmStatus
-from gateway.api.deps import ServiceDep, WriterDep
+from gateway.api.deps import AlarmIdPath, ServiceDep, WriterDep
 from gateway.api.routes.alarms import alarm_json
 from gateway.pipeline import AlarmOut, Output
 
@@ -18,7 +18,7 @@ router = APIRouter(prefix="/alarms", tags=["alarms"])
 
 
 @router.post("/{alarm_id}/clear")
-async def clear_alarm(alarm_id: str, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
+async def clear_alarm(alarm_id: AlarmIdPath, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
     """Clear an active alarm by hand; it is published as `cleared` like any other clear. 404 if it is not active.
 
     Async on purpose: it runs on the event loop, the thread that owns the alarm engine (ingest runs there too)."""

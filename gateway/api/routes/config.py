@@ -52,9 +52,14 @@ def put_defaults(
         model = THRESHOLD_MODELS[kind].model_validate(body)
     except ValidationError as exc:
         raise HTTPException(422, _messages(exc)) from exc
+    old = service.pipeline.defaults[kind]
     service.pipeline.set_defaults(kind, model)  # BadSettings -> 422 (a device override would become invalid)
-    service.store.save_defaults(kind, model)
-    service.store.log_event(time.time(), "defaults_changed", None, {"kind": kind})
+    try:
+        service.store.save_defaults(kind, model)
+    except Exception:  # not stored (disk full: 503): not applied either
+        service.pipeline.set_defaults(kind, old)
+        raise
+    service.writer.log_event(time.time(), "defaults_changed", None, {"kind": kind})
     return model.model_dump()
 
 
@@ -91,9 +96,10 @@ def put_settings(device_id: DeviceIdPath, body: DeviceSettingsIn, service: Servi
     keep = entry[1].calibration if entry else None
     cal = body.calibration if "calibration" in body.model_fields_set else keep
     ds = DeviceSettings(filter_name=body.filter_name, thresholds=body.thresholds, auto_reel=auto, calibration=cal)
+    service.pipeline.validate_device_settings(kind, ds)  # BadSettings -> 422
+    service.store.save_device_settings(device_id, kind, ds)  # not stored (disk full: 503): not applied either
     service.pipeline.set_device_settings(device_id, kind, ds)
-    service.store.save_device_settings(device_id, kind, ds)
-    service.store.log_event(time.time(), "settings_changed", device_id, ds.model_dump())
+    service.writer.log_event(time.time(), "settings_changed", device_id, ds.model_dump())
     return get_settings(device_id, service)
 
 

@@ -24,6 +24,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, HTTPException, Query, Request
 
 from gateway import schemas
+from gateway.api.deps import DeviceIdPath
 from gateway.ingest.runner import GatewayService
 
 router = APIRouter(prefix="/history", tags=["history"])
@@ -211,7 +212,7 @@ async def all_history(request: Request, seconds: Seconds = 300.0, max_points: Ma
 
 @router.get("/{device_id}")
 async def device_history(
-    device_id: str, request: Request, seconds: Seconds = 600.0, max_points: MaxPoints = 4000
+    device_id: DeviceIdPath, request: Request, seconds: Seconds = 600.0, max_points: MaxPoints = 4000
 ) -> dict[str, Any]:
     """One device's history: wall time `t_s` (s since 1970) and one column per field, units in the names."""
     h = _history(request)

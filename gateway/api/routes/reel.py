@@ -35,7 +35,7 @@ def reel(device_id: DeviceIdPath, body: ReelRequest, service: ServiceDep, who: W
     if was != on:  # the mode is stored in the rod's settings, so a restart keeps it
         kind, ds = pl.device_settings[device_id]
         service.store.save_device_settings(device_id, kind, ds)
-        service.store.log_event(time.time(), "reel_auto", device_id, {"on": on, "by": who})
+        service.writer.log_event(time.time(), "reel_auto", device_id, {"on": on, "by": who})
     if on:
         return {"device_id": device_id, "auto": True, "controller_available": available}
     cmd = service.hub.send_reel(device_id, body.action, body.speed_m_s, body.drag_n, sender=who)
