@@ -576,7 +576,8 @@ const Alarms = {
     for (const d of Devices.values()) for (const ch of d.charts) ch.u.redraw(false, false);
   },
   valueText(a) {
-    const unit = a.details && a.details.unit === "deg" ? "°" : UNITS[a.type] ?? (a.type === "line_tension" ? "" : "");
+    // line_tension is judged by angle (°) or by reel tension (N): the message says which
+    const unit = a.details && a.details.unit === "deg" ? "°" : UNITS[a.type] ?? (/\d N\b/.test(a.message || "") ? " N" : "°");
     if (a.type === "device_offline") return "–";
     return `${fmt(Math.abs(a.peak || a.value), 1)}${unit} / ${fmt(Math.abs(a.threshold), 1)}${unit}`; // magnitudes: signs are in the message
   },
