@@ -1,12 +1,15 @@
 """Crane-hook physics: a spherical pendulum with torsion about the rope, and the ground truth an IMU on it sees.
 
-Model (seed 001 Fig. 1): a massless rope of fixed length `l` hangs from the boom tip A to the hook centre B.
-The rope direction is the unit vector `n` (ENU) from B up to A, so `B = A - l n`. With the suspension-point
-acceleration `a_A`, gravity `g_vec = (0, 0, -g)` and other forces per unit mass `w` (wind, air damping):
+Model (seed 001 Fig. 1): a massless rope of length `l(t)` hangs from the boom tip A to the hook centre B (hook and
+load one point mass `m`). The rope direction is the unit vector `n` (ENU) from B up to A, so `B = A - l n`. With
+the suspension-point acceleration `a_A` (trolley and slewing moves), gravity `g_vec = (0, 0, -g)` and other forces
+per unit mass `w` (wind, air damping, tag-line pulls `F / m`), from `B'' = g_vec + (T/m) n + w`:
 
     a_ext = g_vec - a_A + w
-    n'' = -(a_ext - (n . a_ext) n) / l - |n'|^2 n        (constrained motion on the unit sphere)
-    T / m = l |n'|^2 - n . a_ext                         (rope tension per unit mass)
+    n'' = -(a_ext - (n . a_ext) n) / l - 2 (l'/l) n' - |n'|^2 n     (constrained motion on the unit sphere)
+    T / m = l |n'|^2 - n . a_ext - l''                               (rope tension per unit mass)
+
+Hoisting (`l' < 0`) pumps the swing up, lowering damps it (the Coriolis term `-2 (l'/l) n'`).
 
 The hook twists about the rope by the torsion angle `φ`, a damped torsional oscillator
 `J φ'' = -k φ - c φ' + τ_wind` (rope torsional stiffness `k`, damping `c`, hook inertia `J` about the rope;
@@ -83,6 +86,95 @@ def trolley_traverse(start_s: float, distance_m: float, bearing_rad: float, acc_
 
 
 @dataclass(frozen=True)
+class SlewMove:
+    """The boom tip turns about the crane's mast by `angle_rad` (CCW seen from above) in `duration_s` from `start_s`:
+    trapezoidal angular rate (ramps of `ramp_s`, default a third of the duration) at `radius_m` from the mast.
+    `mast_bearing_rad` is the boom tip's bearing seen from the mast at the start of the move (CCW from East)."""
+
+    start_s: float
+    duration_s: float
+    angle_rad: float
+    radius_m: float = 30.0
+    mast_bearing_rad: float = 0.0
+    ramp_s: float = 0.0  # 0: a third of the duration
+
+
+@dataclass(frozen=True)
+class Hoist:
+    """Rope paid in (`speed_m_s` < 0, hoisting) or out (> 0, lowering) from `start_s` for `duration_s`: trapezoidal
+    rope speed with ramps of `ramp_s` (within the duration)."""
+
+    start_s: float
+    duration_s: float
+    speed_m_s: float
+    ramp_s: float = 1.0
+
+
+@dataclass(frozen=True)
+class Pull:
+    """A horizontal force on the load (a tag line): `force_n` (ENU x, y, newtons) from `start_s` for `duration_s`,
+    ramped up and let go over `ramp_s` (raised cosine) within the duration."""
+
+    start_s: float
+    duration_s: float
+    force_n: tuple[float, float]
+    ramp_s: float = 0.3
+
+
+def _trapezoid(t_s: FloatArray, start_s: float, duration_s: float, ramp_s: float) -> tuple[FloatArray, FloatArray,
+                                                                                         FloatArray]:
+    """Unit trapezoid rate profile `(∫, value, derivative)` over time: 0 -> 1 over `ramp_s`, hold, 1 -> 0."""
+    ramp = max(min(ramp_s, 0.5 * duration_s), 1e-9)
+    tau = np.clip(t_s - start_s, 0.0, duration_s)
+    up = np.minimum(tau, ramp)
+    down = np.clip(tau - (duration_s - ramp), 0.0, ramp)
+    value = up / ramp - down / ramp
+    integral = up * up / (2.0 * ramp) + (tau - up) - down * down / (2.0 * ramp)
+    inside = (t_s > start_s) & (t_s < start_s + duration_s)
+    deriv = np.where(inside & (tau < ramp), 1.0 / ramp, 0.0) - np.where(inside & (tau > duration_s - ramp),
+                                                                         1.0 / ramp, 0.0)  # fmt: skip
+    return integral, value, deriv
+
+
+def rope_length(l0_m: float, hoists: tuple[Hoist, ...], t_s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """`(l, l', l'')` at times `t_s` from the initial length and the hoist profile (m, m/s, m/s²)."""
+    l, ld, ldd = np.full(np.shape(t_s), l0_m), np.zeros(np.shape(t_s)), np.zeros(np.shape(t_s))
+    for h in hoists:
+        i, v, d = _trapezoid(np.asarray(t_s, dtype=np.float64), h.start_s, h.duration_s, h.ramp_s)
+        l, ld, ldd = l + h.speed_m_s * i, ld + h.speed_m_s * v, ldd + h.speed_m_s * d
+    return l, ld, ldd
+
+
+def pull_force(pulls: tuple[Pull, ...], mass_kg: float, t_s: FloatArray) -> FloatArray:
+    """Tag-line force per unit mass (..., 3) in m/s² at times `t_s`."""
+    out = np.zeros((*np.shape(t_s), 3))
+    for p in pulls:
+        tau = np.clip((np.asarray(t_s) - p.start_s), 0.0, p.duration_s)
+        ramp = max(min(p.ramp_s, 0.5 * p.duration_s), 1e-9)
+        up = 0.5 - 0.5 * np.cos(np.pi * np.minimum(tau, ramp) / ramp)
+        down = 0.5 - 0.5 * np.cos(np.pi * np.clip(tau - (p.duration_s - ramp), 0.0, ramp) / ramp)
+        shape = np.where((t_s > p.start_s) & (t_s < p.start_s + p.duration_s), up - down, 0.0)
+        out[..., 0] += shape * p.force_n[0] / mass_kg
+        out[..., 1] += shape * p.force_n[1] / mass_kg
+    return out
+
+
+def slew_acceleration(slews: tuple[SlewMove, ...], t_s: FloatArray) -> FloatArray:
+    """Boom-tip acceleration (..., 3) of the slewing moves (tangential + centripetal; they add where they overlap)."""
+    out = np.zeros((*np.shape(t_s), 3))
+    for m in slews:
+        ramp = m.ramp_s if m.ramp_s > 0.0 else m.duration_s / 3.0
+        rate = m.angle_rad / (m.duration_s - ramp)  # cruise angular rate: area of the trapezoid = angle
+        i, v, d = _trapezoid(np.asarray(t_s, dtype=np.float64), m.start_s, m.duration_s, ramp)
+        beta = m.mast_bearing_rad + rate * i
+        w, wd = rate * v, rate * d
+        c, s = np.cos(beta), np.sin(beta)
+        out[..., 0] += m.radius_m * (-wd * s - w * w * c)
+        out[..., 1] += m.radius_m * (wd * c - w * w * s)
+    return out
+
+
+@dataclass(frozen=True)
 class HookScenario:
     """What happens: initial swing (angle, bearing of the hook's displacement, sideways rate), moves and wind."""
 
@@ -99,6 +191,9 @@ class HookScenario:
     wind_std_m_s2: float = 0.0  # gusts: Ornstein-Uhlenbeck force per unit mass, per horizontal axis
     wind_tau_s: float = 2.0  # gust correlation time
     wind_torque_std_n_m: float = 0.0  # gust torque about the rope (same correlation time)
+    slews: tuple[SlewMove, ...] = ()
+    hoists: tuple[Hoist, ...] = ()  # rope length changes (settings.rope_length_m is the length at t = 0)
+    pulls: tuple[Pull, ...] = ()  # tag-line forces on the load (settings.hook_mass_kg is hook + load)
     seed: int = 0
 
 
@@ -140,9 +235,10 @@ def _ou_process(
     return out
 
 
-def suspension_acceleration(moves: tuple[TrolleyMove, ...], t_s: FloatArray) -> FloatArray:
+def suspension_acceleration(moves: tuple[TrolleyMove, ...], t_s: FloatArray,
+                            slews: tuple[SlewMove, ...] = ()) -> FloatArray:
     """Boom-tip acceleration (..., 3) at times `t_s` from the scripted moves (they add where they overlap)."""
-    acc = np.zeros((*np.shape(t_s), 3))
+    acc = slew_acceleration(slews, t_s) if slews else np.zeros((*np.shape(t_s), 3))
     for m in moves:
         on = (t_s >= m.start_s) & (t_s < m.start_s + m.duration_s)
         acc[on, 0] += m.acc_m_s2[0]
@@ -151,7 +247,7 @@ def suspension_acceleration(moves: tuple[TrolleyMove, ...], t_s: FloatArray) -> 
 
 
 def rope_accel(
-    n: FloatArray, v: FloatArray, a_ext: FloatArray, rope_length_m: float, damping_1_s: float
+    n: FloatArray, v: FloatArray, a_ext: FloatArray, rope_length_m: float | FloatArray, damping_1_s: float
 ) -> tuple[FloatArray, FloatArray]:
     """`(n'', T/m)` for rope direction `n` and rate `v`, (..., 3) each; `a_ext` excludes the swing damping."""
     a = a_ext + damping_1_s * rope_length_m * v  # air damping opposes the hook's velocity -l n'
@@ -239,10 +335,14 @@ def _integrate(
     if n_steps:
         state.gust, state.gust_torque = gust[-1].copy(), gust_torque[-1].copy()
     t_grid = (state.step + np.arange(n_steps, dtype=np.float64)) * dt
-    a_susp = suspension_acceleration(scenario.trolley_moves, t_grid + 0.5 * dt)  # held over each step
+    t_mid = t_grid + 0.5 * dt  # forcing held over each step
+    a_susp = suspension_acceleration(scenario.trolley_moves, t_mid, scenario.slews)
     wind = np.zeros((n_steps, 3))
     wind[:, :2] = gust + np.asarray(scenario.wind_mean_m_s2)
-    g, l, c = settings.gravity_m_s2, settings.rope_length_m, settings.swing_damping_1_s
+    wind += pull_force(scenario.pulls, settings.hook_mass_kg, t_mid)
+    len_l, len_d, _ = rope_length(settings.rope_length_m, scenario.hoists, t_mid)
+    len_l_l, len_d_l = len_l.tolist(), len_d.tolist()
+    g, c = settings.gravity_m_s2, settings.swing_damping_1_s
     k_j = settings.torsion_stiffness_n_m_rad / settings.torsion_inertia_kg_m2
     c_j = settings.torsion_damping_n_m_s_rad / settings.torsion_inertia_kg_m2
     inv_j = 1.0 / settings.torsion_inertia_kg_m2
@@ -255,15 +355,18 @@ def _integrate(
     n_hold = int(round(scenario.hold_s * rate))
 
     def deriv(
-        s: tuple[float, float, float, float, float, float, float, float], ex: float, ey: float, ez: float, tq: float
+        s: tuple[float, float, float, float, float, float, float, float], ex: float, ey: float, ez: float, tq: float,
+        l: float, ld: float,
     ) -> tuple[float, float, float, float, float, float, float, float]:
         nx, ny, nz, vx, vy, vz, ph, pd = s
         axx, ayy, azz = ex + c * l * vx, ey + c * l * vy, ez + c * l * vz
         nda = nx * axx + ny * ayy + nz * azz
         v2 = vx * vx + vy * vy + vz * vz
+        k = 2.0 * ld / l
         return (
             vx, vy, vz,
-            -(axx - nda * nx) / l - v2 * nx, -(ayy - nda * ny) / l - v2 * ny, -(azz - nda * nz) / l - v2 * nz,
+            -(axx - nda * nx) / l - v2 * nx - k * vx, -(ayy - nda * ny) / l - v2 * ny - k * vy,
+            -(azz - nda * nz) / l - v2 * nz - k * vz,
             pd, -k_j * ph - c_j * pd + inv_j * tq,
         )  # fmt: skip
 
@@ -276,7 +379,7 @@ def _integrate(
             out["v"].append((vx, vy, vz))
             out["phi"].append(ph)
             out["phi_rate"].append(pd)
-            out["susp_pos"].append((px, py, l))
+            out["susp_pos"].append((px, py, settings.rope_length_m))
             out["susp_vel"].append((vxa, vya, 0.0))
             out["wind"].append((wx_l[i], wy_l[i], 0.0))
             out["torque"].append(tq_l[i])
@@ -284,12 +387,12 @@ def _integrate(
         if state.step + i < n_hold:
             continue
         ex, ey, ez = wx_l[i] - ax_l[i], wy_l[i] - ay_l[i], -g
-        tq = tq_l[i]
+        tq, li, ldi = tq_l[i], len_l_l[i], len_d_l[i]
         s0 = (nx, ny, nz, vx, vy, vz, ph, pd)
-        k1 = deriv(s0, ex, ey, ez, tq)
-        k2 = deriv(tuple(a + 0.5 * dt * b for a, b in zip(s0, k1, strict=True)), ex, ey, ez, tq)  # type: ignore[arg-type]
-        k3 = deriv(tuple(a + 0.5 * dt * b for a, b in zip(s0, k2, strict=True)), ex, ey, ez, tq)  # type: ignore[arg-type]
-        k4 = deriv(tuple(a + dt * b for a, b in zip(s0, k3, strict=True)), ex, ey, ez, tq)  # type: ignore[arg-type]
+        k1 = deriv(s0, ex, ey, ez, tq, li, ldi)
+        k2 = deriv(tuple(a + 0.5 * dt * b for a, b in zip(s0, k1, strict=True)), ex, ey, ez, tq, li, ldi)  # type: ignore[arg-type]
+        k3 = deriv(tuple(a + 0.5 * dt * b for a, b in zip(s0, k2, strict=True)), ex, ey, ez, tq, li, ldi)  # type: ignore[arg-type]
+        k4 = deriv(tuple(a + dt * b for a, b in zip(s0, k3, strict=True)), ex, ey, ez, tq, li, ldi)  # type: ignore[arg-type]
         nx, ny, nz, vx, vy, vz, ph, pd = (
             a + dt / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4) for a, b1, b2, b3, b4 in zip(s0, k1, k2, k3, k4, strict=True)
         )
@@ -335,11 +438,15 @@ def _truth(settings: HookPhysicsSettings, scenario: HookScenario, st: dict[str, 
     n, v, phi, phi_rate = st["n"], st["v"], st["phi"], st["phi_rate"]
     t = st["t"]
     dt_int = 1.0 / settings.internal_rate_hz
-    a_susp = suspension_acceleration(scenario.trolley_moves, t + 0.5 * dt_int)
+    t_mid = t + 0.5 * dt_int
+    a_susp = suspension_acceleration(scenario.trolley_moves, t_mid, scenario.slews)
     g_vec = np.array([0.0, 0.0, -settings.gravity_m_s2])
     a_ext = g_vec - a_susp + st["wind"]
-    l, c = settings.rope_length_m, settings.swing_damping_1_s
+    l_m, l_rate, l_acc = rope_length(settings.rope_length_m, scenario.hoists, t_mid)
+    l, c = l_m[:, None], settings.swing_damping_1_s
     ndd, tension = rope_accel(n, v, a_ext, l, c)
+    ndd -= 2.0 * (l_rate / l_m)[:, None] * v
+    tension -= l_acc
     k_j = settings.torsion_stiffness_n_m_rad / settings.torsion_inertia_kg_m2
     c_j = settings.torsion_damping_n_m_s_rad / settings.torsion_inertia_kg_m2
     phi_acc = -k_j * phi - c_j * phi_rate + st["torque"] / settings.torsion_inertia_kg_m2
@@ -354,7 +461,7 @@ def _truth(settings: HookPhysicsSettings, scenario: HookScenario, st: dict[str, 
     _, w_minus = hook_attitude_and_rate(n - h * v, v - h * ndd, alpha - h * phi_rate, phi_rate - h * phi_acc)
     w_dot = (w_plus - w_minus) / (2.0 * h)
     r_b = np.asarray(settings.lever_arm_m, dtype=np.float64)
-    f_b_earth = tension[:, None] * n + st["wind"] + c * l * v  # rope pull + wind + air damping, per unit mass
+    f_b_earth = tension[:, None] * n + st["wind"] + c * l * v  # rope pull + wind, tag line, air damping per mass
     f_b_earth[held] = -g_vec  # held: the holding force balances gravity
     tension[held] = settings.gravity_m_s2 * n[held, 2]
     acc = _quat.rotate_inverse(q, f_b_earth) + np.cross(w_dot, r_b) + np.cross(w_b, np.cross(w_b, r_b))
@@ -376,7 +483,8 @@ def _truth(settings: HookPhysicsSettings, scenario: HookScenario, st: dict[str, 
         suspension_vel_m_s=st["susp_vel"],
         suspension_acc_m_s2=a_susp,
         hook_pos_m=susp - l * n,
-        extra={"gyr_dot_rad_s2": w_dot, "torsion_rate_rad_s": phi_rate},
+        extra={"gyr_dot_rad_s2": w_dot, "torsion_rate_rad_s": phi_rate, "rope_length_m": l_m, "rope_rate_m_s": l_rate,
+               "force_m_s2": st["wind"]},
     )
 
 

@@ -45,6 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "names; repeatable")  # fmt: skip
     s.add_argument("--allowed-origin", dest="allowed_origins", action="append", metavar="ORIGIN",
                    help="a browser origin (https://host:port) that may open /ws/stream without the token; repeatable")
+    p.add_argument("--max-devices", type=int, metavar="N",
+                   help="devices the gateway keeps state for; further new ids are dropped and counted (default: 1000)")
     p.add_argument("--filter", dest="default_filter", help="default attitude filter for rods (default: default)")
     o = p.add_argument_group("attitude output (replay scoring, full-rate recording)")
     o.add_argument("--attitude-interval-s", type=float, metavar="S",
@@ -77,7 +79,8 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
     """Settings from the environment (RIG_*) with the given options on top."""
     names = ("data_dir", "http_host", "http_port", "zenoh_mode", "zenoh_listen", "zenoh_connect",
              "zenoh_multicast_scouting", "default_filter", "attitude_interval_s", "attitude_blocks",
-             "warmup_bias_seed", "zenoh_config_file", "allowed_hosts", "allowed_origins")  # fmt: skip
+             "warmup_bias_seed", "zenoh_config_file", "allowed_hosts", "allowed_origins",
+             "max_devices")  # fmt: skip
     overrides: dict[str, Any] = {n: getattr(args, n) for n in names if getattr(args, n) is not None}
     return Settings(**overrides)
 

@@ -45,6 +45,8 @@ class Settings(BaseSettings):
                                    "resting warm-up window (False: start from zero bias, as offline evaluate).")
     ingest_queue_size: int = Field(default=10_000, ge=1, description="Packets buffered between zenoh and the pipeline.")
     ws_queue_size: int = Field(default=256, ge=1, description="Messages buffered per websocket client before dropping.")
+    max_devices: int = Field(default=1000, ge=1, description="Devices the gateway keeps state for; packets and tokens "
+                             "of further new ids are dropped and counted (`device_limit`): ids are free to choose.")
     allowed_hosts: list[str] = Field(default_factory=list, description="Host names the HTTP server answers to besides "
                                      "IP literals, localhost, dotless and .local names (DNS-rebinding guard).")
     allowed_origins: list[str] = Field(default_factory=list, description="Browser origins (e.g. "

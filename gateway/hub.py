@@ -1,6 +1,7 @@
 """Fan-out of pipeline results: zenoh outputs, the store (alarm history, through the `StoreWriter` thread), and
-in-process listeners (websocket, 3-D view). Alarms, reel commands and (opt-in) attitude blocks are published with
-CongestionControl.BLOCK; attitude and swing with DROP (a newer sample follows shortly)."""
+in-process listeners (websocket, 3-D view). Alarms, reel commands, hook swing (at most 20 Hz per hook) and (opt-in)
+attitude blocks are published with CongestionControl.BLOCK; attitude and height with DROP (a newer sample follows
+shortly)."""
 
 from __future__ import annotations
 
@@ -75,8 +76,8 @@ class Hub:
             self._put(schemas.attitude_key(a.kind, a.device_id), "attitude", a)
         for b in out.attitude_blocks:
             self._put(schemas.attitude_block_key(b.kind, b.device_id), "attitude_block", b, block=True)
-        for s in out.swings:
-            self._put(schemas.swing_key(s.device_id), "swing", s)
+        for s in out.swings:  # BLOCK: at <= 20 Hz per hook, a crane app must not lose any (docs/protocol.md)
+            self._put(schemas.swing_key(s.device_id), "swing", s, block=True)
         for h in out.heights:
             self._put(schemas.height_key(h.kind, h.device_id), "height", h)
         if out.spots is not None:

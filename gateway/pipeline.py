@@ -32,7 +32,7 @@ from gateway import schemas
 from gateway.alarm.bite import tip_acc_up
 from gateway.alarm.engine import Alarm, AlarmChange, AlarmEngine, Condition
 from gateway.alarm.hook import HookAlarms
-from gateway.alarm.rules import RodAlarms
+from gateway.alarm.rules import SPECS, RodAlarms
 from gateway.calibrate import DeviceCalibration
 from gateway.config import (
     DeviceSettings,
@@ -63,6 +63,7 @@ class PipelineSettings:
     default_filter: str = DEFAULT_FILTER
     hook_filter: str = HOOK_FILTER  # hooks not configured otherwise use the rope-aware EKF
     attitude_interval_s: float = 0.02  # at most 50 Hz of attitude per device (0: the end of every packet)
+    swing_interval_s: float = 0.05  # hook: at most 20 Hz of Swing per hook (docs/protocol.md "Hook angles")
     attitude_blocks: bool = False  # also every sample's attitude, one AttitudeBlock per IMU packet
     spots_interval_s: float = 1.0
     reel_max_age_s: float = 1.0  # reel tension older than this is not fed to the line guard
@@ -77,6 +78,9 @@ class PipelineSettings:
     # Auto reel watchdog: every rod in auto mode has its controller stepped at least this often (gateway clock), so
     # the controller's data timeout stops the reel when the rod's packets stop (`Pipeline.tick_reel`).
     reel_watchdog_s: float = 0.1
+    # An alarm resumed from the store after a restart is cleared when its device's fresh rules have run this long
+    # (gateway wall time) without a condition of its type (its clear may have been lost with the old process).
+    resume_confirm_s: float = 10.0
     height_interval_s: float = 0.1  # at most 10 Hz of Height (heave) per IMU device; <= 0: none computed
 
 
@@ -94,6 +98,7 @@ class ImuDevice:
     hook: HookAlarms | None = None
     rest_heading_rad: float | None = None  # hook: heading at the first fused sample (torsion reference)
     rest_heading_set_rad: float | None = None  # hook: configured rest heading (HookThresholds), wins when set
+    last_swing_t_s: float = -math.inf  # hook: device time of the last Swing published
     yaw_last: float = math.nan
     yaw_turns: int = 0
     quat: FloatArray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0, 0.0]))
@@ -224,7 +229,16 @@ class Pipeline:
         self.defaults: dict[str, ThresholdModel] = {k: default_thresholds(k) for k in ("rod", "hook", "ball")}
         self.defaults.update(defaults or {})
         self.device_settings: dict[str, tuple[str, DeviceSettings]] = dict(device_settings or {})
-        self.engine = AlarmEngine(active_alarms)
+        active = list(active_alarms)
+        self.engine = AlarmEngine(active)
+        # Alarms resumed from the store: the rules restart from scratch, so one whose clear was lost (a full disk, a
+        # kill) would stay active for good. Each is confirmed by any condition of its type, else cleared once its
+        # device's fresh rules have run for `resume_confirm_s`. Only the rules' own types (rod, hook): ingest and
+        # presence alarms (device_conflict, ...) clear themselves.
+        self._resumed: dict[tuple[str, str], float | None] = {
+            (a.device_id, a.type): None for a in active
+            if a.active and (spec := SPECS.get(a.type)) is not None and spec.kind in ("rod", "hook")
+        }  # fmt: skip
         self.devices: dict[str, ImuDevice] = {}
         self.kinds: dict[str, str] = {}  # every device ever seen or configured -> wire kind
         self.kinds.update({d: k for d, (k, _) in self.device_settings.items()})
@@ -398,12 +412,30 @@ class Pipeline:
         conditions: list[_Timed] = []
         if imu:
             self._fuse(imu, now, out, conditions)
+        if self._resumed:
+            self._settle_resumed(conditions, now)
         for kind, t_us, src_us, c in conditions:
             out.alarms += [AlarmOut(kind, change, t_us, src_us) for change in self.engine.evaluate([c])]
         if self._spots_dirty and now - self._last_spots_s >= self.settings.spots_interval_s:
             out.spots = self.rank_spots(now)
             self._last_spots_s, self._spots_dirty = now, False
         return out
+
+    def _settle_resumed(self, conditions: list[_Timed], now: float) -> None:
+        """Confirm resumed alarms by their rules' conditions; clear the ones unconfirmed after `resume_confirm_s`
+        of their device's fused data (wall time)."""
+        for _, _, _, c in conditions:
+            self._resumed.pop((c.device_id, c.type), None)
+        for (device_id, alarm_type), since in list(self._resumed.items()):
+            dev = self.devices.get(device_id)
+            if dev is None:  # not fused yet (or restarting): its rules have not looked
+                continue
+            if since is None:
+                self._resumed[(device_id, alarm_type)] = now
+            elif now - since >= self.settings.resume_confirm_s:
+                del self._resumed[(device_id, alarm_type)]
+                msg = f"cleared: not confirmed within {self.settings.resume_confirm_s:g} s of data after a restart"
+                conditions.append((dev.kind, dev.t_us, None, Condition(device_id, alarm_type, None, now, message=msg)))
 
     def _device(self, p: schemas.ImuPacket, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None) -> ImuDevice:
         """Create a device after its warm-up window: the filter starts from the window's mean acc (+ mag), and
@@ -421,7 +453,10 @@ class Pipeline:
             except KeyError:
                 log.warning("device %s: filter %r not available, using %r", p.device_id, name, DEFAULT_FILTER)
                 name = DEFAULT_FILTER
-        if filt is not None:
+        hook_start = getattr(filt, "start", None) if p.kind == "hook" else None  # HookFilter: its own warm-up
+        if hook_start is not None:
+            hook_start(gyr, acc, mag, 1.0 / p.rate_hz, seed_bias=self.settings.warmup_bias_seed)
+        elif filt is not None:
             filt.initialise(acc0, mag0)
         else:
             if self._batch is None:
@@ -433,14 +468,8 @@ class Pipeline:
         g_std = gyr.std(axis=0) if gyr.shape[0] > 1 else np.full(3, math.inf)
         quiet = g_std < self.settings.rest_gyr_std_rad_s
         level = abs(float(np.linalg.norm(acc0)) - G_M_S2) < self.settings.rest_acc_tol_m_s2
-        if p.kind == "hook" and hasattr(filt, "assume_moving"):
-            # A hook can hang still yet twist in gusts: x/y quiet is rest for the swing (seed the x/y bias), z too
-            # seeds the z bias. Swinging at start: the filter must not assume plumb.
-            if level and quiet[0] and quiet[1]:
-                if self.settings.warmup_bias_seed:
-                    filt.seed_gyro_bias(gyr.mean(axis=0), axes=(0, 1, 2) if quiet[2] else (0, 1))  # type: ignore[union-attr]
-            else:
-                filt.assume_moving()  # type: ignore[union-attr]
+        if hook_start is not None:
+            pass  # rest, bias seeding and "already swinging" are decided by HookFilter.start
         elif level and quiet.all() and self.settings.warmup_bias_seed:
             self._seed_bias(dev, gyr.mean(axis=0))
         if p.kind == "rod":
@@ -692,11 +721,17 @@ class Pipeline:
             ref = dev.rest_heading_rad if dev.rest_heading_set_rad is None else dev.rest_heading_set_rad
             tors = hook_geo.torsion(q, ref)
             new = dev.hook.update(t_s, swing, tors)
+            rope = getattr(dev.filt, "rope_length_m", None)  # the hook filter's estimate at the batch's end
             for i, seq, t_us in ends:
+                if t_s[i] - dev.last_swing_t_s < self.settings.swing_interval_s - 1e-9:
+                    continue
+                dev.last_swing_t_s = float(t_s[i])
                 dev.swing = schemas.Swing(
                     device_id=dev.device_id, seq=seq, t_us=t_us, wall_t_us=t_us + dev.wall_offset_us,
                     swing_angle_rad=float(swing[i]), swing_direction_rad=float(hook_geo.displacement_bearing(q[i])),
-                    torsion_rad=float(tors[i]),
+                    torsion_rad=float(tors[i]), swing_phi_rad=float(hook_geo.swing_direction_paper(q[i], ref)),
+                    rest_heading_rad=math.remainder(ref, 2.0 * math.pi),
+                    rope_length_m=None if rope is None else float(rope),
                 )  # fmt: skip
                 out.swings.append(dev.swing)
         for cond in new:
@@ -847,7 +882,10 @@ def _make_filter(name: str, use_mag: bool, rope_length_m: float | None = None) -
     if name == HOOK_FILTER:
         from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
 
-        settings = HookFilterSettings() if rope_length_m is None else HookFilterSettings(rope_length_m=rope_length_m)
+        # The hook setting's length (configured, or the 10 m default) is a prior the pendulum frequency corrects: a
+        # wrong one is found within seconds of swinging, while a wide prior would let a trolley jerk read as a rope.
+        settings = HookFilterSettings() if rope_length_m is None else HookFilterSettings(
+            rope_length_m=rope_length_m, rope_length_known=True)
         return HookFilter(settings, use_mag=use_mag)
     if name in registry.FILTERS:
         return registry.make_filter(name, use_mag=use_mag)

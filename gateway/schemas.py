@@ -542,7 +542,10 @@ class AttitudeBlock(WireModel):
 
 
 class Swing(WireModel):
-    """Hook swing from the fused attitude (paper 001 eq. 4-7): angle Θ, direction Φ (ENU bearing), torsion φ."""
+    """Hook swing from the fused attitude at the last sample of IMU packet `seq` (paper 001 eq. 4-7); the angles are
+    defined in section 3.5 "Hook angles": swing angle Θ, displacement bearing, the paper's swing-plane direction Φ,
+    torsion φ, all from the gateway's heading frame. At most one per IMU packet, at most `swing_rate_hz` (20 Hz by
+    default) per hook; published with BLOCK (see the key table)."""
 
     v: Version = 1
     device_id: DeviceId
@@ -552,6 +555,9 @@ class Swing(WireModel):
     swing_angle_rad: _Angle
     swing_direction_rad: _Angle
     torsion_rad: Finite
+    swing_phi_rad: _Angle | None = None
+    rest_heading_rad: _Angle | None = None
+    rope_length_m: Annotated[float, Field(gt=0.0, le=1000.0, allow_inf_nan=False)] | None = None
 
 
 class Height(WireModel):
@@ -794,7 +800,9 @@ class SequenceTracker:
     (`CONFLICT_EVIDENCE` of them) another publisher is using the key (a spoofer, or two devices with one id). The
     tracker then goes back to the boot it followed first (`conflict`: this packet is accepted) and from then on
     classifies the newcomer's boot as `rival` (dropped, counted in `conflicts`): a forged boot_id can no longer
-    make the real stream look stale. Which of the two is genuine cannot be known without authentication (zenoh
+    make the real stream look stale. The same holds within one boot: after a jump ahead by `window` or more, when
+    the sequence left behind goes on (`CONFLICT_EVIDENCE` packets), the tracker follows it again and packets near
+    the jumped-to sequence are `rival`. Which of the two is genuine cannot be known without authentication (zenoh
     access control, docs/security.md); the gateway raises a `device_conflict` alarm.
     Counters accumulate in `ok`, `lost`, `duplicates`, `reordered`, `reboots`, `conflicts`.
     """
@@ -805,6 +813,10 @@ class SequenceTracker:
     previous_newest: int = 0
     previous_fresh: int = 0
     rival_boot_id: int | None = None
+    jumped_from: int | None = None  # newest seq before the last jump ahead by >= window (same boot)
+    jump_lost: int = 0
+    jump_fresh: int = 0
+    rival_seq: tuple[int, int] | None = None  # (boot, newest seq) of a second publisher using the same boot_id
     newest: int = 0
     _seen: set[int] = field(default_factory=set)
     ok: int = 0
@@ -828,7 +840,15 @@ class SequenceTracker:
                     return self._resume_previous(seq)
             self.duplicates += 1  # a straggler from before the reboot: stale, not a second reboot
             return SeqResult("duplicate")
+        if self.rival_seq is not None and boot_id == self.rival_seq[0]:
+            d = (seq - self.rival_seq[1]) % UINT32
+            if d < self.window or UINT32 - d < self.window:  # near the rival's sequence, not ours
+                if 0 < d < self.window:
+                    self.rival_seq = (boot_id, seq)
+                self.conflicts += 1
+                return SeqResult("rival")
         if self.boot_id is None or boot_id != self.boot_id:
+            self.jumped_from = None
             self.previous_boot_id, self.previous_newest, self.previous_fresh = self.boot_id, self.newest, 0
             status: SeqStatus = "first" if self.boot_id is None else "reboot"
             if status == "reboot":
@@ -841,6 +861,8 @@ class SequenceTracker:
             self.duplicates += 1
             return SeqResult("duplicate")
         if ahead < UINT32 // 2:
+            if ahead >= self.window:  # a big jump: remember where from, in case that sequence goes on
+                self.jumped_from, self.jump_lost, self.jump_fresh = self.newest, ahead - 1, 0
             self.newest = seq
             self._remember(seq)
             self.ok += 1
@@ -855,8 +877,22 @@ class SequenceTracker:
             self.lost = max(0, self.lost - 1)
             self.ok += 1
             return SeqResult("reordered")
+        if self.jumped_from is not None and 0 < (seq - self.jumped_from) % UINT32 < self.window:
+            self.jumped_from = seq  # the sequence left behind by the jump goes on: a second publisher?
+            self.jump_fresh += 1
+            if self.jump_fresh >= CONFLICT_EVIDENCE:
+                return self._resume_sequence(boot_id, seq)
         self.duplicates += 1
         return SeqResult("duplicate")
+
+    def _resume_sequence(self, boot_id: int, seq: int) -> SeqResult:
+        """Two publishers with one boot_id (one jumped the seq ahead): follow the sequence seen first again."""
+        self.rival_seq = (boot_id, self.newest)
+        self.lost = max(0, self.lost - self.jump_lost)  # the jump's gap was not loss
+        self.newest, self._seen, self.jumped_from = seq, {seq}, None
+        self.conflicts += 1
+        self.ok += 1
+        return SeqResult("conflict")
 
     def _resume_previous(self, seq: int) -> SeqResult:
         """Two publishers: follow the boot seen first again; the newcomer's boot becomes the rival."""
@@ -942,7 +978,8 @@ def examples() -> dict[str, tuple[str, WireModel]]:
     height = Height(device_id="hook-1", kind="hook", seq=7, t_us=80_000, wall_t_us=wall + 86_000, vz_m_s=-0.12,
                     height_m=1.84, at_rest=False, aided="rest")
     swing = Swing(device_id="hook-1", seq=7, t_us=80_000, wall_t_us=wall + 86_000, swing_angle_rad=0.087,
-                  swing_direction_rad=1.2, torsion_rad=0.15)
+                  swing_direction_rad=1.2, torsion_rad=0.15, swing_phi_rad=0.6764, rest_heading_rad=0.5236,
+                  rope_length_m=9.87)  # the worked example of section 3.5
     alarm = AlarmEvent(
         alarm_id="3f2b9c0d5e8a4b7c9d1e2f3a4b5c6d7e", device_id="rod-1", kind="rod", alarm="bite", state="raised",
         severity="major", t_us=10_425_000, wall_t_us=wall + 10_436_000, source_wall_us=wall + 10_425_000, value=-12.0,
@@ -1013,7 +1050,7 @@ FIELD_NOTES: Final[dict[str, str]] = {
     "yaw_unwrapped_rad": "yaw without the ±π jumps",
     "filter_restarts": "fusion restarted from a fresh warm-up, by reason: the filter's exception class (e.g. "
                        "`LinAlgError`) or `non_finite` (it returned NaN/inf)",
-    "swing_direction_rad": "bearing of the swing plane, counter-clockwise from East",
+    "swing_direction_rad": "bearing of the hook's horizontal displacement, counter-clockwise from East",
     "gnss": "GNSS fix at sample 0 (ImuPacket) or at the reading (EnvPacket: where the ball lies); absent without a "
             "receiver",
     "lat_deg": "WGS-84 latitude, degrees north",
@@ -1039,6 +1076,19 @@ MODEL_FIELD_NOTES: Final[dict[tuple[str, str], str]] = {
     ("SpotScore", "lat_deg"): "where the spot's ball last reported its GNSS fix (WGS-84), absent without one",
     ("SpotScore", "lon_deg"): "as `lat_deg`",
     ("Height", "t_us"): "device monotonic clock (µs) of the sample",
+    ("Swing", "swing_angle_rad"): "Θ ∈ [0, π/2): angle between the rope and the vertical (section 3.5)",
+    ("Swing", "swing_direction_rad"): "displacement bearing ∈ (-π, π]: direction of the hook's horizontal "
+                                      "displacement from below the boom tip, CCW from East in the heading frame; "
+                                      "0 when Θ = 0 (section 3.5)",
+    ("Swing", "torsion_rad"): "φ ∈ (-π, π]: twist about the rope from the rest heading, right-handed about the rope "
+                              "(CCW seen from above); 0 = body x at the rest heading (section 3.5)",
+    ("Swing", "swing_phi_rad"): "paper 001 eq. 7 Φ ∈ [-π/2, π/2] relative to the rest heading ψ: sin Φ = sin θy / "
+                                "sin Θ; the bearing is ψ + Φ or ψ + π - Φ (section 3.5); absent from old gateways",
+    ("Swing", "rest_heading_rad"): "ψ: the rest heading torsion and Φ are taken from, CCW from East in the heading "
+                                   "frame (configured `rest_heading_deg`, else the first fused heading)",
+    ("Swing", "rope_length_m"): "the hook filter's estimate of the pendulum length (boom tip to the hook and load's "
+                                "centre), m; absent with other filters",
+    ("HookTruth", "swing_direction_rad"): "bearing of the hook's horizontal displacement, CCW from East (ENU)",
 }
 
 

@@ -1,8 +1,9 @@
 """End to end over real zenoh: a swinging, twisting hook PROCESS -> gateway PROCESS -> `gw/hook/*/swing`, compared
 with ground truth by sequence number (bench.hook_e2e's `free` scenario, shortened: still 1 s, a 2 s trolley jerk,
-free swing scored from 12 s after it, 15-26 s). Tolerances: swing RMSE < 0.15°, torsion and bearing relative to the
-start heading < 12°, with margin over what the same packets give in process (0.038°, 6.4°, 6.0° over 15-30 s);
-`python -m bench.hook_e2e` measures the full 40 s run."""
+free swing scored from 12 s after it, 15-26 s). Tolerances: swing RMSE < 0.4°, torsion and bearing relative to the
+start heading < 16°, with margin over what the same packets give in process (0.29°, 5°, 13.4° over 15-30 s; the
+violent 1.6 m/s² kick is why, see tests/fusion/test_hook_filter.py); `python -m bench.hook_e2e` measures the full
+40 s run. Every swing message between the first and the last received arrives (BLOCK, docs/protocol.md)."""
 
 from __future__ import annotations
 
@@ -23,6 +24,6 @@ def test_free_swing_follows_the_truth_through_zenoh(tmp_path: Path) -> None:
     free, whole = r["free"], r["all"]
     assert whole["n"] >= 0.8 * (duration_s - 1.5) / 0.05, "about one swing message per packet after warm-up"
     assert free["swing_angle_max_deg"] > 3.0, "the trolley jerk made the hook swing"
-    assert free["swing_angle_rmse_deg"] < 0.15, r
-    assert free["torsion_rmse_deg"] < 12.0, r
-    assert free["direction_rel_rmse_deg"] < 12.0, r
+    assert free["swing_angle_rmse_deg"] < 0.4, r
+    assert free["torsion_rmse_deg"] < 16.0, r
+    assert free["direction_rel_rmse_deg"] < 16.0, r

@@ -69,7 +69,8 @@ class ClientQueue:
 class LiveSettings:
     """Stream rates and bounds. `tick_s`: period of tick frames; `series_max`: samples kept per device between
     ticks (older ones are dropped); `raw_packets`: raw packets kept per key between ticks; `cards_every`: ticks between
-    full device cards (the other ticks carry only the new samples); `max_raw_keys`: raw buffers at most."""
+    full device cards (the other ticks carry only the new samples); `max_raw_keys`, `unknown_raw_bytes`: see
+    `LiveStream.on_raw`."""
 
     queue_size: int = 256
     tick_s: float = 0.1
@@ -77,6 +78,7 @@ class LiveSettings:
     series_max: int = 200
     raw_packets: int = 8
     max_raw_keys: int = 512  # raw buffers (one per known device's imu/env key)
+    unknown_raw_bytes: int = 4 * 1024 * 1024  # raw payloads of not (yet) known devices kept between two ticks
 
 
 @dataclass
@@ -121,7 +123,7 @@ def raw_imu_summary(payloads: list[bytes], now_s: float) -> dict[str, Any]:
             rate = float(p["rate_hz"])
             acc = np.asarray(p["acc_m_s2"], dtype=np.float64)
             t0 = p.get("wall_t0_us")
-        except (ValueError, KeyError, TypeError):
+        except (ValueError, KeyError, TypeError, RecursionError):  # RecursionError: deeply nested arrays
             continue
         if acc.ndim != 2 or acc.shape[1] != 3 or rate <= 0:
             continue
@@ -156,6 +158,7 @@ class LiveStream:
         self._task: asyncio.Task[None] | None = None
         self.entry_failures = 0
         self._entry_fail_logged_s = -math.inf
+        self._unknown_bytes = 0
 
     # -- producers --------------------------------------------------------------------------------------------
 
@@ -186,17 +189,33 @@ class LiveStream:
         return s
 
     def on_raw(self, key: str, payload: bytes) -> None:
-        """Bus callback (zenoh thread): keep the payload, nothing else. Only keys of devices the pipeline knows get
-        a buffer (and at most `max_raw_keys`): anyone can publish on `rig/*/*/imu`, and a buffer per arbitrary key
-        kept rejected payloads forever (150 keys of large payloads: +700 MB)."""
+        """Bus callback (zenoh thread): keep the payload, nothing else. Anyone can publish on `rig/*/*/imu`, and a
+        buffer per arbitrary key used to keep rejected payloads forever (150 keys of large payloads: +700 MB), so:
+        at most `max_raw_keys` buffers, payloads of devices the pipeline does not know (yet: a new device's first
+        packets) only up to `unknown_raw_bytes` between two ticks, and each tick drops their buffers (`prune_raw`)."""
+        if len(payload) > schemas.MAX_PAYLOAD_BYTES:  # ingest rejects it too
+            return
+        parts = key.split("/")
+        if len(parts) != 4:
+            return
+        if parts[2] not in self.service.pipeline.kinds:
+            if self._unknown_bytes + len(payload) > self.settings.unknown_raw_bytes:
+                return
+            self._unknown_bytes += len(payload)
         q = self._raw.get(key)
         if q is None:
-            parts = key.split("/")
-            if (len(parts) != 4 or parts[2] not in self.service.pipeline.kinds
-                    or len(self._raw) >= self.settings.max_raw_keys):  # fmt: skip
+            if len(self._raw) >= self.settings.max_raw_keys:
                 return
             q = self._raw.setdefault(key, collections.deque(maxlen=self.settings.raw_packets))
         q.append(payload)
+
+    def prune_raw(self) -> None:
+        """Drop the raw buffers of devices the pipeline does not know (event loop, every tick)."""
+        kinds = self.service.pipeline.kinds
+        for key in list(self._raw):
+            if key.split("/")[2] not in kinds:
+                self._raw.pop(key, None)
+        self._unknown_bytes = 0
 
     def _take_raw(self, key: str) -> list[bytes]:
         q = self._raw.get(key)
@@ -265,6 +284,7 @@ class LiveStream:
         """Tick loop; work is skipped while nobody listens (buffers are still bounded)."""
         while True:
             await asyncio.sleep(self.settings.tick_s)
+            self.prune_raw()
             if not self.clients:
                 continue
             try:

@@ -4,14 +4,16 @@ The method follows the ideas of VQF (D. Laidig, T. Seel, "VQF: Highly accurate I
 estimation and magnetic disturbance rejection", Information Fusion 91:187-204, 2023, doi:10.1016/j.inffus.2022.10.014):
 
 1. strapdown integration of the bias- and scale-corrected gyroscope into an almost-inertial frame I;
-2. the accelerometer is rotated into I and low-pass filtered there, so body rotation does not smear it;
+2. the accelerometer is rotated into I and low-pass filtered there, so body rotation does not smear it; samples of a
+   shock (|a| far from g: a tap rings the structure, aliased) are skipped;
 3. the filtered specific force, rotated by the inclination correction, is turned fully vertical each sample, which
    gives the 6D frame E6;
 4. the inclination corrections are explained by a gyro bias seen through the (equally filtered) rotation matrix,
    estimated by a Kalman filter in motion and directly from the low-passed gyro at rest. Our addition: per-axis
    gyro scale errors seen through the filtered R·diag(rate) join the same filter (6 states, not the paper's 3);
-5. heading: one angle delta between E6 and ENU, pulled towards the magnetometer's horizontal direction with a first-
-   order gain, frozen while the field's norm or dip departs from a tracked reference.
+5. heading: one angle delta between E6 and ENU, pulled towards the magnetometer's horizontal direction with the gain
+   of a scalar Kalman filter (steady state: time constant tau_mag; larger after a rejection), frozen while the field's
+   norm or dip (optionally: its bearing in E6) departs from a tracked reference.
 
 All time constants are in seconds, so one set of defaults serves 50 Hz .. 1 kHz. Everything here is scalar code on
 flat float64 arrays: no allocation per sample, so `step_device` streams one device and `step_devices` loops it over N.

@@ -1,35 +1,47 @@
-"""A hook attitude filter that knows it hangs on a rope: an EKF on the spherical-pendulum state (filterpy + numba).
+"""A hook attitude filter that knows it hangs on a rope: an EKF on the spherical-pendulum state (numba).
 
 Why: on a swinging hook the accelerometer measures rope tension, which always points along the rope (body z),
 so an AHRS that takes the accelerometer for gravity sees "level" and badly underestimates the swing angle Θ.
 Here the tilt comes from the pendulum dynamics instead: gravity sets the rope's angular acceleration, so the
-gyroscope (which measures the rope's swing rate) reveals where "down" is, and the tension magnitude
-`T/m = g cos Θ + l |n'|²` (accelerometer z) pins the swing amplitude (seed 001 Fig. 1, eq. 6).
+gyroscope (which measures the rope's swing rate) reveals where "down" is (seed 001 Fig. 1, eq. 6).
 
-State (14): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
+What the accelerometer does tell: its x/y axes (perpendicular to the rope) read every force on the hook that is
+*not* rope tension or gravity, per unit mass: a tag line pulled by a person, wind, air drag. Those forces drive
+the pendulum, so they are fed into the model as a measured input instead of being left to process noise. Its z
+axis reads the tension `T/m = g n_z + l |n'|² - l''`, which carries the swing amplitude and the hoist's
+acceleration `l''`.
+
+State (21): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
 `n_z = sqrt(1 - |p|²)`); `v = p'`; the hook heading about the rope `α` (swing-twist split
 `q = q_swing(n) ⊗ q_z(α)`, see gateway.fusion.hook) and its rate `α'`; the gyroscope bias `b` (rad/s, body);
-the offset of the tension channel (m/s²); the equilibrium `e` of `p` (`-f/g` for a steady horizontal force `f`
-per unit mass, e.g. wind); the gyroscope's x/y sensitivity `c` to the z rate (cross-axis coupling: a hook twisting
-at ~1 rad/s would otherwise put ~0.005 rad/s of false swing rate into x/y and double the Θ error).
+the offset of the tension channel (m/s²); the accelerometer x/y bias (m/s², body); the gyroscope's x/y
+sensitivity `c` to the z rate (cross-axis coupling); the rope: `ln l`, `l'` (m/s) and `l''` (m/s²).
 
-* Predict: RK4 of the pendulum `p'' = -(g/l)(n_z p - e + (p·e) p) - |n'|² p` (boom tip assumed still: trolley
-  moves and gusts enter as process noise on `v`), `α` integrates `α'`; `α'`, `b`, offset and `e` random-walk,
-  `c` is constant. `e` is observable because tension `g n_z` then has a component at the swing frequency
-  ∝ `e · amplitude`.
+* Predict: RK4 of the pendulum with a moving rope length,
+  `p'' = -(g n_z p + W)/l - 2 (l'/l) p' - |n'|² p`, where `W` is the horizontal part of the measured non-tension
+  force `R (f_x - b_x, f_y - b_y, 0)` (accelerometer x/y minus its bias and the lever-arm terms
+  `ω' × r + ω × (ω × r)` of the IMU's offset `r` from the rope axis, from the measured gyroscope). The boom tip's
+  acceleration (trolley, slewing) is unobservable from the hook (equivalence principle) and enters as process
+  noise on `v` (`tip_accel_psd / l²`). `α` integrates `α'`; `α'`, the biases and the offset random-walk; `c` is
+  constant; `l` integrates `l'`, which integrates `l''` (mean-reverting: hoist drives accelerate briefly).
 * Update: gyroscope `ω_b(n, n', α, α') + b + (c_x, c_y, 0) ω_z` (exact kinematics of the split, as in
-  devices.hook_physics); accelerometer z `T/m + [ω' × r + ω × (ω × r)]_z + offset` (lever arm `r` of the IMU
-  from the rope axis) after subtracting the zero-g offset calibrated at rest; in 9D the magnetometer `Rᵀ m_ref`
-  for heading only (its Jacobian is restricted to `α`, so hard-iron errors cannot tilt the estimate; likewise the
-  tension row only informs the swing states and its offset).
-* Jacobians are forward differences of numba kernels. `update()` feeds them to filterpy's
-  ExtendedKalmanFilter; `run()` is a numba twin of the same steps (tests check they agree).
+  devices.hook_physics); accelerometer z `l |n'|² + g n_z - l'' + [ω' × r + ω × (ω × r)]_z + offset` after
+  subtracting the zero-g offset calibrated at start; in 9D the magnetometer `Rᵀ m_ref` for heading only (its
+  Jacobian is restricted to `α`, so hard-iron errors cannot tilt the estimate).
+* Rope length: the pendulum frequency (gravity's restoring term) and the response of the rope rate to a
+  measured pull (`W / l`) make `l` observable whenever the hook swings or is pushed; a configured length is the
+  prior (`rope_length_known`), not a constraint.
+* Jacobians are forward differences of numba kernels; the update is filterpy's (Joseph form) except that the
+  rope's speed and hoist acceleration take corrections from the tension channel only (a consider-style gain
+  restriction filterpy cannot express), so the filter runs its own `ekf_step`: `update()` one sample, `run()` a
+  numba loop of the same step (tests check they agree).
 * Adaptive process noise: when the swing-rate innovation fails a χ² gate, its square is added to the rope-rate
   variance (an unmodelled push), so the state follows the gyroscope instead of bending bias and tilt.
 
-Limits: the boom tip's acceleration is not observable from the hook IMU (equivalence principle), so during a
-trolley move Θ is the swing about the vertical *assuming a still boom tip*; the estimate re-converges after it.
-6D heading is a free gauge (starts at 0), so bearings and torsion are relative to the start heading.
+Limits: during a trolley or slewing move Θ is estimated assuming a still boom tip (the error is about the tip's
+acceleration / g for as long as the move lasts against the filter's pull towards the pendulum model); a steady
+force present when the filter starts is indistinguishable from accelerometer bias. 6D heading is a free gauge
+(starts at 0), so bearings and torsion are relative to the start heading.
 """
 
 from __future__ import annotations
@@ -38,45 +50,71 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 
 from gateway.fusion.base import AttitudeFilter, FloatArray
 from gateway.fusion.quaternion import njit
 
-N_STATE = 14
+N_STATE = 21
 _P, _V, _ALPHA, _ALPHA_RATE, _BIAS, _ACC_BIAS = slice(0, 2), slice(2, 4), 4, 5, slice(6, 9), 9
+_ACC_XY, _CROSS, _LOG_L, _L_RATE, _L_ACC, _TIP = slice(10, 12), slice(12, 14), 14, 15, 16, slice(17, 19)
+_LEVER = slice(19, 21)  # the IMU's x/y offset from the rope axis (its z offset is a setting)
+N_INPUT = 8  # per-sample process input: accelerometer x/y, gyroscope (3), its backward difference (3)
+# params layout (numba kernels take one float array)
+(_G, _RX, _RY, _RZ, _MX, _MY, _MZ, _USE_MAG, _GATE, _TIP_PSD, _FORCE_STD, _HOIST_TAU, _L_MIN, _TIP_TAU,
+ _FORCE_ON, _L_MAX, _NIS_TAU, _NIS_GATE, _TIP_MOVE) = range(19)
 
 
 @dataclass(frozen=True)
 class HookFilterSettings:
     """Rope and noise model. Noise figures are per-sample standard deviations unless named a PSD."""
 
-    rope_length_m: float = 10.0
+    rope_length_m: float = 10.0  # prior of the pendulum length (boom tip -> hook + load centre)
+    rope_length_known: bool = False  # True: `rope_length_m` was configured (prior std `rope_known_rel_std`)
+    rope_known_rel_std: float = 0.05  # a configured length, relative 1σ (a measured rope, unknown rigging)
+    rope_unknown_rel_std: float = 0.3  # no configured length: ln-length 1σ (wider lets a trolley jerk at rest
+    # read as a rope length: 10 m -> 180 m in bench.hook_accuracy's 1.6 m/s² kick with 0.7)
+    min_rope_length_m: float = 0.5
+    max_rope_length_m: float = 200.0
     gravity_m_s2: float = 9.80665
     lever_arm_m: tuple[float, float, float] = (0.1, 0.0, 0.0)  # IMU position from the rope axis, body frame
     gyro_noise_rad_s: float = 0.0015  # MPU-6050: 0.05 °/s rms at 100 Hz, plus quantisation and scale errors
     acc_noise_m_s2: float = 0.15  # tension channel: white noise plus unmodelled lever-arm and scale terms
+    force_noise_m_s2: float = 0.06  # accelerometer x/y as the force input: noise + lever-arm derivative noise
     mag_noise_uT: float = 30.0  # weak on purpose: hard-iron-biased heading fixes would jolt the swing estimate
-    swing_accel_psd: float = 1e-4  # (rad/s²)²/Hz: wind, trolley moves and other unmodelled rope accelerations
+    tip_accel_std_m_s2: float = 0.06  # boom-tip acceleration (trolley, slewing): stationary std of its state
+    tip_accel_tau_s: float = 5.0  # ... and its correlation time (moves start and stop)
+    tip_accel_psd: float = 0.001  # (m/s²)²/Hz: white part of the unmeasured horizontal accelerations
+    use_force_input: bool = True  # False: the accelerometer's x/y are ignored (the filter before issue 11)
+    lever_std_m: float = 0.03  # prior std of the IMU's x/y offset from the rope axis around `lever_arm_m`
     torsion_accel_psd: float = 1.0  # (rad/s²)²/Hz: the hook's twist is driven by the rope's torsion spring
     gyro_bias_psd: float = 1e-8  # (rad/s)²/s: bias random walk
     acc_bias_psd: float = 1e-6  # (m/s²)²/s: drift of the tension channel's offset
-    equilibrium_psd: float = 1e-6  # rad²/s: drift of the equilibrium tilt (steady wind)
+    acc_xy_bias_psd: float = 1e-8  # (m/s²)²/s: drift of the accelerometer x/y bias
+    log_length_psd: float = 1e-7  # 1/s: slow drift of ln l (rope stretch, rigging)
+    rope_rate_psd: float = 1e-5  # (m/s)²/s: rope speed changes beyond the modelled hoist accelerations
+    hoist_accel_std_m_s2: float = 0.05  # stationary std of the mean-reverting hoist acceleration l'' (larger lets
+    # swing errors in the tension channel read as hoisting: tuned on bench.hook_suite seeds 1-6)
+    hoist_tau_s: float = 1.0  # its correlation time
+    move_nis_tau_s: float = 0.3  # running mean of the swing-rate innovation's normalised square (2 when all is well)
+    move_nis_gate: float = 4.0  # above it a move is going on: the boom-tip acceleration state is widened
+    tip_accel_move_std_m_s2: float = 0.5  # the boom-tip acceleration's std during a detected move
     surprise_gate: float = 16.0  # χ² (2 dof) gate on the swing-rate innovation for adaptive process noise
     init_swing_std: float = 0.02  # rad, per horizontal axis: hanging still at initialisation
     init_rate_std_rad_s: float = 0.02
     init_heading_std_rad: float = 0.05  # 6D: heading is a free gauge, start it tight at 0
     init_bias_std_rad_s: float = 0.03  # MPU-6050 residual start-up bias is about 1 °/s
     init_acc_offset_std_m_s2: float = 0.1  # left after the rest calibration (scale error × g, bias drift)
-    init_equilibrium_std: float = 0.002  # rad: steady wind tilt at start
+    max_warmup_acc_bias_m_s2: float = 0.4  # `start()`: a larger mean x/y force in the warm-up is not bias (40 mg)
+    init_acc_xy_bias_std_m_s2: float = 0.03  # after `start()`: wind at start is taken for bias (learnt as it twists)
     init_cross_axis_std: float = 0.01  # gyro x/y sensitivity to the z rate (MPU-6050 cross-axis ±2 %)
     moving_swing_std: float = 0.3  # rad, per axis: priors after `assume_moving()` (started while swinging)
     moving_rate_std_rad_s: float = 0.3
     moving_acc_offset_std_m_s2: float = 0.5  # the window's mean tension is not g when swinging
+    rest_gyr_std_rad_s: float = 0.01  # `start()`: a warm-up window counts as rest below this gyro std per axis
+    rest_acc_tol_m_s2: float = 0.5  # ... and with |acc| within this of g
 
 
 # --- model kernels (numba, scalar code per sample) ---------------------------------------------------------------
-# params: [g, l, r_x, r_y, r_z, m_ref_x, m_ref_y, m_ref_z, use_mag, surprise_gate]
 
 
 @njit
@@ -103,60 +141,86 @@ def _attitude_rate(
 
 @njit
 def attitude_and_rate(x: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """`q = q_swing(n) ⊗ q_z(α)` and the body rate `2 vec(q* ⊗ q')` in rad/s for one state (14,)."""
+    """`q = q_swing(n) ⊗ q_z(α)` and the body rate `2 vec(q* ⊗ q')` in rad/s for one state (21,)."""
     qw, qx, qy, qz, wx, wy, wz = _attitude_rate(x[0], x[1], x[2], x[3], x[4], x[5])
     return np.array([qw, qx, qy, qz]), np.array([wx, wy, wz])
 
 
 @njit
 def _pendulum_accel(
-    px: float, py: float, vx: float, vy: float, g_over_l: float, ex: float, ey: float
+    px: float, py: float, vx: float, vy: float, g: float, l: float, l_rate: float, wx: float, wy: float
 ) -> tuple[float, float]:
-    """`p'' = -(g/l)(n_z p - e + (p·e) p) - |n'|² p`: horizontal part of `n''` for a pendulum whose equilibrium
-    is tilted to `p = e` by a steady horizontal force `-g e` per unit mass (wind); `e = 0` is the free pendulum."""
-    nz = np.sqrt(max(1.0 - px * px - py * py, 1e-6))
+    """`p'' = -(g n_z p + W)/l - 2 (l'/l) v - |n'|² p`: horizontal part of `n''` on a rope of length `l` changing at
+    `l'`, driven by the horizontal non-tension force per unit mass `W = (wx, wy)` (perpendicular to the rope)."""
+    nz = math.sqrt(max(1.0 - px * px - py * py, 1e-6))
     vz = -(px * vx + py * vy) / nz
-    k = g_over_l * (nz + px * ex + py * ey) + vx * vx + vy * vy + vz * vz
-    return -k * px + g_over_l * ex, -k * py + g_over_l * ey
+    k = g * nz / l + vx * vx + vy * vy + vz * vz
+    c = 2.0 * l_rate / l
+    return -k * px - wx / l - c * vx, -k * py - wy / l - c * vy
 
 
 @njit
-def process(x: FloatArray, dt_s: float, g_over_l: float) -> FloatArray:
-    """State (14,) after `dt_s`: RK4 of the pendulum (`_pendulum_accel`), α integrates α'."""
-    px, py, vx, vy, ex, ey = x[0], x[1], x[2], x[3], x[10], x[11]
-    a1x, a1y = _pendulum_accel(px, py, vx, vy, g_over_l, ex, ey)
+def force_input(u: FloatArray, rx: float, ry: float, rz: float) -> tuple[float, float]:
+    """Body x/y specific force that is not tension, from the input row `u` (N_INPUT,): accelerometer x/y minus
+    the lever-arm terms `ω' × r + ω × (ω × r)` of the IMU at `r` (ω the gyroscope, ω' its backward difference).
+    Accelerometer bias not removed."""
+    wx, wy, wz, dx, dy, dz = u[2], u[3], u[4], u[5], u[6], u[7]
+    wr, w2 = wx * rx + wy * ry + wz * rz, wx * wx + wy * wy + wz * wz
+    return (u[0] - (dy * rz - dz * ry) - (wx * wr - rx * w2),
+            u[1] - (dz * rx - dx * rz) - (wy * wr - ry * w2))  # fmt: skip
+
+
+@njit
+def process(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray) -> FloatArray:
+    """State (21,) after `dt_s` with the process input row `u` (see `force_input`): RK4 of the
+    pendulum (`_pendulum_accel`, rope length held at its mid-step value), α integrates α', the rope length
+    integrates its rate and acceleration, the hoist acceleration decays."""
+    px, py, vx, vy = x[0], x[1], x[2], x[3]
+    g = params[_G]
+    l0 = math.exp(x[_LOG_L])
+    ld, ldd = x[_L_RATE], x[_L_ACC]
+    l = max(l0 + 0.5 * dt_s * ld, params[_L_MIN])
+    qw, qx, qy, qz, _, _, _ = _attitude_rate(px, py, vx, vy, x[4], x[5])
+    fx, fy = force_input(u, x[19], x[20], params[_RZ])
+    fx, fy = (fx - x[10]) * params[_FORCE_ON], (fy - x[11]) * params[_FORCE_ON]
+    wx = (1.0 - 2.0 * (qy * qy + qz * qz)) * fx + 2.0 * (qx * qy - qw * qz) * fy - x[17]
+    wy = 2.0 * (qx * qy + qw * qz) * fx + (1.0 - 2.0 * (qx * qx + qz * qz)) * fy - x[18]
+    a1x, a1y = _pendulum_accel(px, py, vx, vy, g, l, ld, wx, wy)
     h = 0.5 * dt_s
-    a2x, a2y = _pendulum_accel(px + h * vx, py + h * vy, vx + h * a1x, vy + h * a1y, g_over_l, ex, ey)
-    a3x, a3y = _pendulum_accel(
-        px + h * (vx + h * a1x), py + h * (vy + h * a1y), vx + h * a2x, vy + h * a2y, g_over_l, ex, ey
-    )
-    a4x, a4y = _pendulum_accel(
-        px + dt_s * (vx + h * a2x), py + dt_s * (vy + h * a2y), vx + dt_s * a3x, vy + dt_s * a3y, g_over_l, ex, ey
-    )
+    a2x, a2y = _pendulum_accel(px + h * vx, py + h * vy, vx + h * a1x, vy + h * a1y, g, l, ld, wx, wy)
+    a3x, a3y = _pendulum_accel(px + h * (vx + h * a1x), py + h * (vy + h * a1y), vx + h * a2x, vy + h * a2y, g, l,
+                               ld, wx, wy)  # fmt: skip
+    a4x, a4y = _pendulum_accel(px + dt_s * (vx + h * a2x), py + dt_s * (vy + h * a2y), vx + dt_s * a3x,
+                               vy + dt_s * a3y, g, l, ld, wx, wy)  # fmt: skip
     out = x.copy()
     out[0] = px + dt_s / 6.0 * (vx + 2.0 * (vx + h * a1x) + 2.0 * (vx + h * a2x) + (vx + dt_s * a3x))
     out[1] = py + dt_s / 6.0 * (vy + 2.0 * (vy + h * a1y) + 2.0 * (vy + h * a2y) + (vy + dt_s * a3y))
     out[2] = vx + dt_s / 6.0 * (a1x + 2.0 * a2x + 2.0 * a3x + a4x)
     out[3] = vy + dt_s / 6.0 * (a1y + 2.0 * a2y + 2.0 * a3y + a4y)
     out[4] = x[4] + dt_s * x[5]
+    out[_LOG_L] = math.log(max(l0 + dt_s * ld + 0.5 * dt_s * dt_s * ldd, params[_L_MIN]))
+    out[_L_RATE] = ld + dt_s * ldd
+    out[_L_ACC] = ldd * math.exp(-dt_s / params[_HOIST_TAU])
+    decay = math.exp(-dt_s / params[_TIP_TAU])
+    out[17], out[18] = x[17] * decay, x[18] * decay
     return out
 
 
 @njit
 def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
-    """Predicted `[gyr (3), acc_z (1), mag (3, zero unless params[8])]` (7,) for one state (14,).
+    """Predicted `[gyr (3), acc_z (1), mag (3, zero unless params[_USE_MAG])]` (7,) for one state (21,).
 
-    acc_z is the tension `l |n'|² + g n_z` plus the lever-arm terms `[ω' × r + ω × (ω × r)]_z`, with `ω'` the
-    body-rate derivative along the pendulum's own motion (central difference over ±1 ms, twist acceleration 0).
-    Scalar code (no temporary arrays): it runs ~10 times per sample inside the Jacobian.
+    acc_z is the tension `l |n'|² + g n_z - l''` plus the lever-arm terms `[ω' × r + ω × (ω × r)]_z`, with `ω'` the
+    body-rate derivative along the free pendulum's own motion (central difference over ±1 ms, twist
+    acceleration 0). Scalar code (no temporary arrays): it runs ~10 times per sample inside the Jacobian.
     """
-    g, l = params[0], params[1]
-    rx, ry, rz = params[2], params[3], params[4]
+    g, l = params[_G], math.exp(x[_LOG_L])
+    rx, ry, rz = params[_RX], params[_RY], params[_RZ]
     px, py, vx, vy, alpha, alpha_rate = x[0], x[1], x[2], x[3], x[4], x[5]
     qw, qx, qy, qz, wx, wy, wz = _attitude_rate(px, py, vx, vy, alpha, alpha_rate)
     nz = math.sqrt(max(1.0 - px * px - py * py, 1e-6))
     vz = -(px * vx + py * vy) / nz
-    ax, ay = _pendulum_accel(px, py, vx, vy, g / l, x[10], x[11])
+    ax, ay = _pendulum_accel(px, py, vx, vy, g, l, x[_L_RATE], 0.0, 0.0)
     h = 1e-3
     _, _, _, _, px_, py_, pz_ = _attitude_rate(px + h * vx, py + h * vy, vx + h * ax, vy + h * ay,
                                                alpha + h * alpha_rate, alpha_rate)  # fmt: skip
@@ -166,9 +230,9 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
     lever_z = dwx * ry - dwy * rx + wz * (wx * rx + wy * ry + wz * rz) - rz * (wx * wx + wy * wy + wz * wz)
     out = np.zeros(7)
     out[0], out[1], out[2] = wx + x[6] + x[12] * wz, wy + x[7] + x[13] * wz, wz + x[8]
-    out[3] = l * (vx * vx + vy * vy + vz * vz) + g * nz + lever_z + x[9]
-    if params[8] > 0.0:  # Rᵀ m_ref
-        mx, my, mz = params[5], params[6], params[7]
+    out[3] = l * (vx * vx + vy * vy + vz * vz) + g * nz - x[_L_ACC] + lever_z + x[9]
+    if params[_USE_MAG] > 0.0:  # Rᵀ m_ref
+        mx, my, mz = params[_MX], params[_MY], params[_MZ]
         xx, yy, zz, xy, xz, yz = qx * qx, qy * qy, qz * qz, qx * qy, qx * qz, qy * qz
         wx_, wy_, wz_ = qw * qx, qw * qy, qw * qz
         out[4] = (1.0 - 2.0 * (yy + zz)) * mx + 2.0 * (xy + wz_) * my + 2.0 * (xz - wy_) * mz
@@ -178,54 +242,56 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
 
 
 @njit
-def process_jacobian(x: FloatArray, dt_s: float, g_over_l: float) -> FloatArray:
-    """Jacobian (14, 14) of `process` at `x`: forward differences (step 1e-7) in the pendulum columns `p, v, e`;
-    the rest is exact (α integrates α'; α', bias, offset and `e` random-walk)."""
+def process_jacobian(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray) -> FloatArray:
+    """Jacobian (21, 21) of `process` at `x`: forward differences (step 1e-7) in the columns the pendulum and the
+    rope length depend on; the rest is exact (α integrates α'; rates, biases and offsets random-walk)."""
     eps = 1e-7
-    f0 = process(x, dt_s, g_over_l)
+    f0 = process(x, dt_s, u, params)
     f_jac = np.eye(N_STATE)
     f_jac[4, 5] = dt_s
     xp = x.copy()
-    for j in (0, 1, 2, 3, 10, 11):
+    for j in (0, 1, 2, 3, 4, 10, 11, 14, 15, 16, 17, 18, 19, 20):
         xp[j] += eps
-        f_jac[:, j] = (process(xp, dt_s, g_over_l) - f0) / eps
+        f_jac[:, j] = (process(xp, dt_s, u, params) - f0) / eps
         xp[j] = x[j]
     return f_jac
 
 
 @njit
 def measurement_jacobian(x: FloatArray, params: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """`(h(x), ∂h/∂x)` (7,), (7, 12) by forward differences (exact in the linear bias and offset columns); the
-    magnetometer rows only see the heading α."""
+    """`(h(x), ∂h/∂x)` (7,), (7, 21) by forward differences (exact in the linear bias, offset and hoist columns);
+    the magnetometer rows only see the heading α."""
     eps = 1e-7
     h0 = measurement(x, params)
     h_jac = np.zeros((7, N_STATE))
     xp = x.copy()
-    for j in (0, 1, 2, 3, 4, 5, 10, 11):
+    for j in (0, 1, 2, 3, 4, 5, 14, 15):
         xp[j] += eps
         h_jac[:, j] = (measurement(xp, params) - h0) / eps
         xp[j] = x[j]
     for j in range(3):  # the gyroscope bias and the tension offset enter linearly
         h_jac[j, 6 + j] = 1.0
     h_jac[3, 9] = 1.0
+    h_jac[3, _L_ACC] = -1.0
     wz = h0[2] - x[8]  # cross-axis sensitivity: the twist rate leaks into x and y
     h_jac[0, 12], h_jac[1, 13] = wz, wz
     for j in range(N_STATE):
         if j != 4:  # heading-only magnetometer: hard iron must not tilt the rope estimate
             h_jac[4:, j] = 0.0
-        if 4 <= j <= 8:  # tension informs swing and its own offset only; lever terms must not steer twist/bias
+        if 4 <= j <= 8:  # tension informs swing, rope and its own offset only; lever terms must not steer twist/bias
             h_jac[3, j] = 0.0
     return h0, h_jac
 
 
 @njit
-def _post_update(x: FloatArray) -> None:
-    """Keep the rope below horizontal and wrap the heading."""
+def _post_update(x: FloatArray, params: FloatArray) -> None:
+    """Keep the rope below horizontal and at least `min_rope_length_m` long, and wrap the heading."""
     norm = np.sqrt(x[0] * x[0] + x[1] * x[1])
     if norm > 0.99:
         x[0] *= 0.99 / norm
         x[1] *= 0.99 / norm
     x[4] = (x[4] + np.pi) % (2.0 * np.pi) - np.pi
+    x[_LOG_L] = min(max(x[_LOG_L], math.log(params[_L_MIN])), math.log(params[_L_MAX]))
 
 
 @njit
@@ -239,79 +305,137 @@ def inflate_on_surprise(p_pred: FloatArray, h_jac: FloatArray, hx: FloatArray, z
     s = hs @ p_pred @ hs.T + np.diag(r_diag[:2])
     d2 = y @ np.linalg.solve(s, y)
     out = p_pred.copy()
-    if d2 > params[9]:
-        extra = (y[0] * y[0] + y[1] * y[1]) * (1.0 - params[9] / d2)
+    gate = params[_GATE]
+    if d2 > gate:
+        extra = (y[0] * y[0] + y[1] * y[1]) * (1.0 - gate / d2)
         out[2, 2] += extra
         out[3, 3] += extra
     return out
 
 
 @njit
+def _restrict_gain(k: FloatArray, surprised: bool) -> None:
+    """The rope's speed and hoist acceleration are corrected by the tension channel only (a Schmidt-style
+    consider update): swing-rate surprises from unmeasured boom-tip accelerations must not read as hoisting. While
+    the swing rate is surprising (a jerk the model does not know), the rope length is not corrected at all."""
+    for j in range(k.shape[1]):
+        if j != 3 or surprised:
+            k[_L_RATE, j] = 0.0
+            k[_L_ACC, j] = 0.0
+        if surprised:
+            k[_LOG_L, j] = 0.0
+
+
+@njit
+def process_noise(x: FloatArray, dt_s: float, q_psd: FloatArray, params: FloatArray) -> FloatArray:
+    """Diagonal process noise (21,) for one step: `q_psd dt`, and on the rope rate the boom tip's acceleration
+    and the force input's noise, both divided by the rope length."""
+    q = q_psd * dt_s
+    l = math.exp(x[_LOG_L])
+    f = params[_FORCE_STD] * dt_s / l
+    q[2] = q[3] = params[_TIP_PSD] * dt_s / (l * l) + f * f
+    return q
+
+
+@njit
 def ekf_step(
-    x: FloatArray, p: FloatArray, z: FloatArray, dt_s: float, params: FloatArray, q_psd: FloatArray, r_diag: FloatArray
+    x: FloatArray, p: FloatArray, z: FloatArray, u: FloatArray, dt_s: float, params: FloatArray, q_psd: FloatArray,
+    r_diag: FloatArray, monitor: FloatArray,
 ) -> tuple[FloatArray, FloatArray]:
-    """One predict + update in filterpy's operation order (Joseph form); `z` and `r_diag` are (4,) or (7,)."""
+    """One predict + update in filterpy's operation order (Joseph form); `z` and `r_diag` are (4,) or (7,).
+
+    `monitor` (1,) is updated in place: a running mean (time constant `params[_NIS_TAU]`) of the swing-rate
+    innovation's normalised square (2 on average when the model holds). Above `params[_NIS_GATE]` an unmodelled
+    push is going on (a trolley or slewing move): the boom-tip acceleration state's variance is raised to
+    `params[_TIP_MOVE]`²."""
     m = z.shape[0]
-    g_over_l = params[0] / params[1]
-    f_jac = process_jacobian(x, dt_s, g_over_l)
-    x_pred = process(x, dt_s, g_over_l)
-    p_pred = f_jac @ p @ f_jac.T + np.diag(q_psd * dt_s)
+    f_jac = process_jacobian(x, dt_s, u, params)
+    x_pred = process(x, dt_s, u, params)
+    p_pred = f_jac @ p @ f_jac.T + np.diag(process_noise(x, dt_s, q_psd, params))
     h_full, h_jac_full = measurement_jacobian(x_pred, params)
     hx, h_jac = h_full[:m], h_jac_full[:m]
-    p_pred = inflate_on_surprise(p_pred, h_jac, hx, z, params, r_diag)
+    y = z[:2] - hx[:2]
+    s2 = h_jac[:2] @ p_pred @ h_jac[:2].T + np.diag(r_diag[:2])
+    monitor[0] += (y @ np.linalg.solve(s2, y) - monitor[0]) * min(1.0, dt_s / params[_NIS_TAU])
+    moving = monitor[0] > params[_NIS_GATE]
+    if moving:
+        for i in (17, 18):
+            p_pred[i, i] = max(p_pred[i, i], params[_TIP_MOVE] ** 2)
+    p_inflated = inflate_on_surprise(p_pred, h_jac, hx, z, params, r_diag)
+    surprised = p_inflated[2, 2] > p_pred[2, 2]
+    p_pred = p_inflated
     rmat = np.diag(r_diag)
     pht = p_pred @ h_jac.T
     k = pht @ np.linalg.inv(h_jac @ pht + rmat)
+    _restrict_gain(k, surprised)
     x_new = x_pred + k @ (z - hx)
     i_kh = np.eye(N_STATE) - k @ h_jac
     p_new = i_kh @ p_pred @ i_kh.T + k @ rmat @ k.T
-    _post_update(x_new)
+    _post_update(x_new, params)
     return x_new, p_new
 
 
 @njit
 def ekf_run(
-    x0: FloatArray, p0: FloatArray, z: FloatArray, dt_s: float, params: FloatArray, q_psd: FloatArray,
-    r_diag: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Batch filter over measurements z (N, 4 or 7): quaternions (N, 4), final state and covariance."""
+    x0: FloatArray, p0: FloatArray, z: FloatArray, u: FloatArray, dt_s: float, params: FloatArray,
+    q_psd: FloatArray, r_diag: FloatArray, monitor: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Batch filter over measurements z (N, 4 or 7) and process inputs u (N, N_INPUT): quaternions (N, 4), rope lengths
+    (N,), final state and covariance."""
     n = z.shape[0]
     out = np.empty((n, 4))
+    lengths = np.empty(n)
     x, p = x0.copy(), p0.copy()
     for i in range(n):
-        x, p = ekf_step(x, p, z[i], dt_s, params, q_psd, r_diag)
+        x, p = ekf_step(x, p, z[i], u[i], dt_s, params, q_psd, r_diag, monitor)
         out[i] = attitude_and_rate(x)[0]
-    return out, x, p
+        lengths[i] = math.exp(x[_LOG_L])
+    return out, lengths, x, p
+
+
+def process_inputs(gyr: FloatArray, acc: FloatArray, gyr_prev: FloatArray, dt_s: float) -> FloatArray:
+    """Process input rows (N, N_INPUT): accelerometer x/y, gyroscope, and its backward difference (`gyr_prev` is
+    the sample before the first)."""
+    prev = np.concatenate([gyr_prev[None, :], gyr[:-1]], axis=0)
+    return np.ascontiguousarray(np.concatenate([acc[:, :2], gyr, (gyr - prev) / dt_s], axis=1))
 
 
 class HookFilter(AttitudeFilter):
-    """Pendulum-aware EKF for the crane hook (see the module docstring). `update()` runs filterpy's
-    ExtendedKalmanFilter on the numba model; `run()` the numba twin `ekf_run` (same operation order).
-    State: `self.ekf.x` (14,), `self.ekf.P` (14, 14)."""
+    """Pendulum-aware EKF for the crane hook (see the module docstring). `update()` runs one `ekf_step`, `run()`
+    the batch `ekf_run` (the same step in a numba loop). State: `self.x` (21,), `self.P` (21, 21)."""
 
     name = "hook"
 
     def __init__(self, settings: HookFilterSettings | None = None, *, use_mag: bool = True) -> None:
         super().__init__(use_mag=use_mag)
         self.settings = s = settings if settings is not None else HookFilterSettings()
-        self.ekf = ExtendedKalmanFilter(dim_x=N_STATE, dim_z=4)
+        self.x: FloatArray = np.zeros(N_STATE)
+        self.P: FloatArray = np.eye(N_STATE)
         self.acc_z_offset_m_s2 = 0.0
         self.mag_ref_uT: FloatArray | None = None
+        self._gyr_prev: FloatArray | None = None  # last gyro sample: its difference gives ω' for the lever arm
+        self._monitor = np.array([2.0])  # running mean of the swing-rate NIS (see `ekf_step`)
         self._q_psd = np.array(
-            [0.0, 0.0, s.swing_accel_psd, s.swing_accel_psd, 0.0, s.torsion_accel_psd]
+            [0.0, 0.0, 0.0, 0.0, 0.0, s.torsion_accel_psd]
             + [s.gyro_bias_psd] * 3
             + [s.acc_bias_psd]
-            + [s.equilibrium_psd] * 2
+            + [s.acc_xy_bias_psd] * 2
+            + [0.0] * 2
+            + [s.log_length_psd, s.rope_rate_psd, 2.0 * s.hoist_accel_std_m_s2**2 / s.hoist_tau_s]
+            + [2.0 * s.tip_accel_std_m_s2**2 / s.tip_accel_tau_s] * 2
             + [0.0] * 2
         )
         self._initialised = False
-        self._reset(heading_rad=0.0, heading_std_rad=s.init_heading_std_rad)
+        self._reset(heading_rad=0.0, heading_std_rad=s.init_heading_std_rad, acc_xy_bias=np.zeros(2))
 
     def _params(self, use_mag: bool) -> FloatArray:
         s = self.settings
         m = self.mag_ref_uT if (use_mag and self.mag_ref_uT is not None) else np.zeros(3)
         flag = 1.0 if (use_mag and self.mag_ref_uT is not None) else 0.0
-        return np.array([s.gravity_m_s2, s.rope_length_m, *s.lever_arm_m, *m, flag, s.surprise_gate])
+        return np.array([s.gravity_m_s2, *s.lever_arm_m, *m, flag, s.surprise_gate, s.tip_accel_psd,
+                         s.force_noise_m_s2, s.hoist_tau_s, s.min_rope_length_m, s.tip_accel_tau_s,
+                         1.0 if s.use_force_input else 0.0, s.max_rope_length_m, s.move_nis_tau_s, s.move_nis_gate,
+                         s.tip_accel_move_std_m_s2])  # fmt: skip
 
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings
@@ -319,84 +443,129 @@ class HookFilter(AttitudeFilter):
         out: FloatArray = np.square(np.array(sig[:m]))
         return out
 
-    def _reset(self, heading_rad: float, heading_std_rad: float) -> None:
+    def _reset(self, heading_rad: float, heading_std_rad: float, acc_xy_bias: FloatArray) -> None:
         s = self.settings
-        self.ekf.x = np.zeros(N_STATE)
-        self.ekf.x[_ALPHA] = heading_rad
+        self.x = np.zeros(N_STATE)
+        self.x[_ALPHA] = heading_rad
+        self.x[_ACC_XY] = acc_xy_bias
+        self.x[_LOG_L] = math.log(max(s.rope_length_m, s.min_rope_length_m))
+        self.x[_LEVER] = s.lever_arm_m[:2]
+        rope_std = s.rope_known_rel_std if s.rope_length_known else s.rope_unknown_rel_std
         std = np.array(
             [s.init_swing_std] * 2
             + [s.init_rate_std_rad_s] * 2
             + [heading_std_rad, 0.05]
             + [s.init_bias_std_rad_s] * 3
             + [s.init_acc_offset_std_m_s2]
-            + [s.init_equilibrium_std] * 2
+            + [s.init_acc_xy_bias_std_m_s2] * 2
             + [s.init_cross_axis_std] * 2
+            + [rope_std, 0.05, 0.05]
+            + [s.tip_accel_std_m_s2] * 2
+            + [s.lever_std_m] * 2
         )
-        self.ekf.P = np.diag(std**2)
+        self.P = np.diag(std**2)
 
     def initialise(self, acc_m_s2: FloatArray, mag_uT: FloatArray | None) -> None:
         """Hanging still: swing 0, the accelerometer's zero-g offset along the rope, heading from the magnetometer.
 
         The mean specific force at rest is `g` along body z, so `acc_z - g` is stored as the tension channel's
-        offset. With a magnetometer the heading is `atan2(m_x, m_y)` (the field's horizontal part points North)
-        and the reference field is `(0, |m_h|, m_z)`.
+        offset. The x/y bias starts at 0 (`start()` takes it from the warm-up window). With a magnetometer the heading
+        is `atan2(m_x, m_y)` (the field's horizontal part points North) and the reference field is `(0, |m_h|, m_z)`.
         """
         acc = np.asarray(acc_m_s2, dtype=np.float64)
         self.acc_z_offset_m_s2 = float(acc[2] - self.settings.gravity_m_s2)
         if self.use_mag and mag_uT is not None:
             m = np.asarray(mag_uT, dtype=np.float64)
             self.mag_ref_uT = np.array([0.0, math.hypot(m[0], m[1]), m[2]])
-            self._reset(math.atan2(m[0], m[1]), 0.2)
+            self._reset(math.atan2(m[0], m[1]), 0.2, np.zeros(2))
         else:
             self.mag_ref_uT = None
-            self._reset(0.0, self.settings.init_heading_std_rad)
+            self._reset(0.0, self.settings.init_heading_std_rad, np.zeros(2))
         self._initialised = True
+
+    def start(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
+              seed_bias: bool = True) -> None:  # fmt: skip
+        """Initialise from a warm-up window (M, 3), as the gateway does: a hook can hang still yet twist in gusts, so
+        x/y quiet is rest for the swing (their mean seeds the x/y gyro bias), z quiet too seeds the z bias;
+        swinging at start: `assume_moving()`. The accelerometer's x/y bias (with its cross-axis pick-up of the
+        tension) is the window's mean non-tension force: right for a free swing or a still hook in calm air, off by
+        the force of a steady wind at start (a body-fixed bias is a tilt to a hook that never twists)."""
+        gyr, acc = np.asarray(gyr_rad_s, dtype=np.float64), np.asarray(acc_m_s2, dtype=np.float64)
+        self.initialise(acc.mean(axis=0), None if mag_uT is None else np.asarray(mag_uT).mean(axis=0))
+        if gyr.shape[0] > 1:  # x/y bias: the window's mean force, without the lever-arm terms of a twisting hook
+            u = process_inputs(gyr, acc, gyr[0], dt_s)
+            r = self.settings.lever_arm_m
+            mean = np.mean([force_input(row, r[0], r[1], r[2]) for row in u], axis=0)
+            if float(np.hypot(*mean)) <= self.settings.max_warmup_acc_bias_m_s2:
+                self.x[_ACC_XY] = mean
+            else:  # a real force (the hook held aside, a pull): no bias guess, let the dynamics find it
+                self.x[_ACC_XY] = 0.0
+                for i in (10, 11):
+                    self.P[i, :] = self.P[:, i] = 0.0
+                    self.P[i, i] = self.settings.max_warmup_acc_bias_m_s2**2
+        s = self.settings
+        quiet = gyr.std(axis=0) < s.rest_gyr_std_rad_s if gyr.shape[0] > 1 else np.zeros(3, dtype=bool)
+        level = abs(float(np.linalg.norm(acc.mean(axis=0))) - s.gravity_m_s2) < s.rest_acc_tol_m_s2
+        if level and quiet[0] and quiet[1]:
+            if seed_bias:
+                self.seed_gyro_bias(gyr.mean(axis=0), axes=(0, 1, 2) if quiet[2] else (0, 1))
+        else:
+            self.assume_moving()
+
+    def _inputs(self, gyr: FloatArray, acc: FloatArray, dt_s: float) -> FloatArray:
+        """Process inputs (N, N_INPUT) for the samples, continuing the gyro difference across calls."""
+        prev = gyr[0] if self._gyr_prev is None else self._gyr_prev
+        self._gyr_prev = gyr[-1].copy()
+        return process_inputs(gyr, acc, prev, dt_s)
 
     def update(
         self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float
     ) -> FloatArray:
-        """Predict by `dt_s`, then correct with gyroscope, tension and (9D) magnetometer; returns q (4,)."""
+        """Predict by `dt_s` with the measured force, then correct with gyroscope, tension and (9D) magnetometer;
+        returns q (4,)."""
         if not self._initialised:
             self.initialise(acc_m_s2, mag_uT)
+        gyr, acc = np.asarray(gyr_rad_s, dtype=np.float64), np.asarray(acc_m_s2, dtype=np.float64)
         use_mag = self.use_mag and mag_uT is not None and self.mag_ref_uT is not None
-        params = self._params(use_mag)
-        g_over_l = params[0] / params[1]
-        f_jac = process_jacobian(self.ekf.x, dt_s, g_over_l)
-        self.ekf.x = process(self.ekf.x, dt_s, g_over_l)
-        self.ekf.P = f_jac @ self.ekf.P @ f_jac.T + np.diag(self._q_psd * dt_s)
-        z: list[FloatArray] = [
-            np.asarray(gyr_rad_s, dtype=np.float64), np.array([float(acc_m_s2[2]) - self.acc_z_offset_m_s2])
-        ]
+        u = self._inputs(gyr[None, :], acc[None, :], dt_s)[0]
+        z: list[FloatArray] = [gyr, np.array([float(acc[2]) - self.acc_z_offset_m_s2])]
         if use_mag:
             z.append(np.asarray(mag_uT, dtype=np.float64))
         zv: FloatArray = np.concatenate(z)
-        m = zv.shape[0]
-        hx, h_jac = measurement_jacobian(self.ekf.x, params)
-        self.ekf.P = inflate_on_surprise(self.ekf.P, h_jac[:m], hx[:m], zv, params, self._r_diag(m))
-        self.ekf.update(zv, lambda _x: h_jac[:m], lambda _x: hx[:m], R=np.diag(self._r_diag(m)))
-        _post_update(self.ekf.x)
+        self.x, self.P = ekf_step(self.x, self.P, zv, u, dt_s, self._params(use_mag), self._q_psd,
+                                  self._r_diag(zv.shape[0]), self._monitor)  # fmt: skip
         return self.quaternion
+
+    def run_with_length(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float
+                        ) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+        """Whole arrays (N, 3) through the numba twin of `update()`: quaternions (N, 4) and rope lengths (N,), m."""
+        gyr, acc = np.asarray(gyr_rad_s, dtype=np.float64), np.asarray(acc_m_s2, dtype=np.float64)
+        if not self._initialised:
+            self.initialise(acc[0], None if mag_uT is None else mag_uT[0])
+        use_mag = self.use_mag and mag_uT is not None and self.mag_ref_uT is not None
+        cols = [gyr, acc[:, 2:3] - self.acc_z_offset_m_s2]
+        if use_mag:
+            cols.append(np.asarray(mag_uT, dtype=np.float64))
+        z = np.ascontiguousarray(np.concatenate(cols, axis=1))
+        u = self._inputs(np.ascontiguousarray(gyr), np.ascontiguousarray(acc), dt_s)
+        quats, lengths, self.x, self.P = ekf_run(self.x, self.P, z, u, dt_s, self._params(use_mag), self._q_psd,
+                                                 self._r_diag(z.shape[1]), self._monitor)  # fmt: skip
+        return quats, lengths
 
     def run(
         self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float
     ) -> FloatArray:
         """Whole arrays (N, 3) through the numba twin of `update()`; returns (N, 4)."""
-        if not self._initialised:
-            self.initialise(acc_m_s2[0], None if mag_uT is None else mag_uT[0])
-        use_mag = self.use_mag and mag_uT is not None and self.mag_ref_uT is not None
-        cols = [np.asarray(gyr_rad_s, dtype=np.float64), np.asarray(acc_m_s2, dtype=np.float64)[:, 2:3]]
-        cols[1] = cols[1] - self.acc_z_offset_m_s2
-        if use_mag:
-            cols.append(np.asarray(mag_uT, dtype=np.float64))
-        z = np.ascontiguousarray(np.concatenate(cols, axis=1))
-        quats, self.ekf.x, self.ekf.P = ekf_run(
-            self.ekf.x, self.ekf.P, z, dt_s, self._params(use_mag), self._q_psd, self._r_diag(z.shape[1])
-        )
-        return quats
+        return self.run_with_length(gyr_rad_s, acc_m_s2, mag_uT, dt_s)[0]
 
     @property
     def quaternion(self) -> FloatArray:
-        return attitude_and_rate(self.ekf.x)[0]
+        return attitude_and_rate(self.x)[0]
+
+    @property
+    def rope_length_m(self) -> float:
+        """Current estimate of the pendulum length (boom tip to the hook and load's centre), m."""
+        return math.exp(float(self.x[_LOG_L]))
 
     def seed_gyro_bias(self, bias_rad_s: FloatArray, std_rad_s: float = 0.002, axes: tuple[int, ...] = (0, 1, 2)
                        ) -> None:  # fmt: skip
@@ -404,10 +573,10 @@ class HookFilter(AttitudeFilter):
 
         A hook that hangs still but twists (gusts turn it about the rope) still gives the x/y bias: seed (0, 1)."""
         idx = [_BIAS.start + a for a in axes]
-        self.ekf.x[idx] = np.asarray(bias_rad_s, dtype=np.float64)[list(axes)]
-        self.ekf.P[idx, :] = 0.0
-        self.ekf.P[:, idx] = 0.0
-        self.ekf.P[idx, idx] = std_rad_s**2
+        self.x[idx] = np.asarray(bias_rad_s, dtype=np.float64)[list(axes)]
+        self.P[idx, :] = 0.0
+        self.P[:, idx] = 0.0
+        self.P[idx, idx] = std_rad_s**2
 
     def assume_moving(self) -> None:
         """The initialisation window was not at rest (the hook was already swinging): widen the swing, rope-rate and
@@ -416,12 +585,12 @@ class HookFilter(AttitudeFilter):
         s = self.settings
         for i, std in ((0, s.moving_swing_std), (1, s.moving_swing_std), (2, s.moving_rate_std_rad_s),
                        (3, s.moving_rate_std_rad_s), (_ACC_BIAS, s.moving_acc_offset_std_m_s2)):  # fmt: skip
-            self.ekf.P[i, :] = 0.0
-            self.ekf.P[:, i] = 0.0
-            self.ekf.P[i, i] = std**2
+            self.P[i, :] = 0.0
+            self.P[:, i] = 0.0
+            self.P[i, i] = std**2
 
     @property
     def gyro_bias_rad_s(self) -> FloatArray:
         """Current gyroscope bias estimate, rad/s, body frame."""
-        out: FloatArray = self.ekf.x[_BIAS].copy()
+        out: FloatArray = self.x[_BIAS].copy()
         return out

@@ -191,6 +191,9 @@ class GatewayService:
                 c.reject(key, err, arrival)
                 self._publish_rejected(key, err, len(payload), now)
                 continue
+            if p.device_id not in c.devices and len(c.devices) >= self.settings.max_devices:  # type: ignore[union-attr]
+                self._device_limit(p.device_id, arrival)  # type: ignore[union-attr]
+                continue
             topic = key.rsplit("/", 1)[-1]
             if not c.accept(p.kind, p.device_id, topic, p.boot_id, p.seq, arrival):  # type: ignore[union-attr]
                 continue
@@ -305,7 +308,18 @@ class GatewayService:
 
     # -- presence and config --------------------------------------------------------------------------------
 
+    def _device_limit(self, device_id: str, now_s: float) -> None:
+        """A new device id beyond `max_devices`: counted and logged (rate-limited), never given state."""
+        self.counters.rejected["device_limit"] += 1
+        self.counters.log.warning("device_limit", f"new device {device_id[:64]!r} ignored: already "
+                                  f"{self.settings.max_devices} devices (--max-devices)", now_s)  # fmt: skip
+
     def _on_presence(self, key: str, alive: bool) -> None:
+        parts = key.split("/")
+        if (len(parts) == 3 and parts[2] not in self.presence.devices
+                and len(self.presence.devices) >= self.settings.max_devices):  # fmt: skip
+            self._device_limit(parts[2], time.monotonic())
+            return
         change = self.presence.update(key, alive, time.time())
         if change is None:
             return

@@ -101,10 +101,11 @@ class IngestCounters:
         return res.accept
 
     def drop(self, kind: str, device_id: str, reason: str, detail: str, now_s: float) -> None:
-        """Count a decoded packet dropped (or a field of it ignored) for `reason`; log it, rate-limited per device."""
+        """Count a decoded packet dropped (or a field of it ignored) for `reason`; log it, at most once per 5 s and
+        reason (not per device: a hostile peer can make up any number of ids)."""
         self.rejected[reason] += 1
         self.stream(kind, device_id).rejected[reason] += 1
-        self.log.warning(f"{reason}:{device_id}", f"device {device_id}: {reason}: {detail}", now_s)
+        self.log.warning(reason, f"device {device_id}: {reason}: {detail}", now_s)  # per reason: ids are many
 
     def reject(self, key: str, err: schemas.DecodeError, now_s: float) -> None:
         """Count a rejected packet by reason (and per device when the key names a known device)."""

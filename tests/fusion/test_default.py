@@ -268,8 +268,8 @@ def test_same_accuracy_at_50_200_and_1000_hz(use_mag):
 
 # ---- BROAD (real data, short slices) -----------------------------------------------------------------------
 # First 100 s of each trial (movement starts after ~35-45 s, so 53-62 s of movement are scored). Measured with the
-# defaults, total / inclination: 04 9D 0.88 / 0.55, 06 6D 0.73 / 0.65, 30 9D 2.21 / 1.12; VQF's C++ defaults on the
-# same slices 1.08 / 0.60, 0.73 / 0.65, 2.04 / 1.27. Thresholds leave ~30 % margin.
+# defaults, total / inclination: 04 9D 0.75 / 0.55, 06 6D 0.73 / 0.65, 30 9D 1.70 / 1.12 (before issue 14: 0.88, 0.73,
+# 2.21); VQF's C++ defaults on the same slices 1.08 / 0.60, 0.73 / 0.65, 2.04 / 1.27. Thresholds leave >= 30 % margin.
 
 BROAD_CASES = [
     ("04_undisturbed_slow_rotation_with_breaks_A", "9D", 1.15, 0.75),
@@ -420,3 +420,19 @@ def test_broad_means_ahead_of_vqf(broad_dir):
         ours = np.mean([o.total_deg for o, _ in pairs])
         ref = np.mean([r.total_deg for _, r in pairs])
         assert ours <= factor * ref, f"{mode}: mean total {ours:.3f} vs VQF {ref:.3f} (target {factor}x)"
+
+
+@given(st.floats(2.0, 60.0), st.sampled_from([0.002, 0.005, 0.01, 0.02]), st.floats(-170.0, 170.0))
+def test_heading_kalman_gain_equals_fixed_gain_while_field_is_used(tau_mag_s, dt_s, error_deg):
+    """The Kalman heading gain's random walk is chosen so that its steady-state gain is the fixed gain of `tau_mag_s`:
+    with the field never rejected the two filters agree to rounding, whatever the heading error they correct."""
+    q_true = quat.normalise(np.array([0.9, 0.2, -0.1, 0.35]))
+    d = static_imu(q_true, 200 * dt_s, rate_hz=1.0 / dt_s)
+    out = []
+    for kf in (True, False):
+        f = DefaultFilter(DefaultSettings(tau_mag_s=tau_mag_s, mag_heading_kf=kf, mag_rejection=False))
+        f.initialise(d["acc"][0], d["mag"][0])
+        f.state[K.S_DELTA] += np.radians(error_deg)
+        out.append(f.run(d["gyr"], d["acc"], d["mag"], d["dt_s"]))
+    np.testing.assert_allclose(out[0], out[1], atol=1e-12, rtol=0)
+    assert _heading_deg(out[0][-1], q_true) < abs(error_deg) + 1e-9  # and it did correct

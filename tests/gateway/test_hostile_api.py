@@ -21,16 +21,22 @@ def test_raw_buffers_are_kept_only_for_known_devices() -> None:
     """Old code: one 8-deep buffer per key ever seen, rejected payloads included, kept forever (150 keys of large
     payloads: +700 MB RSS). Now only keys of devices the pipeline knows get one, and at most max_raw_keys."""
     svc = SimpleNamespace(pipeline=SimpleNamespace(kinds={"rod-1": "rod"}))
-    live = LiveStream(svc, LiveSettings(max_raw_keys=4))  # type: ignore[arg-type]
+    live = LiveStream(svc, LiveSettings(max_raw_keys=40, unknown_raw_bytes=1_000_000))  # type: ignore[arg-type]
     big = b"x" * 100_000
-    for i in range(1000):
-        live.on_raw(f"rig/rod/spam-{i}/imu", big)
-    live.on_raw("rig/rod/rod-1/imu", b"{}")
-    assert list(live._raw) == ["rig/rod/rod-1/imu"]
-    for i in range(10):
+    for _ in range(3):  # three ticks of spam
+        for i in range(1000):
+            live.on_raw(f"rig/rod/spam-{i}/imu", big)
+        held = sum(len(p) for k, q in live._raw.items() if "spam" in k for p in q)
+        assert held <= 1_000_000 and len(live._raw) <= 40
+        live.on_raw("rig/rod/rod-1/imu", b"{}")
+        live.prune_raw()
+        assert list(live._raw) == ["rig/rod/rod-1/imu"]
+    live.on_raw("rig/rod/rod-1/imu", b"x" * 600_000)  # over the packet limit: never kept
+    assert len(live._raw["rig/rod/rod-1/imu"]) == 3
+    for i in range(50):
         svc.pipeline.kinds[f"rod-{i + 2}"] = "rod"
         live.on_raw(f"rig/rod/rod-{i + 2}/imu", big)
-    assert len(live._raw) == 4
+    assert len(live._raw) == 40
 
 
 def _wait(cond: Callable[[], bool], timeout_s: float = 10.0) -> None:

@@ -93,6 +93,22 @@ def test_a_spoofed_boot_id_does_not_silence_the_device(tmp_path: Path) -> None:
         assert store.counts("rod-1")["active"] == 0
 
 
+def test_a_spoofed_seq_jump_in_the_same_boot_does_not_silence_the_device(tmp_path: Path) -> None:
+    """Anyone who can subscribe sees a device's boot_id; 3 packets with it and seq far ahead made every real packet
+    a duplicate ('too old'). Now the real sequence wins back and the spoofer's is the rival."""
+    real = fleet_imu(4.0)
+    boot = json.loads(real[0][1])["boot_id"]
+    spoof = [edit(m, seq=10**6 + i) for i, m in enumerate(real[40:43])]
+    with service(tmp_path) as (svc, bus, _):
+        run(svc, real[:40])
+        before = len(attitudes(bus, "rod-1"))
+        run(svc, spoof + real[40:60] + [edit(real[60], boot_id=boot, seq=10**6 + 9)] + real[61:])
+        assert len(attitudes(bus, "rod-1")) - before >= 35
+        stats = svc.counters.snapshot(0)
+        assert stats.rejected["device_conflict"] >= 2 and stats.devices[0].lost < 10  # not the 10**6 jump
+        assert [a["state"] for a in alarms(bus, "rod-1", "device_conflict")] == ["raised"]
+
+
 def test_a_real_reboot_is_not_a_conflict(tmp_path: Path) -> None:
     msgs = fleet_imu(2.0)
     rebooted = [edit(m, boot_id=777, seq=i) for i, m in enumerate(msgs[20:])]
@@ -158,3 +174,22 @@ def test_a_device_clock_that_really_jumped_resyncs(tmp_path: Path) -> None:
     assert stats.rejected["time_jump"] == 2 and stats.rejected["time_resync"] == 1
     late = [a for a in attitudes(bus, "rod-1") if int(a["t_us"]) > 7200 * 10**6]  # type: ignore[call-overload]
     assert len(late) >= 30
+
+
+def test_a_resumed_alarm_without_its_cause_clears(tmp_path: Path) -> None:
+    """An alarm left active in the store (its clear lost with a full disk or a kill) used to stay active for good:
+    the rules restart from scratch and never clear what they did not raise. Now it clears after 10 s of the
+    device's data without its condition."""
+    from gateway.alarm.engine import Alarm, AlarmStatus, Severity
+
+    stale = Alarm(id="stale1", device_id="rod-1", type="bite", severity=Severity.MAJOR, status=AlarmStatus.ACTIVE,
+                  started_at=1.0, updated_at=1.0, value=20.0, threshold=15.0, message="bite")  # fmt: skip
+    with Store(tmp_path / "gw.db") as store:
+        store.upsert_alarm(stale)
+    with service(tmp_path) as (svc, bus, store):
+        assert [a.id for a in svc.pipeline.engine.active("rod-1")] == ["stale1"]
+        run(svc, fleet_imu(30.0))  # a quiet rod, 15 s of gateway time at this pace
+        events = alarms(bus, "rod-1", "bite")
+        assert [(e["alarm_id"], e["state"]) for e in events] == [("stale1", "cleared")]
+        assert svc.writer.flush()
+        assert store.counts("rod-1")["active"] == 0

@@ -1,0 +1,276 @@
+"""Randomised crane-hook scenario suite: the hook filter vs VQF on the same samples, whole run and by phase.
+
+    python -m bench.hook_suite --help
+    python -m bench.hook_suite --seeds 101-110              # held-out seeds (never used for tuning), 9D
+    python -m bench.hook_suite --seeds 1-6 --duration 120   # the tuning seeds
+
+Each seed draws a crane (issue 11): rope 2-30 m (log-uniform), hook + load 0.5-20 t, torsion stiffness and
+inertia (twist period 4-20 s), the IMU 0.1 ± 0.02 m off the rope axis (the filter assumes 0.1 m and learns the
+rest), and a timeline over `--duration` s: the hook either hangs still or is already swinging (1-8°, any bearing,
+elliptic) when the gateway starts, then events separated by free swing: tag-line pulls (50-300 N for 1-5 s, any
+direction, then let go), trolley traverses (2-15 m at 0.2-0.5 m/s²), slewing moves (20-90° at 0.03-0.08 rad/s,
+15-50 m radius, 0.1-0.3 m/s² at the tip), hoisting and lowering (0.2-1 m/s, the rope stays within 2-30 m), wind
+(steady 0-60 N, gusts 10-40 % of it + 0-10 N std) and torque gusts about the rope (initial twist up to ±90°).
+Sensor errors: `devices.common.ImuErrorModel` preset (default `calibrated`, what the simulators publish).
+
+Both filters start as the gateway starts them (`HookFilter.start` on the first 0.5 s, VQF offline on the same
+samples); the hook filter is told the rope length at t = 0 (as a user sets it over REST) unless `--no-length`
+(then it starts from its default prior). Figures per seed, over the whole run after the 0.5 s warm-up and by
+phase (`free`: no event active; `pull`: a tag-line pull and the 5 s after it; `move`: trolley, slewing or
+hoisting and the 5 s after):
+
+- Θ RMSE / max: |Θ_est - Θ_true| in degrees;
+- dir RMSE: error of the displacement bearing where Θ_true > 1°, degrees (9D: absolute; 6D: relative to the
+  start heading);
+- torsion RMSE: φ_est - φ_true with the rest heading configured (9D; 6D: relative to the start), degrees;
+- rope: |l_est - l_true| RMS over the run (hook filter only), m.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from devices.common import EARTH_FIELD_ENU_UT, G_M_S2, ImuErrorModel, SensorModel
+from devices.hook_physics import (
+    Hoist,
+    HookPhysicsSettings,
+    HookScenario,
+    HookTruth,
+    Pull,
+    SlewMove,
+    TrolleyMove,
+    simulate,
+    trolley_traverse,
+)
+from gateway.fusion import hook
+from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
+
+RATE_HZ = 100.0
+WARMUP_S = 0.5
+AFTER_EVENT_S = 5.0
+PHASES = ("free", "pull", "move")
+
+
+@dataclass(frozen=True)
+class SuiteCase:
+    """One randomised crane: physics, scenario, and the sample phases (0 free, 1 pull, 2 move)."""
+
+    seed: int
+    physics: HookPhysicsSettings
+    scenario: HookScenario
+    events: tuple[tuple[str, float, float], ...]  # (kind, start_s, end_s)
+
+    def phase(self, t_s: np.ndarray) -> np.ndarray:
+        out = np.zeros(t_s.shape, dtype=np.int64)
+        for kind, a, b in self.events:
+            on = (t_s >= a) & (t_s < b + AFTER_EVENT_S)
+            out[on] = np.maximum(out[on], 1 if kind == "pull" else 2)
+        return out
+
+    def describe(self) -> str:
+        kinds = [k for k, _, _ in self.events]
+        return (f"l0 {self.physics.rope_length_m:4.1f} m, {self.physics.hook_mass_kg / 1000:4.1f} t, "
+                + ", ".join(f"{k} {kinds.count(k)}" for k in ("pull", "trolley", "slew", "hoist") if k in kinds))
+
+
+def make_case(seed: int, duration_s: float = 180.0) -> SuiteCase:
+    """The randomised crane and timeline of `seed` (see the module docstring)."""
+    rng = np.random.default_rng(seed)
+    l0 = float(math.exp(rng.uniform(math.log(2.0), math.log(30.0))))
+    mass = float(math.exp(rng.uniform(math.log(500.0), math.log(20000.0))))
+    twist_period_s = float(rng.uniform(4.0, 20.0))
+    inertia = 20.0 * mass / 500.0
+    stiffness = inertia * (2.0 * math.pi / twist_period_s) ** 2
+    lever = (0.1 + float(rng.uniform(-0.02, 0.02)), float(rng.uniform(-0.02, 0.02)), float(rng.uniform(-0.02, 0.02)))
+    physics = HookPhysicsSettings(
+        rope_length_m=l0, gravity_m_s2=G_M_S2, earth_field_uT=EARTH_FIELD_ENU_UT, swing_damping_1_s=0.002,
+        hook_mass_kg=mass, torsion_inertia_kg_m2=inertia, torsion_stiffness_n_m_rad=stiffness,
+        torsion_damping_n_m_s_rad=0.04 * 2.0 * math.sqrt(stiffness * inertia), lever_arm_m=lever,
+    )  # fmt: skip
+    swinging = rng.random() < 0.5
+    swing0 = math.radians(rng.uniform(1.0, 8.0)) if swinging else 0.0
+    omega = math.sqrt(G_M_S2 / l0)
+    events: list[tuple[str, float, float]] = []
+    trolleys: list[TrolleyMove] = []
+    slews: list[SlewMove] = []
+    hoists: list[Hoist] = []
+    pulls: list[Pull] = []
+    length = l0
+    t = float(rng.uniform(5.0, 15.0))
+    while t < duration_s - 10.0:
+        kind = str(rng.choice(["pull", "trolley", "slew", "hoist"]))
+        if kind == "pull":
+            dur = float(rng.uniform(1.0, 5.0))
+            f, b = float(rng.uniform(50.0, 300.0)), float(rng.uniform(-math.pi, math.pi))
+            pulls.append(Pull(t, dur, (f * math.cos(b), f * math.sin(b))))
+        elif kind == "trolley":
+            acc = float(rng.uniform(0.2, 0.5))
+            moves = trolley_traverse(t, float(rng.uniform(2.0, 15.0)), float(rng.uniform(-math.pi, math.pi)), acc)
+            trolleys += moves
+            dur = moves[-1].start_s + moves[-1].duration_s - t
+        elif kind == "slew":  # tower cranes slew at up to ~0.8 rpm
+            angle, rate = math.radians(rng.uniform(20.0, 90.0)), float(rng.uniform(0.03, 0.08))
+            radius = float(rng.uniform(15.0, 50.0))
+            ramp = radius * rate / float(rng.uniform(0.1, 0.3))  # tangential acceleration at the tip
+            dur = angle / rate + ramp
+            sign = float(rng.choice([-1.0, 1.0]))
+            slews.append(SlewMove(t, dur, angle * sign, radius, float(rng.uniform(-math.pi, math.pi)), ramp))
+        else:
+            speed = float(rng.uniform(0.2, 1.0))
+            target = float(math.exp(rng.uniform(math.log(2.0), math.log(30.0))))
+            speed = math.copysign(speed, target - length)
+            ramp = float(rng.uniform(2.0, 4.0))  # hoist drives accelerate at about 0.1-0.5 m/s²
+            dur = max(2.0 * ramp, abs(target - length) / abs(speed) + ramp)
+            hoists.append(Hoist(t, dur, speed, ramp))
+            length += speed * (dur - ramp)
+        events.append((kind, t, t + dur))
+        t += dur + float(rng.uniform(10.0, 30.0)) + 2.0 * math.pi / omega
+    steady = float(rng.uniform(0.0, 60.0))  # drag of a 10 m/s wind on about 1 m²
+    wind_n = steady * float(rng.uniform(0.1, 0.4)) + float(rng.uniform(0.0, 10.0))  # gusts: turbulence intensity
+    wb = float(rng.uniform(-math.pi, math.pi))
+    scenario = HookScenario(
+        duration_s=duration_s, output_rate_hz=RATE_HZ, initial_swing_rad=swing0,
+        initial_swing_bearing_rad=float(rng.uniform(-math.pi, math.pi)),
+        initial_sideways_rate_rad_s=float(rng.uniform(-0.3, 0.3)) * swing0 * omega,
+        initial_torsion_rad=math.radians(rng.uniform(-90.0, 90.0)),
+        initial_torsion_rate_rad_s=float(rng.uniform(-0.2, 0.2)) if swinging else 0.0,
+        trolley_moves=tuple(trolleys), slews=tuple(slews), hoists=tuple(hoists), pulls=tuple(pulls),
+        wind_mean_m_s2=(steady / mass * math.cos(wb), steady / mass * math.sin(wb)), wind_std_m_s2=wind_n / mass,
+        wind_tau_s=float(rng.uniform(1.0, 4.0)), wind_torque_std_n_m=float(rng.uniform(0.0, 0.3)) * stiffness,
+        seed=seed,
+    )  # fmt: skip
+    return SuiteCase(seed, physics, scenario, tuple(events))
+
+
+def hook_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rope_length_m: float | None
+                  ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Hook filter quaternions (N, 4) and rope-length estimates (N,), started as the gateway starts it."""
+    settings = HookFilterSettings() if rope_length_m is None else HookFilterSettings(rope_length_m=rope_length_m,
+                                                                                     rope_length_known=True)
+    f = HookFilter(settings, use_mag=mag is not None)
+    n = int(WARMUP_S * RATE_HZ)
+    f.start(gyr[:n], acc[:n], None if mag is None else mag[:n], 1.0 / RATE_HZ)
+    q, length = f.run_with_length(gyr, acc, mag, 1.0 / RATE_HZ)
+    return np.asarray(q), np.asarray(length)
+
+
+def vqf_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None) -> np.ndarray:
+    from vqf import offlineVQF
+
+    out = offlineVQF(np.ascontiguousarray(gyr), np.ascontiguousarray(acc),
+                     None if mag is None else np.ascontiguousarray(mag), 1.0 / RATE_HZ)  # fmt: skip
+    return np.asarray(out["quat6D" if mag is None else "quat9D"])
+
+
+def _wrap_deg(a: np.ndarray) -> np.ndarray:
+    return np.degrees(np.remainder(a + np.pi, 2 * np.pi) - np.pi)
+
+
+def score(q: np.ndarray, truth: HookTruth, keep: np.ndarray, absolute: bool) -> dict[str, float]:
+    """Θ RMSE / max, direction RMSE (Θ_true > 1°) and torsion RMSE in degrees over the samples `keep`."""
+    swing_err = np.degrees(hook.swing_angle(q) - truth.swing_rad)[keep]
+    i0 = int(np.argmax(keep))
+    off = 0.0 if absolute else float(hook.twist_heading(q[i0]) - (truth.torsion_rad[i0]))
+    bearing_err = _wrap_deg(hook.displacement_bearing(q) - truth.swing_bearing_rad - off)
+    swinging = keep & (truth.swing_rad > math.radians(1.0))
+    torsion_err = _wrap_deg(hook.torsion(q, off) - truth.torsion_rad)[keep]
+    if not keep.any():
+        return {}
+    return {
+        "swing_rmse": float(np.sqrt(np.mean(swing_err**2))), "swing_max": float(np.max(np.abs(swing_err))),
+        "dir_rmse": float(np.sqrt(np.mean(bearing_err[swinging] ** 2))) if swinging.any() else math.nan,
+        "torsion_rmse": float(np.sqrt(np.mean(torsion_err**2))),
+        "true_max": float(np.degrees(truth.swing_rad[keep].max())),
+    }  # fmt: skip
+
+
+def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length: bool
+             ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+    """`{filter: {phase or "all": figures}}` for one seed."""
+    case = make_case(seed, duration_s)
+    truth = simulate(case.physics, case.scenario)
+    sensor = SensorModel(ImuErrorModel.preset(imu), 1, np.random.default_rng(10_000 + seed))
+    gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / RATE_HZ)
+    mag = mag if use_mag else None
+    scored = truth.t_s >= WARMUP_S
+    phase = case.phase(truth.t_s)
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    q_hook, length = hook_estimate(gyr, acc, mag, case.physics.rope_length_m if tell_length else None)
+    for name, q in (("hook", q_hook), ("vqf", vqf_estimate(gyr, acc, mag))):
+        out[name] = {"all": score(q, truth, scored, use_mag)}
+        for k, ph in enumerate(PHASES):
+            out[name][ph] = score(q, truth, scored & (phase == k), use_mag)
+    true_l = truth.extra["rope_length_m"]
+    out["hook"]["all"]["rope_rms_m"] = float(np.sqrt(np.mean((length - true_l)[scored] ** 2)))
+    out["hook"]["all"]["rope_rel"] = float(np.sqrt(np.mean(((length - true_l) / true_l)[scored] ** 2)))
+    return out
+
+
+def parse_seeds(text: str) -> list[int]:
+    """`1-6` or `1,4,9` or a mix."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        a, _, b = part.partition("-")
+        seeds += list(range(int(a), int(b) + 1)) if b else [int(a)]
+    return seeds
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m bench.hook_suite", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    p.add_argument("--seeds", default="101-110", help="seeds, e.g. 101-110 (held out) or 1-6 (tuning)")
+    p.add_argument("--duration", type=float, default=180.0, help="simulated seconds per seed (default: 180)")
+    p.add_argument("--imu", default="calibrated", help="IMU error preset (calibrated, uncalibrated, legacy, ideal)")
+    p.add_argument("--6d", dest="six_d", action="store_true", help="no magnetometer")
+    p.add_argument("--no-length", action="store_true", help="do not tell the filter the rope length")
+    p.add_argument("--phases", action="store_true", help="also print each seed's figures by phase")
+    args = p.parse_args(argv)
+    seeds = parse_seeds(args.seeds)
+    print(f"hook suite, {'6D' if args.six_d else '9D'}, IMU {args.imu}, {args.duration:g} s per seed, rope length "
+          f"{'not told' if args.no_length else 'told at t = 0'}; degrees; whole run after {WARMUP_S:g} s")
+    print(f"{'seed':>4} {'crane':<44}{'':>6}{'Θ RMSE':>8}{'Θ max':>7}{'dir':>7}{'tors':>7}{'rope m':>8}")
+    rows: dict[str, list[dict[str, dict[str, float]]]] = {"hook": [], "vqf": []}
+    t0 = time.perf_counter()
+    for seed in seeds:
+        case = make_case(seed, args.duration)
+        r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length)
+        for name in ("hook", "vqf"):
+            rows[name].append(r[name])
+            a = r[name]["all"]
+            rope = f"{a['rope_rms_m']:8.2f}" if "rope_rms_m" in a else ""
+            label = case.describe() if name == "hook" else ""
+            print(f"{seed if name == 'hook' else '':>4} {label:<44}{name:>6}{a['swing_rmse']:8.3f}{a['swing_max']:7.2f}"
+                  f"{a['dir_rmse']:7.2f}{a['torsion_rmse']:7.2f}{rope}")
+            if args.phases:
+                for ph in PHASES:
+                    f = r[name][ph]
+                    if f:
+                        print(f"{'':>4} {'':<44}{ph:>6}{f['swing_rmse']:8.3f}{f['swing_max']:7.2f}"
+                              f"{f['dir_rmse']:7.2f}{f['torsion_rmse']:7.2f}")
+    print(f"summary over {len(seeds)} seeds (mean of RMSEs, worst max; phases pooled by seed)")
+    for name in ("hook", "vqf"):
+        for ph in ("all", *PHASES):
+            vals = [r[ph] for r in rows[name] if r.get(ph)]
+            if not vals:
+                continue
+            m = {k: float(np.nanmean([v[k] for v in vals])) for k in ("swing_rmse", "dir_rmse", "torsion_rmse")}
+            worst = max(v["swing_max"] for v in vals)
+            worst_rmse = max(v["swing_rmse"] for v in vals)
+            print(f"  {name:<5}{ph:<5} Θ RMSE {m['swing_rmse']:.3f} (worst seed {worst_rmse:.3f})  Θ max {worst:.2f}  "
+                  f"dir {m['dir_rmse']:.2f}  torsion {m['torsion_rmse']:.2f}")
+    pairs = zip(rows["hook"], rows["vqf"], strict=True)
+    beaten = sum(h["all"]["swing_rmse"] < v["all"]["swing_rmse"] for h, v in pairs)
+    rope_rel = [r["all"]["rope_rel"] for r in rows["hook"]]
+    print(f"  hook below VQF (whole-run Θ RMSE) on {beaten}/{len(seeds)} seeds; rope length RMS error "
+          f"{100 * float(np.mean(rope_rel)):.1f} % of the true length (mean over seeds)")
+    print(f"  ({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
