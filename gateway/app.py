@@ -107,7 +107,8 @@ def create_app(
             store.close()
 
     # Swagger UI and ReDoc from the files fastapi-offline ships (no CDN): the docs work on a rig without internet
-    app = FastAPIOffline(title="rig-gateway", lifespan=lifespan, description=API_DESCRIPTION, redoc_url=None)
+    app = FastAPIOffline(title="rig-gateway", lifespan=lifespan, description=API_DESCRIPTION, redoc_url=None,
+                         swagger_ui_parameters={"persistAuthorization": True})  # the token survives a reload
     app.add_middleware(BrowserGuard, allowed_hosts=settings.allowed_hosts)  # Host check, CSP, frame options
     app.include_router(api_router, prefix="/api")
     app.include_router(ws.router)
