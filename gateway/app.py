@@ -70,7 +70,9 @@ def create_app(
             except Exception:  # a busy port or a viser failure must not stop ingest
                 log.exception("3-D view did not start")
         app.state.ready = True
-        log.info("ready in %.1f s\n%s", time.perf_counter() - t0, "\n".join(ready_lines(settings, app)))
+        log.info("ready in %.1f s", time.perf_counter() - t0)
+        # printed, not logged: the URLs are shown whatever --log-level says (like the API token)
+        print("rig-gateway ready\n" + "\n".join(ready_lines(settings, app)), file=sys.stderr, flush=True)
         if on_ready is not None:
             on_ready()
 
@@ -107,7 +109,8 @@ def create_app(
             store.close()
 
     # Swagger UI and ReDoc from the files fastapi-offline ships (no CDN): the docs work on a rig without internet
-    app = FastAPIOffline(title="rig-gateway", lifespan=lifespan, description=API_DESCRIPTION, redoc_url=None)
+    app = FastAPIOffline(title="rig-gateway", lifespan=lifespan, description=API_DESCRIPTION, redoc_url=None,
+                         swagger_ui_parameters={"persistAuthorization": True})  # the token survives a reload
     app.add_middleware(BrowserGuard, allowed_hosts=settings.allowed_hosts)  # Host check, CSP, frame options
     app.include_router(api_router, prefix="/api")
     app.include_router(ws.router)

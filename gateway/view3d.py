@@ -166,7 +166,7 @@ class View3D:
         self._truth: dict[str, bytes] = {}
         self._nodes: dict[str, dict[str, Any]] = {}
         self._slots: dict[str, int] = {}
-        self.swing_limit_deg: Callable[[], float] = lambda: HookThresholds().swing_warn_deg
+        self.swing_limit_deg: Callable[[str], float] = lambda device_id: HookThresholds().swing_warn_deg
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.updates = 0
@@ -218,7 +218,13 @@ class View3D:
             store[device_id] = payload
 
     def attach(self, service: GatewayService) -> None:
-        self.swing_limit_deg = lambda: float(getattr(service.pipeline.defaults.get("hook"), "swing_warn_deg", 5.0))
+        def swing_limit_deg(device_id: str) -> float:  # the device's own limit (override on the kind default)
+            try:
+                return float(getattr(service.pipeline.effective("hook", device_id)[1], "swing_warn_deg", 5.0))
+            except (KeyError, RuntimeError):  # a settings change in flight: keep the default this frame
+                return HookThresholds().swing_warn_deg
+
+        self.swing_limit_deg = swing_limit_deg
         service.hub.listeners.append(self.on_hub)
         service.bus.subscribe(schemas.SEL_IMU, self.on_raw)
         service.bus.subscribe(schemas.SEL_TRUTH, self.on_truth)
@@ -279,7 +285,7 @@ class View3D:
 
     def _hook_extras(self, nodes: dict[str, Any], device_id: str, d: DeviceView, visible: bool) -> None:
         """Swing cone (rebuilt when the limit changes) and the torsion arc at the fused hook."""
-        limit = self.swing_limit_deg()
+        limit = self.swing_limit_deg(device_id)
         if nodes["cone_deg"] != limit:
             verts, faces = cone_mesh(np.array([0.0, 0.0, HOOK_ROPE_M]), HOOK_ROPE_M + 0.5, math.radians(limit))
             nodes["cone"] = self.server.scene.add_mesh_simple(

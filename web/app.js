@@ -222,7 +222,9 @@ class Chart {
     const t1 = View.paused ? View.pausedAt : nowS();
     this.u.batch(() => {
       this.u.setData(this.data(), false);
-      if (!View.zoomed) this.u.setScale("x", { min: t1 - View.rangeS, max: t1 });
+      // the range is an upper bound: a young series fills the plot instead of hugging its right edge
+      const first = this.u.data[0].length ? this.u.data[0][0] : t1;
+      if (!View.zoomed) this.u.setScale("x", { min: Math.max(t1 - View.rangeS, Math.min(first, t1 - 10) - 1), max: t1 });
       // y: fit data in range and the limits, never a zero-height axis
       const [t, ...ys] = this.u.data;
       let lo = Infinity, hi = -Infinity;
@@ -576,7 +578,8 @@ const Alarms = {
     for (const d of Devices.values()) for (const ch of d.charts) ch.u.redraw(false, false);
   },
   valueText(a) {
-    const unit = a.details && a.details.unit === "deg" ? "°" : UNITS[a.type] ?? (a.type === "line_tension" ? "" : "");
+    // line_tension is judged by angle (°) or by reel tension (N): the message says which
+    const unit = a.details && a.details.unit === "deg" ? "°" : UNITS[a.type] ?? (/\d N\b/.test(a.message || "") ? " N" : "°");
     if (a.type === "device_offline") return "–";
     return `${fmt(Math.abs(a.peak || a.value), 1)}${unit} / ${fmt(Math.abs(a.threshold), 1)}${unit}`; // magnitudes: signs are in the message
   },

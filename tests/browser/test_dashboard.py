@@ -175,11 +175,12 @@ def test_scripted_bite_raises_loud_alarm_and_ack_clears_banner(system: System, b
     page.locator('[data-testid="alarms"] tr[data-type="bite"]').first.wait_for(timeout=5_000)
     page.get_by_test_id("alarm-filter-type").select_option("bite")
     wait_js(page,
-        "[...document.querySelectorAll('#alarm-rows tr[data-type]')].every((r) => r.dataset.type === 'bite')"
+        "(() => { const r = [...document.querySelectorAll('#alarm-rows tr[data-type]')];"
+        " return r.length > 0 && r.every((x) => x.dataset.type === 'bite'); })()"
     )
+    browser.shot("dashboard_alarm_history")  # history filtered to bites
     page.get_by_test_id("alarm-filter-severity").select_option("critical")
     wait_js(page, "!document.querySelector('#alarm-rows tr[data-type=\"bite\"]')")  # bites are major
-    browser.shot("dashboard_alarm_history")
     page.get_by_test_id("alarm-filter-severity").select_option("")
     page.get_by_test_id("alarm-filter-type").select_option("")
     page.get_by_test_id("alarms-active-tab").click()

@@ -33,7 +33,7 @@ def test_first_start_prints_every_url_and_starts_the_3d_view(tmp_path: Path) -> 
     t0 = time.monotonic()
     gw = subprocess.Popen(
         [sys.executable, "-m", "gateway", "--port", str(http), "--listen", f"tcp/127.0.0.1:{zport}",
-         "--data-dir", str(tmp_path)],
+         "--data-dir", str(tmp_path), "--log-level", "WARNING"],  # the URLs show at any log level
         cwd=REPO, env=env, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
     )  # fmt: skip
     lines: list[str] = []

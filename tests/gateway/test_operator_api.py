@@ -31,6 +31,9 @@ def test_metrics_count_ingest_rejects_and_active_alarms(running: Callable[[], Ru
     assert sum(m["rig_rejects_total"].values()) >= 1
     assert m["rig_packet_loss_ratio"][(("device_id", "rod-1"), ("kind", "rod"))] == 0.0
     assert "rig_ingest_queue_depth" in m and "rig_devices_online" in m
+    assert m["rig_ws_clients"][()] == 0 and m["rig_ws_dropped_frames"][()] == 0
+    with r.client.websocket_connect("/ws/stream"):
+        assert _families(r.client.get("/metrics").text)["rig_ws_clients"][()] == 1
 
 
 def test_metrics_latency_histogram_and_alarm_gauge_after_a_bite(running: Callable[[], Running]) -> None:

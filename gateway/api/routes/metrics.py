@@ -79,12 +79,30 @@ class ServiceCollector(Collector):
         yield online
 
 
+class StreamCollector(Collector):
+    """The dashboard stream (`/ws/stream`, app.state.live once started): clients and frames dropped for slow ones."""
+
+    def __init__(self, app: Any) -> None:
+        self.app = app
+
+    def collect(self) -> Iterator[Any]:
+        live = getattr(self.app.state, "live", None)
+        clients = GaugeMetricFamily("rig_ws_clients", "Dashboard websocket clients connected")
+        dropped = GaugeMetricFamily("rig_ws_dropped_frames", "Frames dropped for slow clients (connected clients)")
+        clients.add_metric([], len(live.clients) if live is not None else 0)
+        dropped.add_metric([], sum(c.dropped for c in live.clients) if live is not None else 0)
+        yield clients
+        yield dropped
+
+
 class Metrics:
     """One registry per app (tests build many apps in one process)."""
 
-    def __init__(self, service: GatewayService, clock: Any = time.time) -> None:
+    def __init__(self, service: GatewayService, clock: Any = time.time, app: Any = None) -> None:
         self.registry = CollectorRegistry(auto_describe=True)
         self.registry.register(ServiceCollector(service))
+        if app is not None:
+            self.registry.register(StreamCollector(app))
         self.latency = Histogram("rig_sample_to_publish_seconds", "Device wall time of a sample -> gateway publish",
                                  ["kind", "topic"], buckets=LATENCY_BUCKETS_S, registry=self.registry)  # fmt: skip
         self.clock = clock
@@ -101,7 +119,7 @@ class Metrics:
 
 def start_metrics(app: Any, service: GatewayService) -> Metrics:
     """Lifespan hook: keep the app's Metrics on app.state."""
-    m = Metrics(service)
+    m = Metrics(service, app=app)
     app.state.metrics = m
     return m
 
