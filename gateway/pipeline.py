@@ -68,10 +68,6 @@ class PipelineSettings:
     spots_interval_s: float = 1.0
     reel_max_age_s: float = 1.0  # reel tension older than this is not fed to the line guard
     warmup_s: float = 0.5  # samples averaged before a filter starts (design.md: initial rest window)
-    # Longest block fed to the rod rules at once; bursts are split at packet ends. Not for the bite warm-up (the
-    # detector splits that itself) but for the line guard and the rest baseline, which act once per block: in a
-    # 5 s burst a tension spike that rose and fell would clear only at the burst's end. inf = no splitting.
-    rule_block_s: float = 0.25
     rest_gyr_std_rad_s: float = 0.01  # warm-up counts as rest below this gyro std (then its mean seeds the bias)
     warmup_bias_seed: bool = True  # False: never seed the gyro bias from a resting warm-up (as offline evaluate)
     rest_acc_tol_m_s2: float = 0.5  # ... and with |acc| within this of g
@@ -190,19 +186,6 @@ def _thermocline_m(profile: list[schemas.ProfilePoint] | None) -> float | None:
 def _position(fix: schemas.GnssFix | None) -> dict[str, float]:
     """A spot's `lat_deg`/`lon_deg` from its ball's GNSS fix (none without a fix or with fix quality 0)."""
     return {} if fix is None or fix.fix_quality == 0 else {"lat_deg": fix.lat_deg, "lon_deg": fix.lon_deg}
-
-
-def _chunks(ends: list[tuple[int, int, int]], t_s: FloatArray, max_s: float) -> list[tuple[int, int]]:
-    """Split a device's block at packet ends into slices of at most `max_s` (at least one packet each), so a
-    burst of queued packets reaches the rules in packet-sized steps like a live stream does (the line guard's
-    levels and the rest baseline change once per block; see `PipelineSettings.rule_block_s`)."""
-    out, start = [], 0
-    for k, (i, _, _) in enumerate(ends):
-        last = k == len(ends) - 1
-        if last or t_s[ends[k + 1][0]] - t_s[start] > max_s:
-            out.append((start, i + 1))
-            start = i + 1
-    return out
 
 
 def _unwrap(prev_wrapped: float, turns: int, yaw: FloatArray) -> tuple[FloatArray, int]:

@@ -989,7 +989,7 @@ def examples() -> dict[str, tuple[str, WireModel]]:
     alarm = AlarmEvent(
         alarm_id="3f2b9c0d5e8a4b7c9d1e2f3a4b5c6d7e", device_id="rod-1", kind="rod", alarm="bite", state="raised",
         severity="major", t_us=10_425_000, wall_t_us=wall + 10_436_000, source_wall_us=wall + 10_425_000, value=-12.0,
-        threshold=-10.0, message="bite: pitch 12.0 deg below rest (threshold 10.0 deg, by pitch)",
+        threshold=-10.0, message="bite: pitch 12.0° below rest ≥ θ1 10.0°",
     )
     spots = SpotRanking(wall_t_us=wall + 12_100_000, spots=[
         SpotScore(spot="inlet", rank=1, score=0.82, device_id="ball-2", last_seen_wall_us=wall + 12_000_000,

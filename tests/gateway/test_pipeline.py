@@ -138,32 +138,16 @@ def test_warm_up_leaves_no_state_behind() -> None:
     assert raised(run(p, rod_messages(6.0, [{"type": "bite", "t_s": 3.0, "depth_deg": 15.0}]))) != []
 
 
-@settings(max_examples=200, deadline=None)
-@given(sizes=st.lists(st.integers(1, 20), min_size=1, max_size=40), max_s=st.floats(0.01, 1.0))
-def test_rule_chunks_cover_the_block_at_packet_ends(sizes: list[int], max_s: float) -> None:
-    from gateway.pipeline import _chunks
-
-    idx = np.cumsum(sizes) - 1
-    ends = [(int(i), k, 0) for k, i in enumerate(idx)]
-    t_s = np.arange(int(idx[-1]) + 1) * 0.01
-    chunks = _chunks(ends, t_s, max_s)
-    assert chunks[0][0] == 0 and chunks[-1][1] == len(t_s)
-    assert all(b == c for (_, b), (c, _) in zip(chunks, chunks[1:], strict=False))  # contiguous
-    assert {b - 1 for _, b in chunks} <= set(idx.tolist())  # cut only at packet ends
-    for a, b in chunks:
-        one_packet = (b - 1) in idx and not any(a <= i < b - 1 for i in idx)
-        assert t_s[b - 1] - t_s[a] <= max_s + 1e-9 or one_packet
-
-
-def test_a_big_first_batch_alarms_without_rule_chunking() -> None:
-    """The bite detector splits its own warm-up: one 6 s block (warm-up + bite at 3 s) alarms with no chunking."""
+def test_a_big_first_batch_alarms_like_streaming() -> None:
+    """One 6 s batch (filter and bite warm-ups, then a bite at 3 s) raises the bite at the same sample as
+    packet-by-packet streaming: the rod rules decide sample by sample (tests/alarm/test_packetization.py)."""
     messages = rod_messages(6.0, [{"type": "bite", "t_s": 3.0, "depth_deg": 15.0, "duration_s": 1.5}])
     start_wall_s = json.loads(messages[0][1])["wall_t0_us"] * 1e-6
     streamed = raised(run(Pipeline(), messages, per_batch=1))
-    whole = raised(run(Pipeline(PipelineSettings(rule_block_s=math.inf)), messages, per_batch=len(messages)))
+    whole = raised(run(Pipeline(), messages, per_batch=len(messages)))
     assert [a for a, _ in whole] == [a for a, _ in streamed] == ["bite"]
     assert 3.0 <= whole[0][1] - start_wall_s <= 3.5
-    assert abs(whole[0][1] - streamed[0][1]) < 0.05
+    assert whole[0][1] == streamed[0][1]
 
 
 def test_alarm_times_are_device_time_and_device_wall_only_when_the_device_sends_one() -> None:
