@@ -113,6 +113,7 @@ class GatewayService:
         self.started_s = time.time()
         self.batches = 0
         self.batch_delay_s: collections.deque[float] = collections.deque(maxlen=2000)  # oldest arrival -> emitted
+        self.config_lock = asyncio.Lock()  # orders REST config writes: store and live state change in one order
         self.inbox: Inbox | None = None
         self._tasks: list[asyncio.Task[Any]] = []
         self._rejected_window = (0, 0)  # (second, published in it)

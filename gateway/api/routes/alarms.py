@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import time
 from typing import Annotated, Any
 
@@ -44,12 +45,15 @@ def list_alarms(
 
 
 @router.post("/{alarm_id}/ack")
-def ack_alarm(alarm_id: AlarmIdPath, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
-    """Acknowledge an alarm (it stays active until its condition clears)."""
+async def ack_alarm(alarm_id: AlarmIdPath, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
+    """Acknowledge an alarm (it stays active until its condition clears).
+
+    Async on purpose: the engine is changed on the event loop, the thread that owns it; the store in a thread."""
     now = time.time()
-    service.writer.flush(READ_WAIT_S)  # a pending upsert of this alarm must not overwrite the acknowledgement
+    # a pending upsert of this alarm must not overwrite the acknowledgement
+    await asyncio.to_thread(service.writer.flush, READ_WAIT_S)
     service.pipeline.engine.acknowledge(alarm_id, who, now)
-    alarm = service.store.acknowledge(alarm_id, who, now)
+    alarm = await asyncio.to_thread(service.store.acknowledge, alarm_id, who, now)
     if alarm is None:
         raise HTTPException(404, f"unknown alarm {alarm_id!r}")
     return alarm_json(alarm)

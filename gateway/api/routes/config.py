@@ -6,6 +6,7 @@ per problem in `detail`.
 
 from __future__ import annotations
 
+import asyncio
 import time
 from typing import Annotated, Any, Literal
 
@@ -37,14 +38,20 @@ class DeviceSettingsIn(BaseModel):
     calibration: CalibrationJson = None
 
 
+# Handlers that read or change the pipeline are `async`: FastAPI runs them on the event loop, the one thread that
+# owns the gateway's live state (ingest runs there too); plain `def` handlers ran on worker threads beside ingest.
+# SQLite work goes to a thread (`asyncio.to_thread`) so the loop never waits on the disk; one lock per service
+# orders concurrent writes so the store and the live state end in the same order.
+
+
 @router.get("/thresholds/{kind}")
-def get_defaults(kind: Kind, service: ServiceDep) -> dict[str, Any]:
+async def get_defaults(kind: Kind, service: ServiceDep) -> dict[str, Any]:
     """Default thresholds of a device kind."""
     return service.pipeline.defaults[kind].model_dump()
 
 
 @router.put("/thresholds/{kind}")
-def put_defaults(
+async def put_defaults(
     kind: Kind, body: Annotated[dict[str, Any], Body()], service: ServiceDep, _: WriterDep
 ) -> dict[str, Any]:
     """Replace a kind's defaults (fields left out take the built-in default); applied live and stored."""
@@ -52,13 +59,14 @@ def put_defaults(
         model = THRESHOLD_MODELS[kind].model_validate(body)
     except ValidationError as exc:
         raise HTTPException(422, _messages(exc)) from exc
-    old = service.pipeline.defaults[kind]
-    service.pipeline.set_defaults(kind, model)  # BadSettings -> 422 (a device override would become invalid)
-    try:
-        service.store.save_defaults(kind, model)
-    except Exception:  # not stored (disk full: 503): not applied either
-        service.pipeline.set_defaults(kind, old)
-        raise
+    async with service.config_lock:
+        old = service.pipeline.defaults[kind]
+        service.pipeline.set_defaults(kind, model)  # BadSettings -> 422 (a device override would become invalid)
+        try:
+            await asyncio.to_thread(service.store.save_defaults, kind, model)
+        except Exception:  # not stored (disk full: 503): not applied either
+            service.pipeline.set_defaults(kind, old)
+            raise
     service.writer.log_event(time.time(), "defaults_changed", None, {"kind": kind})
     return model.model_dump()
 
@@ -73,8 +81,12 @@ def _kind_of(service: ServiceDep, device_id: str, given: str | None) -> str:
 
 
 @router.get("/devices/{device_id}/settings")
-def get_settings(device_id: DeviceIdPath, service: ServiceDep) -> dict[str, Any]:
+async def get_settings(device_id: DeviceIdPath, service: ServiceDep) -> dict[str, Any]:
     """Stored settings of a device and the thresholds in effect."""
+    return _settings_view(device_id, service)
+
+
+def _settings_view(device_id: str, service: ServiceDep) -> dict[str, Any]:
     kind = service.pipeline.kinds.get(device_id)
     if kind is None:
         raise HTTPException(404, f"unknown device {device_id!r}")
@@ -88,8 +100,15 @@ def get_settings(device_id: DeviceIdPath, service: ServiceDep) -> dict[str, Any]
 
 
 @router.put("/devices/{device_id}/settings")
-def put_settings(device_id: DeviceIdPath, body: DeviceSettingsIn, service: ServiceDep, _: WriterDep) -> dict[str, Any]:
+async def put_settings(
+    device_id: DeviceIdPath, body: DeviceSettingsIn, service: ServiceDep, _: WriterDep
+) -> dict[str, Any]:
     """Replace a device's settings (validated against its kind's defaults), applied live and stored."""
+    async with service.config_lock:
+        return await _put_settings(device_id, body, service)
+
+
+async def _put_settings(device_id: str, body: DeviceSettingsIn, service: ServiceDep) -> dict[str, Any]:
     kind = _kind_of(service, device_id, body.kind)
     auto = service.pipeline.auto_reel.get(device_id, False) if body.auto_reel is None else body.auto_reel
     entry = service.pipeline.device_settings.get(device_id)
@@ -97,25 +116,28 @@ def put_settings(device_id: DeviceIdPath, body: DeviceSettingsIn, service: Servi
     cal = body.calibration if "calibration" in body.model_fields_set else keep
     ds = DeviceSettings(filter_name=body.filter_name, thresholds=body.thresholds, auto_reel=auto, calibration=cal)
     service.pipeline.validate_device_settings(kind, ds)  # BadSettings -> 422
-    service.store.save_device_settings(device_id, kind, ds)  # not stored (disk full: 503): not applied either
+    # not stored (disk full: 503): not applied either
+    await asyncio.to_thread(service.store.save_device_settings, device_id, kind, ds)
     service.pipeline.set_device_settings(device_id, kind, ds)
     service.writer.log_event(time.time(), "settings_changed", device_id, ds.model_dump())
-    return get_settings(device_id, service)
+    return _settings_view(device_id, service)
 
 
 @router.delete("/devices/{device_id}/settings")
-def delete_settings(device_id: DeviceIdPath, service: ServiceDep, _: WriterDep) -> dict[str, Any]:
+async def delete_settings(device_id: DeviceIdPath, service: ServiceDep, _: WriterDep) -> dict[str, Any]:
     """Forget a device's filter and threshold overrides: it follows its kind's defaults again (auto reel and the IMU
     calibration, properties of the hardware, stay)."""
-    kind = _kind_of(service, device_id, None)
-    entry = service.pipeline.device_settings.get(device_id)
-    kept = DeviceSettings(auto_reel=service.pipeline.auto_reel.get(device_id, False),
-                          calibration=entry[1].calibration if entry else None)  # fmt: skip
-    service.pipeline.set_device_settings(device_id, kind, kept)
-    if kept.auto_reel or kept.calibration is not None:
-        service.store.save_device_settings(device_id, kind, kept)
-    else:
-        service.pipeline.device_settings.pop(device_id, None)
-        service.store.delete_device_settings(device_id)
-    return get_settings(device_id, service)
+    async with service.config_lock:
+        kind = _kind_of(service, device_id, None)
+        entry = service.pipeline.device_settings.get(device_id)
+        kept = DeviceSettings(auto_reel=service.pipeline.auto_reel.get(device_id, False),
+                              calibration=entry[1].calibration if entry else None)  # fmt: skip
+        if kept.auto_reel or kept.calibration is not None:
+            await asyncio.to_thread(service.store.save_device_settings, device_id, kind, kept)
+            service.pipeline.set_device_settings(device_id, kind, kept)
+        else:
+            await asyncio.to_thread(service.store.delete_device_settings, device_id)
+            service.pipeline.set_device_settings(device_id, kind, kept)
+            service.pipeline.device_settings.pop(device_id, None)
+        return _settings_view(device_id, service)
 

@@ -56,13 +56,13 @@ def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dic
 
 
 @router.get("")
-def list_devices(service: ServiceDep) -> list[dict[str, Any]]:
+async def list_devices(service: ServiceDep) -> list[dict[str, Any]]:
     """Every device seen (data or liveliness) or configured."""
     return [device_view(service, d, detail=False) for d in sorted(service.pipeline.kinds)]
 
 
 @router.get("/{device_id}")
-def get_device(device_id: DeviceIdPath, service: ServiceDep) -> dict[str, Any]:
+async def get_device(device_id: DeviceIdPath, service: ServiceDep) -> dict[str, Any]:
     """Live state of one device, with stream counters and the gyro bias estimate."""
     if device_id not in service.pipeline.kinds:
         raise HTTPException(404, f"unknown device {device_id!r}")

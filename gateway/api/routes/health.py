@@ -13,7 +13,7 @@ router = APIRouter(tags=["health"])
 
 
 @router.get("/health")
-def health(service: ServiceDep, request: Request) -> dict[str, Any]:
+async def health(service: ServiceDep, request: Request) -> dict[str, Any]:
     """Liveness: `ok`, or `degraded` with `reasons` (e.g. store writes failing: alarms are still published and their
     rows wait in the writer's journal); `ready` is false while the gateway warms up (fusion kernels loading, ingest
     not started yet); uptime, devices online, zenoh mode and endpoints, the store writer's state."""
@@ -37,7 +37,7 @@ def health(service: ServiceDep, request: Request) -> dict[str, Any]:
 
 
 @router.get("/stats")
-def stats(service: ServiceDep) -> dict[str, Any]:
+async def stats(service: ServiceDep) -> dict[str, Any]:
     """Ingest counters (same as `gw/diag/ingest`) plus queue depth and batches processed."""
     snap = service.counters.snapshot(int(time.time() * 1e6)).model_dump()
     if service.inbox is not None:

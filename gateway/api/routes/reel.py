@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import time
 from typing import Annotated, Any, Literal
 
@@ -24,8 +25,10 @@ class ReelRequest(BaseModel):
 
 
 @router.post("/{device_id}/reel")
-def reel(device_id: DeviceIdPath, body: ReelRequest, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
-    """Send a ReelCommand to `rig/rod/{id}/reel/cmd` (CongestionControl.BLOCK), or switch auto mode on."""
+async def reel(device_id: DeviceIdPath, body: ReelRequest, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
+    """Send a ReelCommand to `rig/rod/{id}/reel/cmd` (CongestionControl.BLOCK), or switch auto mode on.
+
+    Async on purpose: the auto-reel state is the pipeline's, changed on the event loop that owns it."""
     if service.pipeline.kinds.get(device_id) not in (None, "rod"):
         raise HTTPException(422, [f"device {device_id!r} is not a rod"])
     pl = service.pipeline
@@ -34,7 +37,7 @@ def reel(device_id: DeviceIdPath, body: ReelRequest, service: ServiceDep, who: W
     available = pl.set_auto_reel(device_id, on)
     if was != on:  # the mode is stored in the rod's settings, so a restart keeps it
         kind, ds = pl.device_settings[device_id]
-        service.store.save_device_settings(device_id, kind, ds)
+        await asyncio.to_thread(service.store.save_device_settings, device_id, kind, ds)
         service.writer.log_event(time.time(), "reel_auto", device_id, {"on": on, "by": who})
     if on:
         return {"device_id": device_id, "auto": True, "controller_available": available}

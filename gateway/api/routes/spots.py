@@ -13,6 +13,6 @@ router = APIRouter(tags=["spots"])
 
 
 @router.get("/spots")
-def spots(service: ServiceDep) -> dict[str, Any]:
+async def spots(service: ServiceDep) -> dict[str, Any]:
     """Spots best first (score 0..1) with the reasons, from the latest reading at each spot."""
     return service.pipeline.rank_spots(time.time()).model_dump()
