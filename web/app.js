@@ -386,7 +386,14 @@ function updateDevice(d, c) {
   if (link.battery_v != null) facts.push(["battery", `${fmt(link.battery_v, 2)} V`]);
   if (link.rssi_dbm != null) facts.push(["link", `${fmt(link.rssi_dbm, 0)} dBm`]);
   if (c.attitude) facts.push(["pitch / roll", `${fmt(c.attitude.pitch_rad * DEG)}° / ${fmt(c.attitude.roll_rad * DEG)}°`], ["yaw", `${fmt(c.attitude.yaw_unwrapped_rad * DEG)}°`]);
-  if (c.swing) facts.push(["swing Θ", `${fmt(c.swing.swing_angle_rad * DEG)}°`], ["torsion φ", `${fmt(c.swing.torsion_rad * DEG)}°`]);
+  if (c.swing) { // angles as docs/protocol.md section 3.5 defines them
+    const sw = c.swing;
+    facts.push(["swing Θ", `${fmt(sw.swing_angle_rad * DEG)}°`],
+      ["displacement bearing", `${fmt(sw.swing_direction_rad * DEG)}° CCW from E`],
+      ["torsion φ", `${fmt(sw.torsion_rad * DEG)}° CCW from above`]);
+    if (sw.swing_phi_rad != null) facts.push(["Φ (paper 001 eq. 7)", `${fmt(sw.swing_phi_rad * DEG)}° from ψ`]);
+    if (sw.rope_length_m != null) facts.push(["rope (estimated)", `${fmt(sw.rope_length_m, 1)} m`]);
+  }
   if (c.height) facts.push(["height / Vz", `${fmt(c.height.height_m, 2)} m / ${fmt(c.height.vz_m_s, 2)} m/s${c.height.at_rest ? " (rest)" : ""}`]);
   if (c.readings) facts.push(["spot", c.readings.spot], ["water", `${fmt(c.readings.water_temp_c)} °C`], ["O₂", `${fmt(c.readings.oxygen_mg_l, 2)} mg/l`]);
   if (c.reel) facts.push(["reel", `${c.reel.mode} / ${c.reel.motor}`], ["line out", `${fmt(c.reel.line_out_m)} m`]);
