@@ -85,11 +85,12 @@ def wait_http(port: int, timeout_s: float = 180.0) -> None:
     raise TimeoutError(f"gateway on port {port} did not answer within {timeout_s} s")
 
 
-def _stats(http_port: int) -> dict[str, Any]:
+def _stats(http_port: int, timeout_s: float = 5.0) -> dict[str, Any]:
+    """The gateway's /api/stats, {} if it does not answer within `timeout_s`."""
     import httpx
 
     try:
-        stats: dict[str, Any] = httpx.get(f"http://127.0.0.1:{http_port}/api/stats", timeout=5.0).json()
+        stats: dict[str, Any] = httpx.get(f"http://127.0.0.1:{http_port}/api/stats", timeout=timeout_s).json()
         return stats
     except httpx.HTTPError:
         return {}

@@ -44,6 +44,8 @@ SPECS: dict[str, AlarmSpec] = {s.type: s for s in ALARM_TYPES}
 
 LINE_HYSTERESIS_DEG = 2.0  # line-guard angle levels clear this far below their threshold
 TENSION_HYSTERESIS_FRACTION = 0.05  # ... and tension this share of the breaking load below its threshold
+LINE_CLEAR_HOLD_S = 2.0  # a line level falls only after the samples stayed below it this long (device time): a fight
+# pumping the rod through the hysteresis band at ~1 Hz would otherwise raise and clear the alarm every second
 
 
 def hysteresis_level(peak: float, level: int, thresholds: Sequence[float], hysteresis: float) -> int:
@@ -148,10 +150,13 @@ class LineGuard:
     """Line-tension alarm of one rod, sample by sample: level 1 (warning) at a drop >= theta2, level 2 (critical)
     at a drop >= line_critical_fraction * theta3 or a reel tension >= tension_warn_fraction * breaking load."""
 
-    def __init__(self, th: RodThresholds) -> None:
+    def __init__(self, th: RodThresholds, clear_hold_s: float = LINE_CLEAR_HOLD_S) -> None:
         self.level = 0
         self._angle_level = 0
         self._tension_level = 0
+        self.clear_hold_s = clear_hold_s
+        self._below_since_s: float | None = None  # first sample whose raw level was below `level`
+        self._held_level = 0  # highest raw level since then: where the level falls to when the hold ends
         self.set_thresholds(th)
 
     def set_thresholds(self, th: RodThresholds) -> None:
@@ -172,15 +177,32 @@ class LineGuard:
         by_angle = hysteresis_levels(drop_deg, self._angle_level, self.angle_deg, LINE_HYSTERESIS_DEG)
         by_tension = (np.zeros(t_s.size, dtype=np.int64) if tension_n is None
                       else hysteresis_levels(tension_n, self._tension_level, (self.tension_n,), self.tension_hyst_n))
-        level = np.maximum(by_angle, 2 * by_tension)
+        raw = np.maximum(by_angle, 2 * by_tension)
         self._angle_level, self._tension_level = int(by_angle[-1]), int(by_tension[-1])
         out = []
-        for k in np.flatnonzero(np.diff(np.concatenate(([self.level], level)))):
-            new = int(level[k])
-            out.append(self._condition(device_id, float(t_s[k]), new, float(drop_deg[k]), by_tension[k] > 0,
-                                       None if tension_n is None else float(tension_n[k])))  # fmt: skip
-            self.level = new
+        for k in range(t_s.size):  # per sample: rises at once, falls after clear_hold_s below (no flapping)
+            new = self._held(int(raw[k]), float(t_s[k]))
+            if new != self.level:
+                out.append(self._condition(device_id, float(t_s[k]), new, float(drop_deg[k]), by_tension[k] > 0,
+                                           None if tension_n is None else float(tension_n[k])))  # fmt: skip
+                self.level = new
         return out
+
+    def _held(self, raw: int, t_s: float) -> int:
+        """The level after one sample whose hysteresis level is `raw`: up at once; down to the highest raw level
+        of the last `clear_hold_s` once every sample for that long was below the current level."""
+        if raw >= self.level:
+            self._below_since_s = None
+            return raw
+        if self._below_since_s is None:
+            self._below_since_s, self._held_level = t_s, raw
+        self._held_level = max(self._held_level, raw)
+        if t_s - self._below_since_s < self.clear_hold_s - 1e-9:
+            return self.level
+        new = self._held_level
+        self._below_since_s = None if raw >= new else t_s
+        self._held_level = raw
+        return new
 
     def _condition(self, device_id: str, t_s: float, new: int, drop_deg: float, by_tension: bool,
                    tension_n: float | None) -> Condition:  # fmt: skip

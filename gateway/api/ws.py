@@ -28,6 +28,7 @@ from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect
 
 from gateway import schemas
 from gateway.api.routes.devices import device_view
+from gateway.api.routes.history import plot_point
 from gateway.api.security import origin_allowed
 from gateway.ingest.runner import GatewayService
 from gateway.store import ApiToken
@@ -164,18 +165,9 @@ class LiveStream:
 
     def on_hub(self, topic: str, model: schemas.WireModel) -> None:
         """Hub listener (ingest task): buffer attitude/swing; broadcast alarms and reel commands at once."""
-        if isinstance(model, schemas.Attitude):
-            t = (model.wall_t_us or time.time() * 1e6) / 1e6
-            self._buf(model.device_id).add(
-                t, roll_deg=math.degrees(model.roll_rad), pitch_deg=math.degrees(model.pitch_rad),
-                yaw_deg=math.degrees(model.yaw_unwrapped_rad),
-            )  # fmt: skip
-        elif isinstance(model, schemas.Swing):
-            t = (model.wall_t_us or time.time() * 1e6) / 1e6
-            self._buf(model.device_id).add(
-                t, swing_deg=math.degrees(model.swing_angle_rad), direction_deg=math.degrees(model.swing_direction_rad),
-                torsion_deg=math.degrees(model.torsion_rad),
-            )  # fmt: skip
+        point = plot_point(model)
+        if point is not None:
+            self._buf(point[0]).add(point[1], **point[2])
         elif topic == "alarm":
             self.alarm_seq += 1
             self.broadcast({"type": "alarm", "alarm_seq": self.alarm_seq, "event": model.model_dump()})

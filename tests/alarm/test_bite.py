@@ -210,7 +210,26 @@ def test_line_tension_near_breaking_is_critical(rng):
     tension = np.where((t > 4) & (t < 6), 85.0, 20.0)  # breaking 100 N, warn fraction 0.8
     run = run_rod(t, noisy(t, np.zeros_like(t), NOISE_DEG, rng), tension_n=tension)
     line = [(c.kind, c.alarm.severity.value, round(c.alarm.updated_at, 2)) for c in run.changes]
-    assert line == [("raised", "critical", 4.01), ("cleared", "critical", 6.0)]  # the samples that crossed
+    # raised on the sample that crossed; cleared LINE_CLEAR_HOLD_S (2 s) after the first sample back below
+    assert line == [("raised", "critical", 4.01), ("cleared", "critical", 8.0)]
+
+
+def test_line_guard_does_not_flap_when_a_fight_pumps_through_the_band(rng):
+    """Issue 17: a level falls only after 2 s below it. Tension pumping 70 <-> 90 N at 1 Hz (warning level 80 N,
+    clears under 75 N) raises once and clears once, 2 s after the last pull above 75 N; without the hold it flaps."""
+    from gateway.alarm.rules import LineGuard
+
+    t = times(20.0)
+    th = RodThresholds(line_breaking_n=100.0)  # warning at 0.8 x 100 N, clears under 75 N
+    tension = np.where((t > 4) & (t < 12), 80.0 + 10.0 * np.sign(np.sin(2 * np.pi * t)), 20.0)
+    run = run_rod(t, noisy(t, np.zeros_like(t), NOISE_DEG, rng), tension_n=tension, th=th)
+    line = [(c.kind, round(c.alarm.updated_at, 1)) for c in run.changes]
+    assert line == [("raised", 4.0), ("cleared", 13.5)], line  # the last 90 N half-period ends at 11.5 s
+    flappy = LineGuard(th, clear_hold_s=0.0)
+    from gateway.alarm.bite import RodBlock
+
+    quiet = RodBlock(events=(), baseline_rad=0.0, deviation_rad=np.zeros(t.size), min_deviation_rad=0.0, t_min_s=0.0)
+    assert len(flappy.update("rod-1", t, quiet, tension)) > 10
 
 
 @pytest.mark.parametrize("block", [1, 7, 50])

@@ -38,6 +38,21 @@ FIELDS: dict[str, Agg] = {
 """Every field a history can hold (units in the names) and how a bucket aggregates it."""
 
 
+def plot_point(model: schemas.WireModel) -> tuple[str, float, dict[str, float]] | None:
+    """(device id, wall time s, plotted values in degrees) of an Attitude or Swing output, else None: the one place
+    that turns hub outputs into the dashboard's series (history and the live stream)."""
+    if isinstance(model, schemas.Attitude):
+        values = {"roll_deg": math.degrees(model.roll_rad), "pitch_deg": math.degrees(model.pitch_rad),
+                  "yaw_deg": math.degrees(model.yaw_unwrapped_rad)}  # fmt: skip
+    elif isinstance(model, schemas.Swing):
+        values = {"swing_deg": math.degrees(model.swing_angle_rad),
+                  "direction_deg": math.degrees(model.swing_direction_rad),
+                  "torsion_deg": math.degrees(model.torsion_rad)}  # fmt: skip
+    else:
+        return None
+    return model.device_id, (model.wall_t_us or time.time() * 1e6) / 1e6, values
+
+
 @dataclass(frozen=True)
 class HistorySettings:
     """`bucket_s`: decimation step; `keep_s`: history length per device; `poll_s`: reel/env sampling period."""
@@ -123,18 +138,9 @@ class History:
 
     def on_hub(self, topic: str, model: schemas.WireModel) -> None:
         """Hub listener (ingest task): fold attitude and swing in."""
-        if isinstance(model, schemas.Attitude):
-            t = (model.wall_t_us or time.time() * 1e6) / 1e6
-            self.device(model.device_id).add(
-                t, roll_deg=math.degrees(model.roll_rad), pitch_deg=math.degrees(model.pitch_rad),
-                yaw_deg=math.degrees(model.yaw_unwrapped_rad),
-            )  # fmt: skip
-        elif isinstance(model, schemas.Swing):
-            t = (model.wall_t_us or time.time() * 1e6) / 1e6
-            self.device(model.device_id).add(
-                t, swing_deg=math.degrees(model.swing_angle_rad), direction_deg=math.degrees(model.swing_direction_rad),
-                torsion_deg=math.degrees(model.torsion_rad),
-            )  # fmt: skip
+        point = plot_point(model)
+        if point is not None:
+            self.device(point[0]).add(point[1], **point[2])
 
     def poll(self, now_s: float) -> None:
         """Sample reel tension and environment readings from the pipeline (event loop); only packets that are new
