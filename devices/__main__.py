@@ -53,6 +53,8 @@ def child_commands(args: argparse.Namespace) -> dict[str, list[str]]:
         shared += ["--listen", ep]
     if args.multicast:
         shared.append("--multicast")
+    if getattr(args, "zenoh_config", None) is not None:
+        shared += ["--zenoh-config", str(args.zenoh_config)]
     if args.duration is not None:
         shared += ["--duration", str(args.duration)]
     if not args.truth:

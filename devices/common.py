@@ -9,7 +9,7 @@ Public API (the hook simulator builds on it; keep it stable):
 - `specific_force_body(q_wxyz, acc_earth_m_s2)`, `field_body(q_wxyz, field_enu_uT)`: true sensor inputs from a
   trajectory.
 - `LinkModel` (frozen) + `LinkSim`: packet loss (optionally bursty, Gilbert-Elliott) and publish jitter.
-- `add_zenoh_args(parser)`, `zenoh_config(args)`: `--mode/--connect/--listen/--multicast`.
+- `add_zenoh_args(parser)`, `zenoh_config(args)`: `--mode/--connect/--listen/--multicast/--zenoh-config`.
 - `add_fleet_args(parser, ...)`, `FleetSettings.from_args(args)`: `--count --seed --rate --samples-per-packet
   --truth/--no-truth --loss --burst --jitter-ms --duration --id-prefix`; `add_imu_args(parser)`: `--imu PRESET`.
 - `Fleet` (protocol your simulator implements) and `run_fleet(session, fleet, settings)`: liveliness tokens,
@@ -39,6 +39,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -353,7 +354,8 @@ def new_boot_id(rng: random.Random | np.random.Generator) -> int:
 
 
 def add_zenoh_args(parser: argparse.ArgumentParser, *, default_connect: str | None = DEFAULT_GATEWAY_ENDPOINT) -> None:
-    """`--mode peer|client`, `--connect EP` (repeatable), `--listen EP` (repeatable), `--multicast`."""
+    """`--mode peer|client`, `--connect EP` (repeatable), `--listen EP` (repeatable), `--multicast`,
+    `--zenoh-config FILE` (TLS/mTLS, user/password: docs/security.md)."""
     g = parser.add_argument_group("zenoh")
     g.add_argument("--mode", choices=["peer", "client"], default="peer", help="zenoh session mode (default: peer)")
     g.add_argument(
@@ -362,6 +364,10 @@ def add_zenoh_args(parser: argparse.ArgumentParser, *, default_connect: str | No
     )
     g.add_argument("--listen", action="append", default=None, metavar="ENDPOINT", help="endpoint to listen on")
     g.add_argument("--multicast", action="store_true", help="enable multicast scouting (default: off)")
+    g.add_argument("--zenoh-config", type=Path, default=None, metavar="FILE",
+                   help="a zenoh JSON5 config file as the base (e.g. the device config written by "
+                        "`python -m gateway.ingest.secure_config`: mTLS to the gateway); --connect/--listen given "
+                        "explicitly override its endpoints")  # fmt: skip
     parser.set_defaults(_default_connect=default_connect)
 
 
@@ -386,7 +392,16 @@ def zenoh_config(
 
 
 def zenoh_config_from_args(args: argparse.Namespace) -> zenoh.Config:
-    """Config from `add_zenoh_args` options."""
+    """Config from `add_zenoh_args` options; with `--zenoh-config` the file is the base and only endpoints given
+    explicitly on the command line are set over it (a secure device config keeps its TLS endpoints)."""
+    path: Path | None = getattr(args, "zenoh_config", None)
+    if path is not None:
+        conf = zenoh.Config.from_file(str(path))
+        if args.connect:
+            conf.insert_json5("connect/endpoints", json.dumps([c for c in args.connect if c.lower() != "none"]))
+        if args.listen:
+            conf.insert_json5("listen/endpoints", json.dumps(list(args.listen)))
+        return conf
     connect = args.connect if args.connect is not None else (
         [args._default_connect] if getattr(args, "_default_connect", None) else []
     )

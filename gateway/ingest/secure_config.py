@@ -56,6 +56,11 @@ def access_control(devices: dict[str, str]) -> dict[str, Any]:
         config = [schemas.config_key(kind, device_id)]
         own = [
             _rule(f"{device_id}-data", ["put"], ["ingress"], [f"{base}/{t}" for t in DATA_TOPICS[kind]]),
+            # the router must tell the device that the gateway subscribes (its selectors are wildcards such as
+            # rig/*/*/imu): a zenoh 1.x client sends a put only where it knows a subscriber, so without this a
+            # device's stream stopped after its first packets. It tells the device nothing but that.
+            _rule(f"{device_id}-data-route", ["declare_subscriber"], ["egress"],
+                  [f"{base}/{t}" for t in DATA_TOPICS[kind]] + list(schemas.SEL_DEVICE_DATA)),
             _rule(f"{device_id}-token", ["liveliness_token"], ["ingress"], [base]),
             _rule(f"{device_id}-config-ask", ["query"], ["ingress"], config),
             _rule(f"{device_id}-config-answer", ["reply"], ["egress"], config),

@@ -136,3 +136,30 @@ def test_zenoh_options_default_to_peer_connecting_to_the_gateway_without_multica
     conf = common.zenoh_config_from_args(args)
     assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:9000"]
     assert json.loads(conf.get_json("mode")) == "client"
+
+
+def test_zenoh_config_file_is_the_base_and_explicit_endpoints_override_it(tmp_path) -> None:
+    """`--zenoh-config` (a secure device config: mTLS client to the gateway) keeps the file's mode and endpoints;
+    only --connect/--listen given on the command line replace them. Without the file: the usual peer defaults."""
+    p = argparse.ArgumentParser()
+    common.add_zenoh_args(p)
+    f = tmp_path / "device.json5"
+    f.write_text('{mode: "client", connect: {endpoints: ["tls/127.0.0.1:7448"]}, '
+                 'scouting: {multicast: {enabled: false}}}')
+    conf = common.zenoh_config_from_args(p.parse_args(["--zenoh-config", str(f)]))
+    assert json.loads(conf.get_json("mode")) == "client"
+    assert json.loads(conf.get_json("connect/endpoints")) == ["tls/127.0.0.1:7448"]
+    conf = common.zenoh_config_from_args(p.parse_args(["--zenoh-config", str(f), "--connect", "tcp/127.0.0.1:9"]))
+    assert json.loads(conf.get_json("connect/endpoints")) == ["tcp/127.0.0.1:9"]
+    plain = common.zenoh_config_from_args(p.parse_args([]))
+    assert json.loads(plain.get_json("mode")) == "peer"
+    assert json.loads(plain.get_json("connect/endpoints")) == [common.DEFAULT_GATEWAY_ENDPOINT]
+
+
+def test_launcher_passes_the_zenoh_config_file_to_every_device(tmp_path) -> None:
+    from devices.__main__ import build_parser, child_commands
+
+    f = tmp_path / "device.json5"
+    args = build_parser().parse_args(["--zenoh-config", str(f)])
+    cmds = child_commands(args)
+    assert cmds and all(c[c.index("--zenoh-config") + 1] == str(f) for c in cmds.values())

@@ -58,7 +58,7 @@ def test_rogue_peer_is_refused_by_the_gateway_router(tmp_path: Path) -> None:
         token = rod.liveliness().declare_token(schemas.device_token_key("rod", "rod-1"))
         wait_for(lambda: client.get("/api/devices/rod-1").status_code == 200
                  and client.get("/api/devices/rod-1").json()["online"])  # fmt: skip
-        real = [(k, p) for k, p in rod_messages(1.0) if k.endswith("/imu")]
+        real = [(k, p) for k, p in rod_messages(2.0) if k.endswith("/imu")]
         for k, p in real[:10]:
             rod.put(k, p, congestion_control=zenoh.CongestionControl.BLOCK)
         wait_for(lambda: stats()["received"] >= 10)
@@ -92,5 +92,15 @@ def test_rogue_peer_is_refused_by_the_gateway_router(tmp_path: Path) -> None:
         assert json.loads(cmds[0])["action"] == "in"
         assert not [k for k, _ in seen if k == schemas.alarm_key("hook", "hook-1")], "fake alarm delivered"
         assert [json.loads(p)["action"] for k, p in seen if k.endswith("/reel/cmd")] == ["in"]
+
+        # a real device declares its publisher and streams (as devices.sim_rod does): a zenoh client puts only
+        # where it knows a subscriber, so the router must declare the gateway's subscription to it; the ACL once
+        # denied that and the stream stopped after the first packets
+        pub = rod.declare_publisher("rig/rod/rod-1/imu", congestion_control=zenoh.CongestionControl.BLOCK)
+        time.sleep(2.0)
+        for _, p in real[20:40]:
+            pub.put(p)
+        wait_for(lambda: stats()["received"] >= 40, timeout_s=10.0)
+        pub.undeclare()
         token.undeclare()
         rogue_token.undeclare()
