@@ -46,6 +46,7 @@ from gateway.config import (
 from gateway.errors import BadSettings
 from gateway.fusion import hook as hook_geo
 from gateway.fusion.base import AttitudeFilter, FloatArray
+from gateway.fusion.heave import AIDED_NAMES, HeaveEstimator
 from gateway.fusion.quaternion import to_euler
 from gateway.spots import SpotReading, rank_spots
 
@@ -371,8 +372,6 @@ class Pipeline:
             step = getattr(f, "update_block", None) or f.run
             step(np.zeros((n, 3)), np.tile(acc, (n, 1)), np.tile(mag, (n, 1)), 0.01)
         if self.settings.height_interval_s > 0:
-            from gateway.fusion.heave import HeaveEstimator
-
             HeaveEstimator().update(np.tile([1.0, 0, 0, 0], (n, 1)), np.zeros((n, 3)), np.tile(acc, (n, 1)), 0.01)
 
     # -- processing -----------------------------------------------------------------------------------------
@@ -448,13 +447,12 @@ class Pipeline:
                 self._batch = DefaultFilterBatch()
             self._batch.add(p.device_id, dt_s=1.0 / p.rate_hz, use_mag=use_mag, acc_m_s2=acc0, mag_uT=mag0)
         dev = ImuDevice(p.kind, p.device_id, name, 1.0 / p.rate_hz, use_mag, filt)
-        g_std = gyr.std(axis=0) if gyr.shape[0] > 1 else np.full(3, math.inf)
-        quiet = g_std < self.settings.rest_gyr_std_rad_s
-        level = abs(float(np.linalg.norm(acc0)) - G_M_S2) < self.settings.rest_acc_tol_m_s2
-        if hook_start is not None:
-            pass  # rest, bias seeding and "already swinging" are decided by HookFilter.start
-        elif level and quiet.all() and self.settings.warmup_bias_seed:
-            self._seed_bias(dev, gyr.mean(axis=0))
+        if hook_start is None:  # (a HookFilter decided rest, bias seeding and "already swinging" in its start)
+            g_std = gyr.std(axis=0) if gyr.shape[0] > 1 else np.full(3, math.inf)
+            quiet = g_std < self.settings.rest_gyr_std_rad_s
+            level = abs(float(np.linalg.norm(acc0)) - G_M_S2) < self.settings.rest_acc_tol_m_s2
+            if level and quiet.all() and self.settings.warmup_bias_seed:
+                self._seed_bias(dev, gyr.mean(axis=0))
         if p.kind == "rod":
             dev.rod = RodAlarms(p.device_id, th if isinstance(th, RodThresholds) else None)
             if self.auto_reel.get(p.device_id):
@@ -550,8 +548,6 @@ class Pipeline:
         pkts: list[schemas.ImuPacket], ends: list[tuple[int, int, int]],
     ) -> list[schemas.Height]:  # fmt: skip
         """Height / heave of the block (gateway.fusion.heave) at packet ends, at most every `height_interval_s`."""
-        from gateway.fusion.heave import AIDED_NAMES, HeaveEstimator
-
         gyr, acc, _, t_s = block
         if dev.heave is None:
             g0 = float(np.linalg.norm(acc[: min(acc.shape[0], 50)].mean(axis=0)))
@@ -563,8 +559,8 @@ class Pipeline:
             for (i, _, _), p in zip(ends, pkts, strict=True):
                 if p.depth_m is not None:
                     depth[i - p.n + 1] = p.depth_m
-        bias = self.bias_rad_s(dev.device_id)  # the rest detector sees the rate without the filter's bias estimate
-        rows = dev.heave.update(q, gyr if bias is None else gyr - np.asarray(bias), acc, dev.dt_s, depth)
+        bias = self._bias(dev)  # the rest detector sees the rate without the filter's bias estimate
+        rows = dev.heave.update(q, gyr if bias is None else gyr - bias, acc, dev.dt_s, depth)
         out = []
         for i, seq, t_us in ends:
             if t_s[i] - dev.last_height_t_s < self.settings.height_interval_s - 1e-9:
@@ -842,18 +838,22 @@ class Pipeline:
         return schemas.SpotRanking(wall_t_us=int(now * 1e6), spots=spots)
 
     def bias_rad_s(self, device_id: str) -> list[float] | None:
-        """The filter's gyro bias estimate, rad/s, when the filter has one."""
+        """The filter's gyro bias estimate, rad/s, when the filter has one (REST views)."""
         dev = self.devices.get(device_id)
-        if dev is None:
-            return None
+        bias = None if dev is None else self._bias(dev)
+        return None if bias is None else [float(x) for x in bias]
+
+    def _bias(self, dev: ImuDevice) -> FloatArray | None:
+        """The device filter's gyro bias estimate (3,), rad/s, or None; a view, no copy (per-block use)."""
         if dev.filt is None:
             from gateway.fusion import _default_kernels as K
 
-            return [float(x) for x in self._batch.states[self._batch.row(device_id), K.S_BIAS : K.S_BIAS + 3]]
+            assert self._batch is not None
+            return np.asarray(self._batch.states[self._batch.row(dev.device_id), K.S_BIAS : K.S_BIAS + 3], dtype=float)
         for attr in ("bias_rad_s", "gyro_bias_rad_s"):
             b = getattr(dev.filt, attr, None)
             if b is not None:
-                return [float(x) for x in b]
+                return np.asarray(b, dtype=float)
         return None
 
 
