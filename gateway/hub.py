@@ -5,6 +5,8 @@ shortly)."""
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import itertools
 import logging
 import time
@@ -96,3 +98,32 @@ class Hub:
         for cb in self.listeners:
             cb("reel_cmd", cmd)
         return cmd
+
+
+class HubSink:
+    """An in-process consumer of the hub's typed outputs with a periodic task of its own (the dashboard's history
+    and live stream): `on_hub` is called on the ingest task for every output, `run` is the task. `start_sink` and
+    `stop` register/unregister and start/cancel both, on the event loop."""
+
+    _task: asyncio.Task[None] | None = None
+
+    def on_hub(self, topic: str, model: schemas.WireModel) -> None:
+        raise NotImplementedError
+
+    async def run(self) -> None:
+        raise NotImplementedError
+
+    def start_sink(self, hub: Hub) -> None:
+        self._hub = hub
+        hub.listeners.append(self.on_hub)
+        self._task = asyncio.get_running_loop().create_task(self.run())
+
+    async def stop(self) -> None:
+        hub: Hub | None = getattr(self, "_hub", None)
+        if hub is not None and self.on_hub in hub.listeners:
+            hub.listeners.remove(self.on_hub)
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None

@@ -30,6 +30,7 @@ from gateway import schemas
 from gateway.api.routes.devices import device_view
 from gateway.api.routes.history import plot_point
 from gateway.api.security import origin_allowed
+from gateway.hub import HubSink
 from gateway.ingest.runner import GatewayService
 from gateway.store import ApiToken
 
@@ -145,7 +146,7 @@ def raw_imu_summary(payloads: list[bytes], now_s: float) -> dict[str, Any]:
     return {"acc": {"t_s": t, "ax": ax, "ay": ay, "az": az, "norm": peak}, "link": link}
 
 
-class LiveStream:
+class LiveStream(HubSink):
     """Fans pipeline results and sampled device state out to dashboard clients (see module docstring)."""
 
     def __init__(self, service: GatewayService, settings: LiveSettings | None = None) -> None:
@@ -156,7 +157,6 @@ class LiveStream:
         self.ticks = 0
         self._series: dict[str, _Series] = {}
         self._raw: dict[str, collections.deque[bytes]] = {}
-        self._task: asyncio.Task[None] | None = None
         self.entry_failures = 0
         self._entry_fail_logged_s = -math.inf
         self._unknown_bytes = 0
@@ -292,17 +292,7 @@ class LiveStream:
         """Subscribe to raw device data and start ticking (call on the event loop after the service started)."""
         for sel in (schemas.SEL_IMU, schemas.SEL_ENV):
             self.service.bus.subscribe(sel, self.on_raw)
-        self.service.hub.listeners.append(self.on_hub)
-        self._task = asyncio.get_running_loop().create_task(self.run())
-
-    async def stop(self) -> None:
-        if self.on_hub in self.service.hub.listeners:
-            self.service.hub.listeners.remove(self.on_hub)
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-            self._task = None
+        self.start_sink(self.service.hub)
 
 
 def stream_allowed(ws: WebSocket) -> bool:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import asyncio
 import collections
-import contextlib
 import math
 import time
 from dataclasses import dataclass, field
@@ -25,6 +24,7 @@ from fastapi import APIRouter, HTTPException, Query, Request
 
 from gateway import schemas
 from gateway.api.deps import DeviceIdPath
+from gateway.hub import HubSink
 from gateway.ingest.runner import GatewayService
 
 router = APIRouter(prefix="/history", tags=["history"])
@@ -119,14 +119,13 @@ class DeviceHistory:
         return out
 
 
-class History:
+class History(HubSink):
     """Histories of every device, fed by the hub and a poll of the pipeline (see the module docstring)."""
 
     def __init__(self, service: GatewayService, settings: HistorySettings | None = None) -> None:
         self.service = service
         self.settings = settings or HistorySettings()
         self.devices: dict[str, DeviceHistory] = {}
-        self._task: asyncio.Task[None] | None = None
         self._seen: dict[tuple[str, str], tuple[Any, Any]] = {}
 
     def device(self, device_id: str) -> DeviceHistory:
@@ -169,17 +168,7 @@ class History:
                 continue
 
     def start(self) -> None:
-        self.service.hub.listeners.append(self.on_hub)
-        self._task = asyncio.get_running_loop().create_task(self.run())
-
-    async def stop(self) -> None:
-        if self.on_hub in self.service.hub.listeners:
-            self.service.hub.listeners.remove(self.on_hub)
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-            self._task = None
+        self.start_sink(self.service.hub)
 
 
 def start_history(app: Any, service: GatewayService) -> History:
