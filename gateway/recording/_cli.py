@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
+import threading
 
 import zenoh
 
@@ -35,3 +37,12 @@ def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
     if args.listen:
         conf.insert_json5("listen/endpoints", json.dumps(args.listen))
     return conf
+
+
+def stop_on_signals() -> threading.Event:
+    """An event set by SIGINT or SIGTERM (Ctrl-C, a service manager): long-running record/export loops check it
+    and end cleanly, flushing their files."""
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda _signum, _frame: stop.set())
+    return stop

@@ -19,14 +19,12 @@ import argparse
 import csv
 import logging
 import queue
-import signal
 import sys
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from types import FrameType
 from typing import IO, Any, Literal
 
 from tqdm import tqdm
@@ -181,26 +179,19 @@ def export_live(args: argparse.Namespace, exporter: CsvExporter) -> int:
     """Subscribe to the IMU keys and export until Ctrl-C/SIGTERM, `--duration` or `--count` packets."""
     import zenoh
 
-    from gateway.recording._cli import zenoh_config
+    from gateway.recording._cli import stop_on_signals, zenoh_config
 
     inbox: queue.SimpleQueue[tuple[str, bytes, int]] = queue.SimpleQueue()
 
     def on_sample(s: zenoh.Sample) -> None:  # zenoh thread: copy and hand off only
         inbox.put((str(s.key_expr), s.payload.to_bytes(), time.time_ns() // 1000))
 
-    stop = False
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        nonlocal stop
-        stop = True
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    stop = stop_on_signals()
     t_end = time.monotonic() + args.duration if args.duration > 0 else float("inf")
     packets, last_flush = 0, time.monotonic()
     with zenoh.open(zenoh_config(args)) as session:
         subs = [session.declare_subscriber(k, on_sample) for k in args.keys or [schemas.SEL_IMU]]
-        while not stop and time.monotonic() < t_end and not (args.count and packets >= args.count):
+        while not stop.is_set() and time.monotonic() < t_end and not (args.count and packets >= args.count):
             try:
                 item = inbox.get(timeout=0.1)
             except queue.Empty:

@@ -13,17 +13,15 @@ from __future__ import annotations
 import argparse
 import logging
 import queue
-import signal
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from types import FrameType
 
 import zenoh
 from tqdm import tqdm
 
-from gateway.recording._cli import add_zenoh_args, zenoh_config
+from gateway.recording._cli import add_zenoh_args, stop_on_signals, zenoh_config
 from gateway.recording.recorder import LowDiskSpace, Recorder, RecorderSettings
 
 log = logging.getLogger("gateway.recording")
@@ -67,14 +65,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     def on_sample(s: zenoh.Sample) -> None:  # zenoh thread: copy and hand off only
         inbox.put((str(s.key_expr), str(s.encoding), s.payload.to_bytes(), time.time_ns() // 1000))
 
-    stop = False
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        nonlocal stop
-        stop = True
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    stop = stop_on_signals()
     t_end = time.monotonic() + args.duration if args.duration > 0 else float("inf")
     bar = tqdm(desc="record", unit="sample", file=sys.stderr, disable=args.no_progress)
     rc = 0
@@ -82,7 +73,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         subs = [session.declare_subscriber(k, on_sample) for k in keys]
         log.info("recording %s into %s", ", ".join(keys), args.out)
         try:
-            while not stop and time.monotonic() < t_end and not (args.count and rec.stats.records >= args.count):
+            limit = args.count or float("inf")
+            while not stop.is_set() and time.monotonic() < t_end and rec.stats.records < limit:
                 try:
                     key, enc, payload, t_us = inbox.get(timeout=0.1)
                 except queue.Empty:
