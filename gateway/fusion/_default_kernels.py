@@ -663,6 +663,28 @@ def _step_one(
 
 
 @njit(cache=True, error_model="numpy")
+def step_prepared(
+    s: np.ndarray, prm: np.ndarray, c: np.ndarray, wk: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
+    mag: np.ndarray, use_mag: bool, dt_s: float, out: np.ndarray,
+) -> None:
+    """`step_device` with the coefficients c (from `coefficients(prm, dt_s, c)`) and scratch wk (N_WORK,) supplied
+    by the caller, so a stream of small packets neither recomputes them nor allocates."""
+    _step_one(s, prm, c, wk, gyr, acc, mag, use_mag, dt_s, out)
+
+
+@njit(cache=True, error_model="numpy")
+def step_sample(
+    s: np.ndarray, prm: np.ndarray, c: np.ndarray, wk: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
+    mag: np.ndarray, use_mag: bool, dt_s: float, q: np.ndarray,
+) -> None:
+    """One sample, inputs (3,) each, body->ENU quaternion written to q (4,); c and wk as in `step_prepared`."""
+    _step_sample(
+        s, prm, c, wk, gyr[0], gyr[1], gyr[2], acc[0], acc[1], acc[2], mag[0], mag[1], mag[2], use_mag, dt_s,
+    )
+    _output(s, wk, use_mag, q.reshape((1, 4)), 0)
+
+
+@njit(cache=True, error_model="numpy")
 def step_device(
     s: np.ndarray, prm: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool, dt_s: float,
     out: np.ndarray,
