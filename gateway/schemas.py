@@ -771,7 +771,14 @@ class ParsedKey:
     topic: str
 
 
+_KEY_CACHE_MAX: Final = 65_536
+_key_cache: dict[str, tuple[ParsedKey, Topic]] = {}  # valid keys only; a device publishes on the same few keys
+
+
 def _parse(key: str) -> tuple[ParsedKey, Topic]:
+    hit = _key_cache.get(key)
+    if hit is not None:
+        return hit
     parts = key.split("/")
     if len(parts) < 4 or parts[0] != "rig":
         raise DecodeError("unknown_key", key[:200])
@@ -779,7 +786,10 @@ def _parse(key: str) -> tuple[ParsedKey, Topic]:
     topic = _DEVICE_TOPICS.get((kind, suffix))
     if topic is None or not _DEVICE_ID_RE.fullmatch(device_id):
         raise DecodeError("unknown_key", key[:200])
-    return ParsedKey(kind, device_id, suffix), topic
+    if len(_key_cache) >= _KEY_CACHE_MAX:  # bounded: random keys from a hostile peer only cost a cache refill
+        _key_cache.clear()
+    hit = _key_cache[key] = ParsedKey(kind, device_id, suffix), topic
+    return hit
 
 
 def parse_key(key: str) -> ParsedKey:
@@ -863,24 +873,35 @@ _imu_wire_decoder: Final = msgspec.json.Decoder(_ImuWire)
 _setattr = object.__setattr__
 
 
-def _built(model: type[WireModel], wire: msgspec.Struct) -> Any:
-    """The pydantic model with `wire`'s values, as `model_validate` would build it from the same (valid) input:
-    field values in field order, missing optional fields at their defaults and left out of the fields set."""
-    values: dict[str, Any] = {}
-    fields_set: set[str] = set()
-    for name, info in model.model_fields.items():
-        v = getattr(wire, name)
-        if v is msgspec.UNSET:
-            values[name] = info.default
-        else:
-            values[name] = v
-            fields_set.add(name)
-    obj = model.__new__(model)
-    _setattr(obj, "__dict__", values)
-    _setattr(obj, "__pydantic_fields_set__", fields_set)
-    _setattr(obj, "__pydantic_extra__", None)
-    _setattr(obj, "__pydantic_private__", None)
-    return obj
+class _Builder:
+    """Builds a pydantic model from its msgspec mirror as `model_validate` would from the same (valid) input: field
+    values in field order, absent optional fields at their defaults and left out of `model_fields_set`. No second
+    validation: the mirror's decoder checked every constraint."""
+
+    def __init__(self, model: type[WireModel], wire: type[msgspec.Struct]) -> None:
+        self.model = model
+        self.names = tuple(model.model_fields)
+        if self.names != wire.__struct_fields__:
+            raise TypeError(f"{wire.__name__} must list {model.__name__}'s fields in its order")
+        self.optional = tuple((n, f.default) for n, f in model.model_fields.items() if not f.is_required())
+
+    def __call__(self, wire: msgspec.Struct) -> Any:
+        values = dict(zip(self.names, msgspec.structs.astuple(wire), strict=True))
+        fields_set = set(self.names)
+        for name, default in self.optional:
+            if values[name] is msgspec.UNSET:
+                values[name] = default
+                fields_set.discard(name)
+        obj = self.model.__new__(self.model)
+        _setattr(obj, "__dict__", values)
+        _setattr(obj, "__pydantic_fields_set__", fields_set)
+        _setattr(obj, "__pydantic_extra__", None)
+        _setattr(obj, "__pydantic_private__", None)
+        return obj
+
+
+_build_gnss: Final = _Builder(GnssFix, _GnssWire)
+_build_imu: Final = _Builder(ImuPacket, _ImuWire)
 
 
 def _decode_imu_fast(parsed: ParsedKey, payload: bytes | bytearray | memoryview) -> ImuPacket | None:
@@ -895,8 +916,8 @@ def _decode_imu_fast(parsed: ParsedKey, payload: bytes | bytearray | memoryview)
             or (isinstance(w.mag_uT, list) and len(w.mag_uT) != n)):
         return None
     if isinstance(w.gnss, _GnssWire):
-        w.gnss = _built(GnssFix, w.gnss)
-    packet: ImuPacket = _built(ImuPacket, w)
+        w.gnss = _build_gnss(w.gnss)
+    packet: ImuPacket = _build_imu(w)
     return packet
 
 
