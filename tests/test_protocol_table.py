@@ -133,8 +133,8 @@ def imu_payloads(draw: st.DrawFn) -> bytes:
     floats, booleans, nulls, NaN, huge ints, duplicate keys."""
     n = draw(st.integers(1, 4))
     limit = draw(st.sampled_from([schemas.GYR_LIMIT_RAD_S, schemas.ACC_LIMIT_M_S2, schemas.MAG_LIMIT_UT]))
-    edge = st.sampled_from([0, 1, -1, limit, -limit, math.nextafter(limit, math.inf), 1.05 * limit, -1.05 * limit, 50, 400, 5000, 5001, 2**53 + 1,
-                            2**64, -0.0, 1e-320, True, None, "1", math.nan, math.inf])
+    edge = st.sampled_from([0, 1, -1, limit, -limit, math.nextafter(limit, math.inf), 1.05 * limit, -1.05 * limit,
+                            50, 400, 5000, 5001, 2**53 + 1, 2**64, -0.0, 1e-320, True, None, "1", math.nan, math.inf])
     num = st.floats(-6000, 6000, allow_nan=False) | st.integers(-6000, 6000) | edge
     row = st.lists(num, min_size=2, max_size=4) | st.tuples(num, num, num).map(list)
     d: dict[str, Any] = imu_dict(n)
