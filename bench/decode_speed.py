@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -34,15 +35,20 @@ def make_packets(n_packets: int, samples: int, with_mag: bool, seed: int = 0) ->
     return out
 
 
-def rate(fn: object, packets: list[bytes], n: int, desc: str) -> float:
-    """Calls per CPU-second of fn(payload) over n calls cycling through packets (CPU time of this process, so
-    other load on a shared machine inflates the figure less than wall time would)."""
-    f = fn  # type: ignore[assignment]
-    print(f"{desc} ...", end="\r", flush=True)  # no per-call progress bar: its own cost would shrink the ratios
-    t = time.process_time()
-    for i in range(n):
-        f(packets[i % len(packets)])  # type: ignore[operator]
-    return n / (time.process_time() - t)
+def rates(fns: dict[str, Callable[[bytes], object]], packets: list[bytes], n: int, rounds: int = 20,
+          ) -> dict[str, float]:
+    """Calls per CPU-second of each fn(payload) over n calls cycling through packets. CPU time of this process, and
+    the functions take turns in `rounds` slices, so load from other processes on a shared machine falls on all of
+    them alike and the ratios hold even when the absolute figures move."""
+    cpu = dict.fromkeys(fns, 0.0)
+    per = max(1, n // rounds)
+    for r in range(rounds):
+        for name, f in fns.items():
+            t = time.process_time()
+            for i in range(r * per, (r + 1) * per):
+                f(packets[i % len(packets)])
+            cpu[name] += time.process_time() - t
+    return {name: per * rounds / cpu[name] for name in fns}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -56,15 +62,19 @@ def main(argv: list[str] | None = None) -> int:
     key = schemas.imu_key("rod", "rod-1")
     assert schemas.decode(key, packets[0]).n == args.samples
     assert all(schemas.decode(key, b) == schemas.decode(key, b, fast=False) for b in packets[:100])
-    slow_rate = rate(lambda b: schemas.decode(key, b, fast=False), packets, args.packets, "decode pydantic")
-    fast_rate = rate(lambda b: schemas.decode(key, b), packets, args.packets, "decode fast")
-    json_rate = rate(json.loads, packets, args.packets, "json.loads")
+    binary = [schemas.imu_to_binary(schemas.decode(key, b)) for b in packets]  # type: ignore[arg-type]
+    got = rates({"slow": lambda b: schemas.decode(key, b, fast=False), "fast": lambda b: schemas.decode(key, b),
+                 "json": json.loads}, packets, args.packets)
+    got |= rates({"binary": lambda b: schemas.decode(key, b)}, binary, args.packets)
+    slow_rate, fast_rate, json_rate = got["slow"], got["fast"], got["json"]
     size = sum(map(len, packets)) / len(packets)
     print(f"packet: {args.samples} samples, {'6' if args.no_mag else '9'}-axis, {size:.0f} bytes")
     print(f"decode, pydantic (before):      {slow_rate:>9,.0f} packets per CPU-second "
           f"= {slow_rate * args.samples:,.0f} samples/s")
     print(f"decode, msgspec fast path (now): {fast_rate:>8,.0f} packets per CPU-second "
           f"= {fast_rate * args.samples:,.0f} samples/s; {fast_rate / slow_rate:.2f}x")
+    print(f"binary v2 ({sum(map(len, binary)) / len(binary):.0f} bytes):        {got['binary']:>9,.0f} packets per "
+          f"CPU-second; {got['binary'] / slow_rate:.2f}x pydantic on JSON (timed apart from the three JSON paths)")
     print(f"json.loads only (no validation): {json_rate:>8,.0f} packets per CPU-second; fast/json.loads = "
           f"{fast_rate / json_rate:.2f}")
     return 0

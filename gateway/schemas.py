@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import re
+import struct
 import sys
 import typing
 from dataclasses import dataclass
@@ -886,18 +887,24 @@ class _Builder:
         self.optional = tuple((n, f.default) for n, f in model.model_fields.items() if not f.is_required())
 
     def __call__(self, wire: msgspec.Struct) -> Any:
-        values = dict(zip(self.names, msgspec.structs.astuple(wire), strict=True))
+        values = dict(zip(self.names, msgspec.structs.astuple(wire)))  # noqa: B905 (lengths checked in __init__)
         fields_set = set(self.names)
         for name, default in self.optional:
             if values[name] is msgspec.UNSET:
                 values[name] = default
                 fields_set.discard(name)
-        obj = self.model.__new__(self.model)
-        _setattr(obj, "__dict__", values)
-        _setattr(obj, "__pydantic_fields_set__", fields_set)
-        _setattr(obj, "__pydantic_extra__", None)
-        _setattr(obj, "__pydantic_private__", None)
-        return obj
+        return _construct(self.model, values, fields_set)
+
+
+def _construct(model: type[WireModel], values: dict[str, Any], fields_set: set[str]) -> Any:
+    """The instance `model_validate` would return for input that passed every check (`values` in field order, every
+    field present); `model_construct` does the same with more Python per call."""
+    obj = model.__new__(model)
+    _setattr(obj, "__dict__", values)
+    _setattr(obj, "__pydantic_fields_set__", fields_set)
+    _setattr(obj, "__pydantic_extra__", None)
+    _setattr(obj, "__pydantic_private__", None)
+    return obj
 
 
 _build_gnss: Final = _Builder(GnssFix, _GnssWire)
@@ -921,17 +928,129 @@ def _decode_imu_fast(parsed: ParsedKey, payload: bytes | bytearray | memoryview)
     return packet
 
 
+# ---- binary IMU encoding (protocol v2, docs/protocol.md section 3.6) -------------------------------------------
+
+IMU_BINARY_MAGIC: Final = 0xB2  # first byte; a JSON text never starts with it (0xB2 is no ASCII and no UTF-8 lead)
+_BIN_MAGIC_BYTE: Final = bytes([IMU_BINARY_MAGIC])
+ENCODING_IMU_BINARY: Final = "application/octet-stream;schema=rig.imu.v2"
+IMU_BINARY_HEADER: Final = struct.Struct("<BBBBHHIIqdqffff")  # 56 bytes, little-endian, no padding
+BIN_MAG, BIN_TEMP, BIN_BATTERY, BIN_RSSI, BIN_WALL, BIN_DEPTH = (1 << i for i in range(6))
+_BIN_OPTIONAL: Final = (("temp_c", BIN_TEMP), ("battery_v", BIN_BATTERY), ("rssi_dbm", BIN_RSSI),
+                        ("depth_m", BIN_DEPTH))
+_BIN_LIMITS: Final = np.array([GYR_LIMIT_RAD_S] * 3 + [ACC_LIMIT_M_S2] * 3 + [MAG_LIMIT_UT] * 3, dtype=np.float32)
+
+
+def _field_range(model: type[WireModel], name: str) -> tuple[float, float]:
+    """(minimum, maximum) of a numeric field, read from the model's JSON schema so the binary checks cannot drift."""
+    prop = model.model_json_schema()["properties"][name]
+    prop = next((p for p in prop.get("anyOf", [prop]) if p.get("type") != "null"), prop)
+    return float(prop["minimum"]), float(prop["maximum"])
+
+
+_BIN_RANGES: Final = {name: _field_range(ImuPacket, name) for name in ("rate_hz", *(n for n, _ in _BIN_OPTIONAL))}
+
+
+def imu_binary(
+    *, device_id: str, kind: str, boot_id: int, seq: int, t0_us: int, rate_hz: float,
+    gyr_rad_s: Any, acc_m_s2: Any, mag_uT: Any | None = None, wall_t0_us: int | None = None,
+    temp_c: float | None = None, battery_v: float | None = None, rssi_dbm: float | None = None,
+    depth_m: float | None = None,
+) -> bytes:
+    """Bytes of one IMU packet in the binary encoding: the 56-byte header, the device id, then n rows of float32
+    [gx gy gz ax ay az (mx my mz)]. Sample values and the four optional scalars travel as float32. No GNSS: a
+    packet with a fix goes as JSON."""
+    rows = [np.asarray(gyr_rad_s, dtype="<f4"), np.asarray(acc_m_s2, dtype="<f4")]
+    if mag_uT is not None:
+        rows.append(np.asarray(mag_uT, dtype="<f4"))
+    block = np.ascontiguousarray(np.hstack(rows), dtype="<f4")
+    n = block.shape[0]
+    opt = {"temp_c": temp_c, "battery_v": battery_v, "rssi_dbm": rssi_dbm, "depth_m": depth_m}
+    flags = (BIN_MAG if mag_uT is not None else 0) | (BIN_WALL if wall_t0_us is not None else 0)
+    flags |= sum(bit for name, bit in _BIN_OPTIONAL if opt[name] is not None)
+    ident = _check_id(device_id).encode("ascii")
+    head = IMU_BINARY_HEADER.pack(
+        IMU_BINARY_MAGIC, flags, IMU_KINDS.index(kind), len(ident), n, 0, boot_id % UINT32, seq % UINT32, t0_us,
+        rate_hz, wall_t0_us or 0, *(0.0 if opt[name] is None else opt[name] for name, _ in _BIN_OPTIONAL),
+    )
+    return head + ident + block.tobytes()
+
+
+def imu_to_binary(packet: ImuPacket) -> bytes:
+    """`packet` in the binary encoding (sample values rounded to float32; raises ValueError with a GNSS fix)."""
+    if packet.gnss is not None:
+        raise ValueError("the binary encoding carries no GNSS fix: send this packet as JSON")
+    return imu_binary(
+        device_id=packet.device_id, kind=packet.kind, boot_id=packet.boot_id, seq=packet.seq, t0_us=packet.t0_us,
+        rate_hz=packet.rate_hz, gyr_rad_s=packet.gyr_rad_s, acc_m_s2=packet.acc_m_s2, mag_uT=packet.mag_uT,
+        wall_t0_us=packet.wall_t0_us, temp_c=packet.temp_c, battery_v=packet.battery_v, rssi_dbm=packet.rssi_dbm,
+        depth_m=packet.depth_m,
+    )
+
+
+def _decode_imu_binary(parsed: ParsedKey, payload: bytes | bytearray | memoryview) -> ImuPacket:
+    """Validate a binary IMU packet as pydantic validates its JSON twin, with the same reasons in the same priority:
+    layout (`schema`), then `non_finite`, `out_of_range`, the device id's pattern (`schema`), `key_mismatch`."""
+    size = IMU_BINARY_HEADER.size
+    if len(payload) < size:
+        raise DecodeError("schema", f"binary IMU packet of {len(payload)} bytes is shorter than its {size}-byte header")
+    (_, flags, kind_code, id_len, n, reserved, boot_id, seq, t0_us, rate_hz, wall, *scalars) = \
+        IMU_BINARY_HEADER.unpack_from(payload)  # fmt: skip
+    k = 9 if flags & BIN_MAG else 6
+    if flags >> 6 or reserved:
+        raise DecodeError("schema", f"binary IMU packet: unknown flags {flags:#04x} or reserved {reserved}")
+    if not 1 <= n <= MAX_SAMPLES:
+        raise DecodeError("schema", f"binary IMU packet: n = {n} samples, expected 1..{MAX_SAMPLES}")
+    if len(payload) != size + id_len + 4 * k * n:
+        raise DecodeError("schema", f"binary IMU packet of {len(payload)} bytes, its header says "
+                          f"{size + id_len + 4 * k * n}")  # fmt: skip
+    block = np.frombuffer(payload, dtype="<f4", count=n * k, offset=size + id_len).reshape(n, k)
+    optional = {name: v for (name, bit), v in zip(_BIN_OPTIONAL, scalars, strict=True) if flags & bit}
+    lo, hi = _BIN_RANGES["rate_hz"]
+    if not ((np.abs(block) <= _BIN_LIMITS[:k]).all() and lo <= rate_hz <= hi  # False for NaN too
+            and all(_BIN_RANGES[name][0] <= v <= _BIN_RANGES[name][1] for name, v in optional.items())):
+        if not (np.isfinite(block).all() and all(map(math.isfinite, (rate_hz, *optional.values())))):
+            raise DecodeError("non_finite", "binary IMU packet: a NaN or infinite value")
+        raise DecodeError("out_of_range", "binary IMU packet: a sample or scalar beyond its limits")
+    if t0_us < 0 or (flags & BIN_WALL and wall < 0):
+        raise DecodeError("out_of_range", "t0_us / wall_t0_us must be >= 0")
+    device_id = parsed.device_id
+    kind = IMU_KINDS[kind_code] if kind_code < len(IMU_KINDS) else ""
+    if kind != parsed.kind or payload[size:size + id_len] != device_id.encode():
+        other = bytes(payload[size:size + id_len]).decode("latin-1")
+        if not kind or not _DEVICE_ID_RE.fullmatch(other):
+            raise DecodeError("schema", f"binary IMU packet: kind code {kind_code} or device id {other[:70]!r}")
+        raise DecodeError("key_mismatch", f"payload {kind}/{other} on key rig/{parsed.kind}/{parsed.device_id}")
+    f = block.tolist()
+    fields_set = {"v", "device_id", "kind", "boot_id", "seq", "t0_us", "rate_hz", "gyr_rad_s", "acc_m_s2", *optional}
+    if k == 9:
+        fields_set.add("mag_uT")
+    if flags & BIN_WALL:
+        fields_set.add("wall_t0_us")
+    packet: ImuPacket = _construct(ImuPacket, {
+        "v": 1, "device_id": device_id, "kind": kind, "boot_id": boot_id, "seq": seq, "t0_us": t0_us,
+        "rate_hz": rate_hz, "gyr_rad_s": [(r[0], r[1], r[2]) for r in f], "acc_m_s2": [(r[3], r[4], r[5]) for r in f],
+        "mag_uT": [(r[6], r[7], r[8]) for r in f] if k == 9 else None,
+        "temp_c": optional.get("temp_c"), "battery_v": optional.get("battery_v"),
+        "rssi_dbm": optional.get("rssi_dbm"), "wall_t0_us": wall if flags & BIN_WALL else None, "gnss": None,
+        "depth_m": optional.get("depth_m"),
+    }, fields_set)  # fmt: skip
+    return packet
+
+
 def decode(key: str, payload: bytes | bytearray | memoryview, *, fast: bool = True) -> Packet:
     """Validate one sample received on `key`; returns the model or raises DecodeError (never anything else).
 
     Checks, in order: size (`too_large`), key (`unknown_key`), JSON + schema + ranges (one parse), then that the
-    key's kind and device id equal the payload's (`key_mismatch`). `fast=False` skips the IMU fast path (the
+    key's kind and device id equal the payload's (`key_mismatch`). An IMU payload starting with IMU_BINARY_MAGIC is
+    the binary encoding (`_decode_imu_binary`, same checks and reasons). `fast=False` skips the IMU fast path (the
     reference it is tested and benchmarked against).
     """
     try:
         if len(payload) > MAX_PAYLOAD_BYTES:
             raise DecodeError("too_large", f"{len(payload)} bytes > {MAX_PAYLOAD_BYTES}")
         parsed, topic = _parse(key)
+        if topic is T_IMU and payload[:1] == _BIN_MAGIC_BYTE:
+            return _decode_imu_binary(parsed, payload)
         if fast and topic is T_IMU:
             quick = _decode_imu_fast(parsed, payload)
             if quick is not None:

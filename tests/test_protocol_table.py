@@ -12,6 +12,7 @@ import math
 from typing import Any
 
 import msgspec
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -192,3 +193,109 @@ def test_fast_path_takes_valid_packets_itself_and_leaves_the_rest_to_pydantic() 
     assert schemas._decode_imu_fast(parsed, json.dumps(imu_dict(gnss=fix)).encode()).gnss == schemas.GnssFix(**fix)  # type: ignore[union-attr]
     for bad in (imu_dict(rate_hz=0.5), imu_dict(device_id="rod-2"), imu_dict(acc_m_s2=[[0, 0, 9.8]])):
         assert schemas._decode_imu_fast(parsed, json.dumps(bad).encode()) is None
+
+
+# ---- binary IMU encoding (protocol v2) -------------------------------------------------------------------------
+
+f32 = st.floats(width=32, allow_nan=True, allow_infinity=True)
+near = st.sampled_from([0.0, 49.99, 50.0, 50.01, -400.0, 400.5, 4999.0, 5000.0, -5000.5, 9.81, math.nan, -math.inf])
+
+
+@st.composite
+def imu_contents(draw: st.DrawFn) -> dict[str, Any]:
+    """Keyword arguments of `schemas.imu_binary`: valid float32 values, then maybe one sample value and one field
+    moved near or across its limit (or to NaN/inf), maybe the key's kind or id changed."""
+    n = draw(st.integers(1, 5))
+    small = st.floats(-10, 10, width=32)
+
+    def rows() -> list[list[float]]:
+        return draw(st.lists(st.lists(small, min_size=3, max_size=3), min_size=n, max_size=n))
+
+    def maybe(strategy: st.SearchStrategy[Any]) -> Any:
+        return draw(st.none() | strategy)
+
+    c: dict[str, Any] = {
+        "device_id": "rod-1", "kind": "rod", "boot_id": draw(st.integers(0, 2**32 - 1)),
+        "seq": draw(st.integers(0, 2**32 - 1)), "t0_us": draw(st.integers(0, 2**63 - 1)),
+        "rate_hz": draw(st.sampled_from([100.0, 1.0, 2000.0, 50.5])), "gyr_rad_s": rows(), "acc_m_s2": rows(),
+        "mag_uT": rows() if draw(st.booleans()) else None, "wall_t0_us": maybe(st.integers(0, 2**63 - 1)),
+        "temp_c": maybe(st.floats(-60, 150, width=32)), "battery_v": maybe(st.floats(0, 60, width=32)),
+        "rssi_dbm": maybe(st.floats(-150, 0, width=32)), "depth_m": maybe(st.floats(0, 1000, width=32)),
+    }
+    if draw(st.booleans()):
+        arrays = [a for a in ("gyr_rad_s", "acc_m_s2", "mag_uT") if c[a] is not None]
+        row = draw(st.sampled_from(c[draw(st.sampled_from(arrays))]))
+        row[draw(st.integers(0, 2))] = draw(near | st.floats(width=32))
+    if draw(st.integers(0, 3)) == 0:
+        name = draw(st.sampled_from(["t0_us", "wall_t0_us", "rate_hz", "temp_c", "battery_v", "rssi_dbm", "depth_m"]))
+        c[name] = draw(st.integers(-3, 0)) if name.endswith("_us") else draw(
+            st.sampled_from([0.5, 2001.0, -61.0, 150.5, 60.5, 0.5, -150.5, 1000.5, -0.5, math.nan, math.inf])
+            | st.floats(width=32))  # fmt: skip
+    if draw(st.integers(0, 5)) == 0:
+        c.update(draw(st.sampled_from([{"kind": "hook"}, {"device_id": "rod-2"}])))
+    return c
+
+
+def json_twin(c: dict[str, Any]) -> bytes:
+    """The same packet as JSON, every float at its float32 value (what the binary encoding carries)."""
+    d: dict[str, Any] = {"v": 1}
+    for name, value in c.items():
+        if value is None:
+            continue
+        if isinstance(value, list):
+            value = [[float(np.float32(x)) for x in row] for row in value]
+        elif isinstance(value, float) and name != "rate_hz":
+            value = float(np.float32(value))
+        d[name] = value
+    return json.dumps(d).encode()  # NaN/Infinity tokens: pydantic's `non_finite`, like the binary check
+
+
+@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(imu_contents())
+def test_binary_decodes_like_its_json_twin(c: dict[str, Any]) -> None:
+    """Same verdict, same reason, equal packets (values, fields set, JSON) as pydantic on the JSON twin."""
+    binary = schemas.imu_binary(**c)
+    assert binary[0] == schemas.IMU_BINARY_MAGIC
+    assert _outcome(IMU_KEY, binary, fast=True) == _outcome(IMU_KEY, json_twin(c), fast=False)
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(imu_contents(), st.data())
+def test_binary_hostile_bytes_only_raise_decode_error(c: dict[str, Any], data: st.DataObject) -> None:
+    """Flip, cut or extend a valid binary packet anywhere: decode returns or raises DecodeError, nothing else."""
+    b = bytearray(schemas.imu_binary(**c))
+    i = data.draw(st.integers(0, len(b) - 1))
+    how = data.draw(st.sampled_from(["flip", "cut", "extend"]))
+    if how == "flip":
+        b[i] ^= data.draw(st.integers(1, 255))
+    elif how == "cut":
+        del b[i:]
+    else:
+        b += data.draw(st.binary(min_size=1, max_size=8))
+    if b[:1] != bytes([schemas.IMU_BINARY_MAGIC]):
+        return
+    try:
+        p = schemas.decode(IMU_KEY, bytes(b))
+    except schemas.DecodeError as e:
+        assert e.reason in schemas.REASONS
+    else:
+        assert schemas.decode(IMU_KEY, p.to_json()) == p  # type: ignore[union-attr]
+
+
+def test_binary_layout_is_the_documented_one() -> None:
+    """docs/protocol.md section 3.6: a 56-byte little-endian header, the id, then float32 rows; 2.4x fewer bytes."""
+    key, example = protocol_doc.examples()["imu_rod"]
+    assert isinstance(example, schemas.ImuPacket)
+    p = example.model_copy(update={"gnss": None})
+    b = schemas.imu_to_binary(p)
+    assert len(b) == 56 + len("rod-1") + 2 * 9 * 4
+    assert b[:4] == bytes([0xB2, 0b011111, 0, 5]) and b[4:6] == (2).to_bytes(2, "little")
+    assert int.from_bytes(b[12:16], "little") == 1042 and b[56:61] == b"rod-1"
+    assert np.frombuffer(b, "<f4", offset=61)[3] == np.float32(5.312)  # acc x of sample 0
+    assert schemas.decode(key, b) == schemas.decode(key, json_twin({
+        k: getattr(p, k) for k in ("device_id", "kind", "boot_id", "seq", "t0_us", "rate_hz", "wall_t0_us",
+                                   "temp_c", "battery_v", "rssi_dbm")} | {  # fmt: skip
+        "gyr_rad_s": [list(r) for r in p.gyr_rad_s], "acc_m_s2": [list(r) for r in p.acc_m_s2],
+        "mag_uT": [list(r) for r in p.mag_uT or []]}))
+    with pytest.raises(ValueError):
+        schemas.imu_to_binary(example)  # a GNSS fix goes as JSON
