@@ -21,6 +21,7 @@ from gateway.schemas import (
     DIAG_REJECTED_KEY,
     DIRECTION_TEXT,
     ENCODING_GW,
+    ENCODING_IMU_BINARY,
     KINDS,
     SEL_DEVICE_DATA,
     SEL_DEVICE_TOKENS,
@@ -60,6 +61,7 @@ from gateway.schemas import (
     env_key,
     height_key,
     imu_key,
+    imu_to_binary,
     reel_cmd_key,
     reel_key,
     swing_key,
@@ -344,6 +346,13 @@ def examples_markdown() -> str:
         body = example_json(model)
         enc = encoding_of(type(model))
         parts.append(f"#### {name}\n\nKey: `{key}` — encoding `{enc}`\n\n```json\n{body}\n```\n")
+    key, imu = examples()["imu_rod"]
+    assert isinstance(imu, ImuPacket)
+    b = imu_to_binary(imu.model_copy(update={"gnss": None}))
+    rows = [b[i:i + 16].hex(" ") for i in range(0, len(b), 16)]
+    parts.append(f"#### imu_rod_binary\n\nThe `imu_rod` packet without its `gnss` fix in the binary encoding "
+                 f"(section 3.6), {len(b)} bytes, hex — encoding `{ENCODING_IMU_BINARY}`\n\n```text\n"
+                 + "\n".join(rows) + "\n```\n")
     return "\n".join(parts)
 
 

@@ -1020,7 +1020,7 @@ def _decode_imu_binary(parsed: ParsedKey, payload: bytes | bytearray | memoryvie
         if not kind or not _DEVICE_ID_RE.fullmatch(other):
             raise DecodeError("schema", f"binary IMU packet: kind code {kind_code} or device id {other[:70]!r}")
         raise DecodeError("key_mismatch", f"payload {kind}/{other} on key rig/{parsed.kind}/{parsed.device_id}")
-    f = block.tolist()
+    c = block.T.tolist()  # 6 or 9 columns of Python floats; zip makes the rows in C
     fields_set = {"v", "device_id", "kind", "boot_id", "seq", "t0_us", "rate_hz", "gyr_rad_s", "acc_m_s2", *optional}
     if k == 9:
         fields_set.add("mag_uT")
@@ -1028,8 +1028,9 @@ def _decode_imu_binary(parsed: ParsedKey, payload: bytes | bytearray | memoryvie
         fields_set.add("wall_t0_us")
     packet: ImuPacket = _construct(ImuPacket, {
         "v": 1, "device_id": device_id, "kind": kind, "boot_id": boot_id, "seq": seq, "t0_us": t0_us,
-        "rate_hz": rate_hz, "gyr_rad_s": [(r[0], r[1], r[2]) for r in f], "acc_m_s2": [(r[3], r[4], r[5]) for r in f],
-        "mag_uT": [(r[6], r[7], r[8]) for r in f] if k == 9 else None,
+        "rate_hz": rate_hz, "gyr_rad_s": list(zip(c[0], c[1], c[2], strict=True)),
+        "acc_m_s2": list(zip(c[3], c[4], c[5], strict=True)),
+        "mag_uT": list(zip(c[6], c[7], c[8], strict=True)) if k == 9 else None,
         "temp_c": optional.get("temp_c"), "battery_v": optional.get("battery_v"),
         "rssi_dbm": optional.get("rssi_dbm"), "wall_t0_us": wall if flags & BIN_WALL else None, "gnss": None,
         "depth_m": optional.get("depth_m"),

@@ -299,3 +299,11 @@ def test_binary_layout_is_the_documented_one() -> None:
         "mag_uT": [list(r) for r in p.mag_uT or []]}))
     with pytest.raises(ValueError):
         schemas.imu_to_binary(example)  # a GNSS fix goes as JSON
+
+
+def test_every_topic_with_a_payload_has_an_example_in_the_doc() -> None:
+    """A new kind's topic row without an example would reach docs/protocol.md without a payload to copy."""
+    examples = protocol_doc.examples().values()
+    for t in schemas.TOPICS:
+        if t.model is not None:
+            assert any(type(m) is t.model and key_matches(schemas.selector(t), key) for key, m in examples), t.name
