@@ -935,9 +935,11 @@ _BIN_MAGIC_BYTE: Final = bytes([IMU_BINARY_MAGIC])
 ENCODING_IMU_BINARY: Final = "application/octet-stream;schema=rig.imu.v2"
 IMU_BINARY_HEADER: Final = struct.Struct("<BBBBHHIIqdqffff")  # 56 bytes, little-endian, no padding
 BIN_MAG, BIN_TEMP, BIN_BATTERY, BIN_RSSI, BIN_WALL, BIN_DEPTH = (1 << i for i in range(6))
+_BIN_SCALAR_FLAGS: Final = BIN_TEMP | BIN_BATTERY | BIN_RSSI | BIN_DEPTH
 _BIN_OPTIONAL: Final = (("temp_c", BIN_TEMP), ("battery_v", BIN_BATTERY), ("rssi_dbm", BIN_RSSI),
                         ("depth_m", BIN_DEPTH))
-_BIN_LIMITS: Final = np.array([GYR_LIMIT_RAD_S] * 3 + [ACC_LIMIT_M_S2] * 3 + [MAG_LIMIT_UT] * 3, dtype=np.float32)
+_BIN_LIMITS: Final = {k: np.array(([GYR_LIMIT_RAD_S] * 3 + [ACC_LIMIT_M_S2] * 3 + [MAG_LIMIT_UT] * 3)[:k],
+                                  dtype=np.float32) for k in (6, 9)}  # per row: gyr, acc (, mag)
 
 
 def _field_range(model: type[WireModel], name: str) -> tuple[float, float]:
@@ -987,6 +989,12 @@ def imu_to_binary(packet: ImuPacket) -> bytes:
     )
 
 
+_V3: Final = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")])  # one row; `tolist()` gives a tuple of floats
+_ROWS: Final = {6: np.dtype([("gyr", _V3), ("acc", _V3)]), 9: np.dtype([("gyr", _V3), ("acc", _V3), ("mag", _V3)])}
+_IMU_REQUIRED: Final = frozenset({"v", "device_id", "kind", "boot_id", "seq", "t0_us", "rate_hz", "gyr_rad_s",
+                                  "acc_m_s2"})  # fmt: skip
+
+
 def _decode_imu_binary(parsed: ParsedKey, payload: bytes | bytearray | memoryview) -> ImuPacket:
     """Validate a binary IMU packet as pydantic validates its JSON twin, with the same reasons in the same priority:
     layout (`schema`), then `non_finite`, `out_of_range`, the device id's pattern (`schema`), `key_mismatch`."""
@@ -1004,10 +1012,17 @@ def _decode_imu_binary(parsed: ParsedKey, payload: bytes | bytearray | memoryvie
         raise DecodeError("schema", f"binary IMU packet of {len(payload)} bytes, its header says "
                           f"{size + id_len + 4 * k * n}")  # fmt: skip
     block = np.frombuffer(payload, dtype="<f4", count=n * k, offset=size + id_len).reshape(n, k)
-    optional = {name: v for (name, bit), v in zip(_BIN_OPTIONAL, scalars, strict=True) if flags & bit}
+    optional = {}
+    in_range = np.count_nonzero(np.abs(block) <= _BIN_LIMITS[k]) == block.size  # NaN compares False
     lo, hi = _BIN_RANGES["rate_hz"]
-    if not ((np.abs(block) <= _BIN_LIMITS[:k]).all() and lo <= rate_hz <= hi  # False for NaN too
-            and all(_BIN_RANGES[name][0] <= v <= _BIN_RANGES[name][1] for name, v in optional.items())):
+    in_range = in_range and lo <= rate_hz <= hi
+    if flags & _BIN_SCALAR_FLAGS:
+        for (name, bit), v in zip(_BIN_OPTIONAL, scalars, strict=True):
+            if flags & bit:
+                optional[name] = v
+                lo, hi = _BIN_RANGES[name]
+                in_range = in_range and lo <= v <= hi
+    if not in_range:
         if not (np.isfinite(block).all() and all(map(math.isfinite, (rate_hz, *optional.values())))):
             raise DecodeError("non_finite", "binary IMU packet: a NaN or infinite value")
         raise DecodeError("out_of_range", "binary IMU packet: a sample or scalar beyond its limits")
@@ -1020,20 +1035,20 @@ def _decode_imu_binary(parsed: ParsedKey, payload: bytes | bytearray | memoryvie
         if not kind or not _DEVICE_ID_RE.fullmatch(other):
             raise DecodeError("schema", f"binary IMU packet: kind code {kind_code} or device id {other[:70]!r}")
         raise DecodeError("key_mismatch", f"payload {kind}/{other} on key rig/{parsed.kind}/{parsed.device_id}")
-    c = block.T.tolist()  # 6 or 9 columns of Python floats; zip makes the rows in C
-    fields_set = {"v", "device_id", "kind", "boot_id", "seq", "t0_us", "rate_hz", "gyr_rad_s", "acc_m_s2", *optional}
+    rows = np.frombuffer(payload, dtype=_ROWS[k], count=n, offset=size + id_len)
+    fields_set = set(_IMU_REQUIRED)
+    fields_set.update(optional)
     if k == 9:
         fields_set.add("mag_uT")
     if flags & BIN_WALL:
         fields_set.add("wall_t0_us")
+    get = optional.get
     packet: ImuPacket = _construct(ImuPacket, {
         "v": 1, "device_id": device_id, "kind": kind, "boot_id": boot_id, "seq": seq, "t0_us": t0_us,
-        "rate_hz": rate_hz, "gyr_rad_s": list(zip(c[0], c[1], c[2], strict=True)),
-        "acc_m_s2": list(zip(c[3], c[4], c[5], strict=True)),
-        "mag_uT": list(zip(c[6], c[7], c[8], strict=True)) if k == 9 else None,
-        "temp_c": optional.get("temp_c"), "battery_v": optional.get("battery_v"),
-        "rssi_dbm": optional.get("rssi_dbm"), "wall_t0_us": wall if flags & BIN_WALL else None, "gnss": None,
-        "depth_m": optional.get("depth_m"),
+        "rate_hz": rate_hz, "gyr_rad_s": rows["gyr"].tolist(), "acc_m_s2": rows["acc"].tolist(),
+        "mag_uT": rows["mag"].tolist() if k == 9 else None, "temp_c": get("temp_c"), "battery_v": get("battery_v"),
+        "rssi_dbm": get("rssi_dbm"), "wall_t0_us": wall if flags & BIN_WALL else None, "gnss": None,
+        "depth_m": get("depth_m"),
     }, fields_set)  # fmt: skip
     return packet
 

@@ -307,3 +307,19 @@ def test_every_topic_with_a_payload_has_an_example_in_the_doc() -> None:
     for t in schemas.TOPICS:
         if t.model is not None:
             assert any(type(m) is t.model and key_matches(schemas.selector(t), key) for key, m in examples), t.name
+
+
+@pytest.mark.parametrize(("field", "limit"), [
+    ("gyr_rad_s", schemas.GYR_LIMIT_RAD_S), ("acc_m_s2", schemas.ACC_LIMIT_M_S2), ("mag_uT", schemas.MAG_LIMIT_UT)])
+def test_binary_limits_are_the_models_to_the_last_float32(field: str, limit: float) -> None:
+    """At the limit: accepted; one float32 step beyond, either sign: out_of_range; NaN: non_finite (as JSON)."""
+    beyond = float(np.nextafter(np.float32(limit), np.float32(np.inf)))
+    for value, want in ((limit, "ok"), (-limit, "ok"), (beyond, "out_of_range"), (-beyond, "out_of_range"),
+                        (math.nan, "non_finite")):  # fmt: skip
+        rows = [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]
+        rows[1][2] = value
+        c: dict[str, Any] = {"device_id": "rod-1", "kind": "rod", "boot_id": 1, "seq": 2, "t0_us": 3, "rate_hz": 100.0,
+                             "gyr_rad_s": [[0.0] * 3] * 2, "acc_m_s2": [[0.0] * 3] * 2, "mag_uT": [[0.0] * 3] * 2}
+        c[field] = rows
+        got, twin = _outcome(IMU_KEY, schemas.imu_binary(**c), fast=True), _outcome(IMU_KEY, json_twin(c), fast=False)
+        assert got == twin and (got[0] == "ok" if want == "ok" else got[1] == want), (value, got)
