@@ -243,7 +243,7 @@ def test_protocol_doc_examples_validate() -> None:
 
 
 def test_protocol_doc_is_current() -> None:
-    """The doc's examples are generated from the models; regenerate with `python -m gateway.schemas --doc`."""
+    """The doc's examples are generated from the models; regenerate: `python -m gateway.schemas --write-doc ...`."""
     text = DOC.read_text()
     for key, model in protocol_doc.examples().values():
         assert f"Key: `{key}`" in text
