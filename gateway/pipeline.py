@@ -314,13 +314,14 @@ class Pipeline:
                 continue
             try:
                 kb = KindBatch(items)
-                out.attitudes += attitudes(kb, s.attitude_interval_s)
+                if handler.imu_outputs:
+                    out.attitudes += attitudes(kb, s.attitude_interval_s)
                 conds += handler.post(self._ctx, kb, now, out)
             except Exception as exc:  # a bug in the vectorised part: every device of the kind restarts
                 for f in items:
                     self._post_failed(f.dev, exc, out)
                 continue
-            for f in items:
+            for f in items if handler.imu_outputs else ():
                 if self.devices.get(f.dev.device_id) is not f.dev:  # failed in `post`: restarting
                     continue
                 try:

@@ -250,6 +250,9 @@ class DeviceKind(Protocol):
 
     name: ClassVar[str]  # the wire kind (`rig/{name}/{id}/...`)
     fused: ClassVar[bool]
+    # The common IMU outputs (Attitude, Height, AttitudeBlock) for this kind: their wire models list the kinds they
+    # accept (the protocol's Topic table), so a kind gets them once it is listed there.
+    imu_outputs: ClassVar[bool]
     packet_types: ClassVar[tuple[type[Any], ...]]
 
     def thresholds_model(self) -> type[BaseModel]:
@@ -290,6 +293,7 @@ class KindBase:
 
     name: ClassVar[str] = ""
     fused: ClassVar[bool] = True
+    imu_outputs: ClassVar[bool] = True
     packet_types: ClassVar[tuple[type[Any], ...]] = ()
 
     def thresholds_model(self) -> type[BaseModel]:
