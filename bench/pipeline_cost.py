@@ -22,18 +22,22 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 
-def measure(rods: int, seconds: float, skip_s: float, seed: int) -> dict[str, float]:
+def measure(rods: int, seconds: float, skip_s: float, seed: int) -> dict[str, Any]:
     """CPU seconds per packet of `Pipeline.process` at `rods` rods (this interpreter's `gateway`)."""
-    from devices.common import FleetSettings
+    from devices.common import DeviceClock, FleetSettings
     from devices.rod_physics import RandomEventRates
     from devices.sim_rod import RodFleet
     from gateway import schemas
     from gateway.pipeline import Pipeline
 
     fleet = RodFleet(FleetSettings(count=rods, seed=seed, samples_per_packet=5, progress=False, id_prefix="rod"),
-                     rates=RandomEventRates())
+                     rates=RandomEventRates.lively())
+    # the same wall clock every run (the simulator reads the real one), so runs can be compared output for output
+    wall0_s = 1.8e9
+    fleet.clocks = [DeviceClock(c.boot_offset_us, int(wall0_s * 1e6) - c.boot_offset_us) for c in fleet.clocks]
     n_ticks = int(round(seconds / fleet.fleet.period_s))
     batches = []
     for k in range(n_ticks):
@@ -42,9 +46,11 @@ def measure(rods: int, seconds: float, skip_s: float, seed: int) -> dict[str, fl
                         if not m.key.endswith("/truth")])  # fmt: skip
     pipeline = Pipeline()
     pipeline.warm_up()
-    t_wall0 = 1.8e9
+    t_wall0 = wall0_s + 0.1
     skip = int(round(skip_s / fleet.fleet.period_s))
-    cpu, packets, outputs = 0.0, 0, 0
+    cpu, packets = 0.0, 0
+    alarms: list[list[Any]] = []
+    atts: dict[str, list[float]] = {}
     for k, batch in enumerate(batches):
         now = t_wall0 + k * fleet.fleet.period_s
         t0 = time.process_time()
@@ -53,12 +59,26 @@ def measure(rods: int, seconds: float, skip_s: float, seed: int) -> dict[str, fl
         if k >= skip:
             cpu += dt
             packets += len(batch)
-            outputs += len(out.attitudes) + len(out.alarms)
+        alarms += [[a.change.alarm.device_id, a.change.alarm.type, a.change.kind, str(a.change.alarm.severity),
+                    round(a.change.alarm.started_at - wall0_s, 6)] for a in out.alarms]  # fmt: skip
+        for a in out.attitudes:
+            atts.setdefault(f"{a.device_id}/{a.seq}", [*a.quat_wxyz, a.roll_rad, a.pitch_rad, a.yaw_unwrapped_rad])
     return {"rods": rods, "packets": packets, "cpu_s": cpu, "ms_per_packet": 1e3 * cpu / packets,
-            "outputs": outputs}
+            "alarms": sorted(alarms), "attitudes": atts}
 
 
-def _child(tree: Path, rods: int, args: argparse.Namespace) -> dict[str, float]:
+def same_outputs(a: dict[str, Any], b: dict[str, Any]) -> str:
+    """Whether two runs on the same packets gave the same alarms and attitudes (largest difference)."""
+    if a["alarms"] != b["alarms"]:
+        return f"ALARMS DIFFER ({len(a['alarms'])} vs {len(b['alarms'])})"
+    if a["attitudes"].keys() != b["attitudes"].keys():
+        return "ATTITUDE SETS DIFFER"
+    diff = max((abs(x - y) for k, v in a["attitudes"].items() for x, y in zip(v, b["attitudes"][k], strict=True)),
+               default=0.0)  # fmt: skip
+    return f"same {len(a['alarms'])} alarm changes, {len(a['attitudes'])} attitudes within {diff:.1e}"
+
+
+def _child(tree: Path, rods: int, args: argparse.Namespace) -> dict[str, Any]:
     """`measure` in a fresh interpreter running this file with PYTHONPATH=`tree`, so `gateway` is that tree's."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", str(rods), "--seconds", str(args.seconds),
            "--skip-s", str(args.skip_s), "--seed", str(args.seed)]  # fmt: skip
@@ -93,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
         after = _child(here, n, args)
         print(f"{n:5d}  {before['ms_per_packet']:13.4f}  {after['ms_per_packet']:12.4f}  "
               f"{before['ms_per_packet'] / after['ms_per_packet']:12.2f}   "
-              f"({after['packets']} packets; outputs {before['outputs']:.0f} / {after['outputs']:.0f})")
+              f"({after['packets']} packets; {same_outputs(before, after)})")
     return 0
 
 

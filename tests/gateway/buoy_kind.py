@@ -55,7 +55,7 @@ class BuoyKind(KindBase):
         return True
 
     def post(self, ctx: KindContext, kb: KindBatch, now_s: float, out: Output) -> list[Timed]:
-        w, x, y = kb.q[:, 0], kb.q[:, 1], kb.q[:, 2]
+        x, y = kb.q[:, 1], kb.q[:, 2]
         tilt = np.arccos(np.clip(1.0 - 2.0 * (x * x + y * y), -1.0, 1.0))  # all buoys at once: angle of body z
         conds: list[Timed] = []
         for i, f in enumerate(kb.items):
