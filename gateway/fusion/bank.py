@@ -95,10 +95,23 @@ def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
     return list(zip(gyr, acc, mags, t_s, strict=True))
 
 
-def packet_ends(pkts: list[schemas.ImuPacket]) -> Ends:
-    """(index of the packet's last sample in the block, seq, device t_us of that sample) per packet."""
-    idx = np.cumsum([p.n for p in pkts]) - 1
-    return [(int(i), p.seq, p.t0_us + int(round((p.n - 1) * 1e6 / p.rate_hz))) for i, p in zip(idx, pkts, strict=True)]
+def packet_ends(groups: list[list[schemas.ImuPacket]]) -> list[Ends]:
+    """Per device: (index of the packet's last sample in its block, seq, device t_us of that sample) per packet;
+    computed for all devices' packets at once (`round` and `np.rint` both round half to even: the same t_us)."""
+    pk = [p for g in groups for p in g]
+    n = np.array([p.n for p in pk], dtype=np.int64)
+    rate = np.array([p.rate_hz for p in pk], dtype=np.float64)
+    t_end = np.array([p.t0_us for p in pk], dtype=np.int64) + np.rint((n - 1) * 1e6 / rate).astype(np.int64)
+    counts = [len(g) for g in groups]
+    first = np.repeat(np.cumsum(counts) - counts, counts)  # the device's first packet, per packet
+    cum = np.cumsum(n)
+    idx = cum - (cum[first] - n[first]) - 1  # the last sample's index within the device's block
+    rows = list(zip(idx.tolist(), [p.seq for p in pk], t_end.tolist(), strict=True))
+    out, at = [], 0
+    for c in counts:
+        out.append(rows[at : at + c])
+        at += c
+    return out
 
 
 class FusionBank:
@@ -225,8 +238,10 @@ class FusionBank:
                 int(now_s * 1e6) - dev.t_us)  # fmt: skip
             items[dev.device_id] = (dev, pkts, (gyr, acc, mag if dev.use_mag else None, t_s))
         quats = self._step(items, out)
-        return [Fused(dev, q, blk[0], blk[1], blk[3], packet_ends(pkts), pkts)
-                for dev_id, q in quats.items() for dev, pkts, blk in (items[dev_id],)]  # fmt: skip
+        ids = list(quats)
+        ends = packet_ends([items[d][1] for d in ids]) if ids else []
+        return [Fused(dev, quats[d], blk[0], blk[1], blk[3], e, pkts)
+                for d, e in zip(ids, ends, strict=True) for dev, pkts, blk in (items[d],)]  # fmt: skip
 
     def _blocks(self, ready: list[tuple[FusedDevice, list[schemas.ImuPacket]]], out: Output) -> dict[str, Block]:
         """Samples of running devices, calibrated: one conversion for all; on bad data, device by device."""
