@@ -60,7 +60,6 @@ from gateway.kinds.rod import RodKind
 __all__ = ["AlarmOut", "FilterFailure", "Output", "Pipeline", "PipelineSettings", "ReelEvent", "DEFAULT_FILTER",
            "HOOK_FILTER", "FusedDevice"]  # fmt: skip
 
-ImuDevice = FusedDevice  # the old name of a device's record
 
 
 @dataclass(frozen=True)
