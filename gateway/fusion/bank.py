@@ -76,23 +76,24 @@ def gather(pkts: list[schemas.ImuPacket]) -> Block:
 def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
     """`gather` of many devices with one array conversion per sensor for all of them (the same values)."""
     pk = [p for g in groups for p in g]
-    sizes = np.array([sum(p.n for p in g) for g in groups], dtype=np.int64)
-    cut = np.cumsum(sizes)[:-1]
-    gyr = np.split(np.array([s for p in pk for s in p.gyr_rad_s], dtype=np.float64), cut)
-    acc = np.split(np.array([s for p in pk for s in p.acc_m_s2], dtype=np.float64), cut)
+    sizes = [sum(p.n for p in g) for g in groups]
+    stop = np.cumsum(sizes).tolist()
+    cuts = list(zip([0, *stop[:-1]], stop, strict=True))  # rows of each device (slices: np.split is slow)
+    gyr_all = np.array([s for p in pk for s in p.gyr_rad_s], dtype=np.float64)
+    acc_all = np.array([s for p in pk for s in p.acc_m_s2], dtype=np.float64)
     n = np.array([p.n for p in pk], dtype=np.int64)
     first = np.repeat(np.cumsum(n) - n, n)
     t0 = np.repeat(np.array([p.t0_us for p in pk], dtype=np.int64) * 1e-6, n)
     rate = np.repeat(np.array([p.rate_hz for p in pk], dtype=np.float64), n)
-    t_s = np.split(t0 + (np.arange(first.shape[0]) - first) / rate, cut)
-    has = [all(p.mag_uT is not None for p in g) for g in groups]
+    t_all = t0 + (np.arange(first.shape[0]) - first) / rate
     mags: list[FloatArray | None] = [None] * len(groups)
-    if any(has):
-        sel = [i for i, h in enumerate(has) if h]
+    sel = [i for i, g in enumerate(groups) if all(p.mag_uT is not None for p in g)]
+    if sel:
         m_all = np.array([s for i in sel for p in groups[i] for s in p.mag_uT or ()], dtype=np.float64)
-        for i, m in zip(sel, np.split(m_all, np.cumsum(sizes[sel])[:-1]), strict=True):
-            mags[i] = m
-    return list(zip(gyr, acc, mags, t_s, strict=True))
+        at = 0
+        for i in sel:
+            mags[i], at = m_all[at : at + sizes[i]], at + sizes[i]
+    return [(gyr_all[a:b], acc_all[a:b], mags[i], t_all[a:b]) for i, (a, b) in enumerate(cuts)]
 
 
 def packet_ends(groups: list[list[schemas.ImuPacket]]) -> list[Ends]:
