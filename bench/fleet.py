@@ -306,10 +306,10 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[str]]], pool_p
             for g in gens:
                 g.start()
             time.sleep(max(0.0, start + warmup_s - time.time()))
+            probe = RestProbe(hport)  # from the window's start: the first stats call below may be slow itself
+            probe.start()
             s0, cpu0 = stats(hport), tree_cpu_s(gw.pid)
             obs.measuring = True
-            probe = RestProbe(hport)
-            probe.start()
             rss: list[float] = []
             while time.time() < start + warmup_s + duration_s:
                 rss.append(tree_rss_mib(gw.pid))
