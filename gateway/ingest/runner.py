@@ -42,8 +42,11 @@ log = logging.getLogger("gateway.ingest")
 REJECTED_PER_S = 20
 BATCH_FAIL_LOG_S = 10.0
 CONFLICT_CLEAR_S = 10.0  # a device_conflict alarm clears this long after the last packet of a second publisher
-BATCH_BUDGET_S = 0.1  # a batch takes about this long at most: REST and commands wait at most about this much
-MIN_BATCH = 50  # never fewer packets a batch (the cost per packet falls steeply up to ~50 a batch)
+BATCH_BUDGET_S = 0.25  # a batch takes about this long at most: REST and commands wait at most about this much
+MIN_BATCH = 200  # never fewer packets a batch: the cost is paid mostly per device per batch, so small batches
+# under overload would process fewer packets, not answer faster
+YIELDS_PER_BATCH = 8  # event-loop turns between two batches: a REST request needs several (accept, read, handler,
+# write), so one turn per batch made it wait for several batches
 Received = tuple[str, bytes, float]
 T = TypeVar("T")
 
@@ -263,7 +266,8 @@ class GatewayService:
                 mean = self._s_per_packet
                 self._s_per_packet = per_packet if not mean else 0.8 * mean + 0.2 * per_packet
             self.refresh_config_view()
-            await asyncio.sleep(0)  # let REST handlers in between batches
+            for _ in range(YIELDS_PER_BATCH if items else 1):  # let REST handlers in between batches
+                await asyncio.sleep(0)
 
     def batch_limit(self) -> int:
         """Packets to take next: what fits in `batch_budget_s` at the recent cost per packet, within
