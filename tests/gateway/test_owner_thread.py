@@ -153,17 +153,21 @@ def test_every_state_change_runs_in_the_ingest_task_never_mid_batch(running: Cal
 
 
 class StallingBus(MemoryBus):
-    """A MemoryBus whose BLOCK puts wait until `release` is set: a subscriber that stopped reading."""
+    """A MemoryBus whose BLOCK puts wait until `release` is set (at most `stall_s`): a subscriber that stopped
+    reading. `returned` counts the blocked puts that have returned."""
 
-    def __init__(self) -> None:
+    def __init__(self, stall_s: float = 20.0) -> None:
         super().__init__()
         self.release = threading.Event()
+        self.stall_s = stall_s
         self.blocked = 0
+        self.returned = 0
 
     def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None:
         if block:
             self.blocked += 1
-            self.release.wait(30.0)
+            self.release.wait(self.stall_s)
+            self.returned += 1
         super().put(key, payload, encoding=encoding, block=block)
 
 
@@ -193,6 +197,8 @@ def test_a_stalled_alarm_subscriber_never_stalls_ingest_or_rest(settings: Settin
         while received() < len(msgs) + len(more):
             assert time.monotonic() < deadline, "ingest stalled behind a blocking put"
             time.sleep(0.05)
+        # all of that happened while the alarm's put was still waiting (old code: only after it gave up, 20 s)
+        assert bus.returned == 0, "ingest waited for the stalled subscriber"
         bus.release.set()
         service = client.app.state.service  # type: ignore[attr-defined]
         assert service.hub.publisher.flush(10.0)
