@@ -21,6 +21,7 @@ from fastapi_offline import FastAPIOffline
 
 from gateway import view3d
 from gateway.api import api_router, ws
+from gateway.api.priority import RestInFlight
 from gateway.api.routes import history, metrics
 from gateway.api.routes.docs import API_DESCRIPTION, install_openapi, install_redoc
 from gateway.api.security import BrowserGuard
@@ -133,6 +134,7 @@ def create_app(
     app = FastAPIOffline(title="rig-gateway", lifespan=lifespan, description=API_DESCRIPTION, redoc_url=None,
                          swagger_ui_parameters={"persistAuthorization": True})  # the token survives a reload
     app.add_middleware(BrowserGuard, allowed_hosts=settings.allowed_hosts)  # Host check, CSP, frame options
+    app.add_middleware(RestInFlight)  # ingest lets HTTP requests finish between batches
     app.include_router(api_router, prefix="/api")
     app.include_router(ws.router)
     app.include_router(metrics.router)

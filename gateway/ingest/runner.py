@@ -45,6 +45,7 @@ CONFLICT_CLEAR_S = 10.0  # a device_conflict alarm clears this long after the la
 BATCH_BUDGET_S = 0.25  # a batch takes about this long at most: REST and commands wait at most about this much
 MIN_BATCH = 200  # never fewer packets a batch: the cost is paid mostly per device per batch, so small batches
 # under overload would process fewer packets, not answer faster
+REST_GRACE_S = 0.25  # after a batch, wait up to this long for HTTP requests in flight to finish (gateway.api.priority)
 YIELDS_PER_BATCH = 8  # event-loop turns between two batches: a REST request needs several (accept, read, handler,
 # write), so one turn per batch made it wait for several batches
 Received = tuple[str, bytes, float]
@@ -138,6 +139,8 @@ class GatewayService:
         self.max_batch = max_batch
         self.diag_period_s = diag_period_s
         self.batch_budget_s = batch_budget_s
+        self.rest_inflight = 0  # HTTP requests running (gateway.api.priority); ingest lets them finish first
+        self.rest_grace_s = REST_GRACE_S
         self.pipeline = pipeline
         self.hub = hub
         self.writer = hub.writer
@@ -268,6 +271,17 @@ class GatewayService:
             self.refresh_config_view()
             for _ in range(YIELDS_PER_BATCH if items else 1):  # let REST handlers in between batches
                 await asyncio.sleep(0)
+            if self.rest_inflight:
+                await self._let_rest_finish()
+
+    async def _let_rest_finish(self) -> None:
+        """HTTP requests are running: run their commands and give them the loop until they are done (at most
+        `rest_grace_s`), so a request waits for about one batch, not several."""
+        deadline = time.monotonic() + self.rest_grace_s
+        while self.rest_inflight and time.monotonic() < deadline:
+            self.commands.run_pending()
+            await asyncio.sleep(0.001)
+        self.commands.run_pending()
 
     def batch_limit(self) -> int:
         """Packets to take next: what fits in `batch_budget_s` at the recent cost per packet, within
