@@ -436,7 +436,7 @@ def open_view3d(request: Request) -> RedirectResponse:
 
 
 @router.get("/api/view3d", tags=["health"])
-def view3d_info(request: Request) -> dict[str, Any]:
+async def view3d_info(request: Request) -> dict[str, Any]:
     """Whether the 3-D view runs, its port and scene updates so far."""
     view: View3D | None = getattr(request.app.state, "view3d", None)
     if view is None:

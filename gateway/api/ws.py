@@ -322,8 +322,9 @@ async def stream(ws: WebSocket) -> None:
 
 
 @router.get("/api/live", tags=["health"])
-def live_stats(request: Request) -> dict[str, Any]:
-    """Dashboard stream: connected clients, frames dropped for slow clients, ticks sent."""
+async def live_stats(request: Request) -> dict[str, Any]:
+    """Dashboard stream: connected clients, frames dropped for slow clients, ticks sent (read on the event loop,
+    which owns the stream's state)."""
     live: LiveStream = request.app.state.live
     return {"clients": len(live.clients), "dropped": sum(c.dropped for c in live.clients), "ticks": live.ticks,
             "alarm_seq": live.alarm_seq, "queue_size": live.settings.queue_size}  # fmt: skip
