@@ -3,8 +3,9 @@ pipeline on whole batches and hands results to the hub; plus presence, diagnosti
 
 That ingest task is the ONE owner of the live state (pipeline, alarm engine, counters): everything else sends it
 commands (`gateway.ingest.owner.Commands`, run between batches) or reads what it publishes (`config_view` for the
-zenoh queryable, which runs on a zenoh thread). A batch is bounded in time (`batch_budget_s`, by adapting the
-number of packets taken), so REST requests and commands wait at most about one budget even under overload.
+zenoh queryable, which runs on a zenoh thread). A batch is bounded in work (`batch_budget_s` of CPU, by adapting
+the number of packets taken) and HTTP requests in flight finish before the next batch, so REST requests and
+commands wait about one batch even under overload.
 
 Hand-off (the only work done on zenoh's threads): `Inbox.offer` appends `(key, bytes, arrival_s)` to a deque
 and, if no wake-up is pending, schedules one with `loop.call_soon_threadsafe`; a full inbox counts a queue
@@ -42,7 +43,9 @@ log = logging.getLogger("gateway.ingest")
 REJECTED_PER_S = 20
 BATCH_FAIL_LOG_S = 10.0
 CONFLICT_CLEAR_S = 10.0  # a device_conflict alarm clears this long after the last packet of a second publisher
-BATCH_BUDGET_S = 0.25  # a batch takes about this long at most: REST and commands wait at most about this much
+BATCH_BUDGET_S = 0.1  # CPU seconds of work a batch takes at most (sized on the recent CPU per packet): REST and
+# commands wait about this much, stretched by the machine's other load (bench.rest_overload: 0.05 s cost 1.7x the
+# CPU per packet of 0.1 s; 0.25 s tripled the REST wait)
 MIN_BATCH = 200  # never fewer packets a batch: the cost is paid mostly per device per batch, so small batches
 # under overload would process fewer packets, not answer faster
 REST_GRACE_S = 0.25  # after a batch, wait up to this long for HTTP requests in flight to finish (gateway.api.priority)
@@ -145,7 +148,7 @@ class GatewayService:
         self.hub = hub
         self.writer = hub.writer
         self.commands = Commands()
-        self._s_per_packet = 0.0  # running mean of a batch's time per packet (sizes the next batch)
+        self._s_per_packet = 0.0  # running mean of a batch's CPU time per packet (sizes the next batch)
         self.config_view = ConfigView({}, {})  # what the config queryable answers from (see `refresh_config_view`)
         self._config_dirty = True
         self.counters = IngestCounters()
@@ -176,6 +179,7 @@ class GatewayService:
             loop.call_soon_threadsafe(self.commands.post, lambda: self._on_presence(key, alive))
 
         self.bus.watch_liveliness(schemas.SEL_DEVICE_TOKENS, on_token)
+        self.refresh_config_view()  # answers at once, also while the kernels warm up
         self.bus.declare_queryable(schemas.SEL_GW_CONFIG, self.config_replies, encoding=schemas.ENCODING_GW)
         self.bus.declare_token(schemas.GW_ALIVE_KEY)
         self._tasks = [asyncio.create_task(self._ingest_loop()), asyncio.create_task(self._diag_loop()),
@@ -245,6 +249,7 @@ class GatewayService:
                 await asyncio.wait({warm, waiter}, return_when=asyncio.FIRST_COMPLETED)
                 waiter.cancel()
                 self.commands.run_pending()
+                self.refresh_config_view()
             try:
                 warm.result()
                 log.info("fusion kernels ready in %.1f s", time.perf_counter() - t0)
@@ -255,7 +260,7 @@ class GatewayService:
             items = await self.inbox.drain(self.batch_limit())
             self.commands.run_pending()
             if items:
-                t0 = time.perf_counter()
+                t0 = time.thread_time()  # CPU of this thread: the batch's work, not the machine's other load
                 try:
                     self.handle(items)
                 except Exception:  # a pipeline bug must not stop ingest; one traceback per BATCH_FAIL_LOG_S
@@ -265,7 +270,7 @@ class GatewayService:
                         self._batch_fail_logged_s = now
                         log.exception("batch of %d packets failed (%d batches failed so far)", len(items),
                                       self.batch_failures)  # fmt: skip
-                per_packet = (time.perf_counter() - t0) / len(items)
+                per_packet = (time.thread_time() - t0) / len(items)
                 mean = self._s_per_packet
                 self._s_per_packet = per_packet if not mean else 0.8 * mean + 0.2 * per_packet
             self.refresh_config_view()
@@ -286,8 +291,8 @@ class GatewayService:
     def batch_limit(self) -> int:
         """Packets to take next: what fits in `batch_budget_s` at the recent cost per packet, within
         [MIN_BATCH, max_batch] (bigger batches are cheaper per packet, but REST waits for the batch to end)."""
-        if self._s_per_packet <= 0.0:
-            return self.max_batch
+        if self._s_per_packet <= 0.0:  # no estimate yet: a small first batch
+            return min(MIN_BATCH, self.max_batch)
         return max(min(MIN_BATCH, self.max_batch), min(self.max_batch, int(self.batch_budget_s / self._s_per_packet)))
 
     def handle(self, items: list[Received], now_wall_s: float | None = None) -> None:
