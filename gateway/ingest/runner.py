@@ -43,10 +43,10 @@ log = logging.getLogger("gateway.ingest")
 REJECTED_PER_S = 20
 BATCH_FAIL_LOG_S = 10.0
 CONFLICT_CLEAR_S = 10.0  # a device_conflict alarm clears this long after the last packet of a second publisher
-BATCH_BUDGET_S = 0.5  # CPU seconds of work a batch takes at most (sized on the recent CPU per packet). Smaller
-# batches cost more per packet (per-device work per batch): bench.rest_overload at 300 rods, CPU per packet 0.335 /
-# 0.277 / 0.201 / 0.178 ms at 0.1 / 0.25 / 0.5 / 1.0 s. REST latency comes from `_let_rest_finish`, not from tiny
-# batches (p50 0.46 / 0.80 / 1.29 / 1.06 s there on a machine at load 10, against 5.9 s before)
+BATCH_BUDGET_S = 0.25  # CPU seconds of work a batch takes at most (sized on the recent CPU per packet): a request
+# that arrives during a batch waits for its end. Smaller batches cost more per packet (per-device work per batch):
+# bench.rest_overload at 300 rods on a machine at load ~10, CPU per packet 0.335 / 0.277 / 0.201 / 0.178 ms and
+# /api/stats p50 0.46 / 0.80 / 1.29 / 1.06 s at 0.1 / 0.25 / 0.5 / 1.0 s (5.9 s before). 0.25: REST within ~1 s.
 MIN_BATCH = 200  # never fewer packets a batch: the cost is paid mostly per device per batch, so small batches
 # under overload would process fewer packets, not answer faster
 REST_GRACE_S = 0.25  # after a batch, wait up to this long for HTTP requests in flight to finish (gateway.api.priority)
