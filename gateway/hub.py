@@ -71,14 +71,16 @@ class Hub:
         else:
             self.bus.put(key, payload, encoding=encoding, block=block)
 
-    def _put(self, key: str, topic: str, model: schemas.WireModel, *, block: bool = False) -> None:
-        self._send(key, model.to_json(), schemas.ENCODING_GW, block)
+    def _put(self, topic: schemas.Topic, model: schemas.WireModel, kind: str | None = None,
+             device_id: str | None = None) -> None:  # fmt: skip
+        """Publish on the topic's key with the row's encoding and congestion control (BLOCK or DROP)."""
+        self._send(topic.key(kind, device_id), model.to_json(), topic.encoding, topic.block)
         self.published += 1
         for cb in self.listeners:
             try:
-                cb(topic, model)
+                cb(topic.name, model)
             except Exception:
-                log.exception("listener failed on %s", topic)
+                log.exception("listener failed on %s", topic.name)
 
     def emit(self, out: Output) -> None:
         """Alarms first (they matter most and are rare), then reel commands, attitude, attitude blocks (BLOCK: a
@@ -90,23 +92,24 @@ class Hub:
             # the write from its journal) and the event loop never waits on SQLite. The store row is the engine's
             # record (the authority), acknowledgements included.
             try:
-                self._put(schemas.alarm_key(al.kind, al.change.alarm.device_id), "alarm", alarm_event(al, now_us),
-                          block=True)  # fmt: skip
+                self._put(schemas.T_ALARM, alarm_event(al, now_us), al.kind, al.change.alarm.device_id)
             except Exception:
                 log.exception("alarm %s of %s not published", al.change.alarm.type, al.change.alarm.device_id)
             self.writer.upsert_alarm(al.change.alarm)
         for device_id, fields in out.reel_commands:
             self.send_reel(device_id, sender="auto", **fields)
         for a in _newest_per_device(out.attitudes):
-            self._put(schemas.attitude_key(a.kind, a.device_id), "attitude", a)
+            self._put(schemas.T_ATTITUDE, a, a.kind, a.device_id)
         for b in out.attitude_blocks:
-            self._put(schemas.attitude_block_key(b.kind, b.device_id), "attitude_block", b, block=True)
-        for s in out.swings:  # BLOCK: at <= 20 Hz per hook, a crane app must not lose any (docs/protocol.md)
-            self._put(schemas.swing_key(s.device_id), "swing", s, block=True)
+            self._put(schemas.T_ATTITUDE_BLOCK, b, b.kind, b.device_id)
+        for s in out.swings:  # BLOCK (its row): at <= 20 Hz per hook, a crane app must not lose any
+            self._put(schemas.T_SWING, s, "hook", s.device_id)
         for h in _newest_per_device(out.heights):
-            self._put(schemas.height_key(h.kind, h.device_id), "height", h)
+            self._put(schemas.T_HEIGHT, h, h.kind, h.device_id)
         if out.spots is not None:
-            self._put(schemas.SPOTS_KEY, "spots", out.spots)
+            self._put(schemas.T_SPOTS, out.spots)
+        for e in out.extra:  # a kind's own topics (docs/design.md, "Adding a device kind")
+            self._put(e.topic, e.model, e.kind, e.device_id)
 
     def send_reel(
         self, device_id: str, action: str, speed_m_s: float | None = None, drag_n: float | None = None,
@@ -117,7 +120,8 @@ class Hub:
             v=1, cmd_id=next(self._cmd_ids) % schemas.UINT32, action=action,  # type: ignore[arg-type]
             speed_m_s=speed_m_s, drag_n=drag_n, sent_wall_us=int(self.clock() * 1e6), sender=sender,
         )  # fmt: skip
-        self._send(schemas.reel_cmd_key(device_id), cmd.to_json(), schemas.ENCODING_REEL_CMD, True)
+        t = schemas.T_REEL_CMD
+        self._send(t.key("rod", device_id), cmd.to_json(), t.encoding, t.block)
         for cb in self.listeners:
             cb("reel_cmd", cmd)
         return cmd

@@ -61,6 +61,15 @@ class ReelEvent(NamedTuple):
 Timed = tuple[str, int, int | None, Condition]  # (kind, device t_us, device wall µs or None, wall-time condition)
 
 
+class Published(NamedTuple):
+    """One message of a kind's own topic: published on `topic.key(kind, device_id)` with the row's QoS."""
+
+    topic: schemas.Topic
+    kind: str
+    device_id: str
+    model: schemas.WireModel
+
+
 @dataclass
 class Output:
     """What one batch produced; the hub publishes and persists it."""
@@ -74,9 +83,9 @@ class Output:
     reel_commands: list[tuple[str, dict[str, Any]]] = field(default_factory=list)  # (device id, ReelCommand fields)
     reel_events: list[ReelEvent] = field(default_factory=list)  # reel safety stops (watchdog, offline) to log
     filter_failures: list[FilterFailure] = field(default_factory=list)
-    # Outputs of kinds without a field above (e.g. a kind added later): typed messages, in device order. The hub
-    # publishes the ones whose topic it knows (the proto helper's Topic table).
-    extra: list[Any] = field(default_factory=list)
+    # Outputs of kinds without a field above (a kind added later): each message with its Topic row; the hub
+    # publishes them with that row's key and QoS, like the built-in outputs.
+    extra: list[Published] = field(default_factory=list)
 
 
 @dataclass

@@ -13,9 +13,10 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from gateway import schemas
 from gateway.alarm.engine import Condition, Severity
 from gateway.kinds import KINDS, KindRow
-from gateway.kinds.base import FusedDevice, KindBase, KindBatch, KindContext, Output, Timed, timed
+from gateway.kinds.base import FusedDevice, KindBase, KindBatch, KindContext, Output, Published, Timed, timed
 
 
 class BuoyThresholds(BaseModel):
@@ -26,13 +27,16 @@ class BuoyThresholds(BaseModel):
     tilt_warn_deg: float = Field(default=45.0, gt=0.0, le=180.0)
 
 
-class BuoyTilt(BaseModel):
-    """The buoy's output message (its topic would be a row in the protocol's Topic table)."""
+class BuoyTilt(schemas.WireModel):
+    """The buoy's output message, on its own topic row (a built-in kind's row goes in `schemas.TOPICS`)."""
 
     device_id: str
     seq: int
     t_us: int
     tilt_rad: float
+
+
+T_BUOY_TILT = schemas.Topic("buoy_tilt", "gw/{kind}/{id}/tilt", ("buoy",), BuoyTilt, schemas.ENCODING_GW, "output")
 
 
 class BuoyKind(KindBase):
@@ -60,8 +64,8 @@ class BuoyKind(KindBase):
         conds: list[Timed] = []
         for i, f in enumerate(kb.items):
             rows, dev = kb.rows(i), f.dev
-            out.extra += [BuoyTilt(device_id=dev.device_id, seq=seq, t_us=t_us, tilt_rad=float(tilt[rows][j]))
-                          for j, seq, t_us in f.ends]  # fmt: skip
+            out.extra += [Published(T_BUOY_TILT, "buoy", dev.device_id, BuoyTilt(
+                device_id=dev.device_id, seq=seq, t_us=t_us, tilt_rad=float(tilt[rows][j]))) for j, seq, t_us in f.ends]
             over = bool(tilt[rows].max() > dev.state["warn_rad"])
             if over != self.capsized.get(dev.device_id, False):
                 self.capsized[dev.device_id] = over
