@@ -16,6 +16,7 @@ import collections
 import logging
 import math
 import time
+from collections.abc import Callable
 from typing import Any
 
 from gateway import schemas
@@ -40,11 +41,15 @@ Received = tuple[str, bytes, float]
 class Inbox:
     """Bounded, thread-safe hand-off from bus threads to the event loop."""
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, maxsize: int) -> None:
+    def __init__(
+        self, loop: asyncio.AbstractEventLoop, maxsize: int, accept: Callable[[str], bool] | None = None
+    ) -> None:
         self.loop = loop
         self.maxsize = maxsize
+        self.accept = accept  # device id -> served here? (gateway.shard: other shards' devices are not queued)
         self.drops = 0
         self.offered = 0
+        self.ignored = 0
         self._items: collections.deque[Received] = collections.deque()
         self._ready = asyncio.Event()
         self._wake_pending = False
@@ -52,6 +57,11 @@ class Inbox:
     def offer(self, key: str, payload: bytes) -> None:
         """Called on a bus thread: enqueue or count a drop; never blocks."""
         self.offered += 1
+        if self.accept is not None:
+            parts = key.split("/", 3)  # rig/{kind}/{id}/...
+            if len(parts) > 2 and not self.accept(parts[2]):
+                self.ignored += 1
+                return
         if len(self._items) >= self.maxsize:
             self.drops += 1
             return
@@ -91,6 +101,7 @@ class GatewayService:
     def __init__(
         self, settings: Settings, bus: Bus, store: Store, pipeline_settings: PipelineSettings | None = None,
         max_batch: int = 2000, diag_period_s: float = 1.0,
+        writer_factory: Callable[[Store], StoreWriter] = StoreWriter,
     ) -> None:  # fmt: skip
         self.settings = settings
         self.bus = bus
@@ -106,7 +117,7 @@ class GatewayService:
             pipeline_settings or pipeline_settings_from(settings),
             store.load_defaults(), stored, [a for a in active if schemas.valid_device_id(a.device_id)],
         )  # fmt: skip
-        self.writer = StoreWriter(store)
+        self.writer = writer_factory(store)
         self.hub = Hub(bus, self.writer)
         self.counters = IngestCounters()
         self.presence = Presence()
@@ -120,6 +131,10 @@ class GatewayService:
         self.batch_failures = 0
         self._batch_fail_logged_s = -math.inf
         self.warming_since_s: float | None = None  # set while the fusion kernels are being prepared
+        # Sharding hooks (gateway.shard, set before start): does this process serve a device id (None: all), and
+        # the key expressions of device data it subscribes to.
+        self.accept: Callable[[str], bool] | None = None
+        self.data_selectors: tuple[str, ...] = schemas.SEL_DEVICE_DATA
 
     async def start(self, warm_up: bool = False) -> None:
         """Subscribe, watch presence, serve the config queryable and start the tasks. With `warm_up` the ingest
@@ -127,8 +142,8 @@ class GatewayService:
         packets wait in the inbox meanwhile (a restart answers in seconds; a cold first compile shows in /health)."""
         self.warming_since_s = time.time() if warm_up else None
         loop = asyncio.get_running_loop()
-        self.inbox = Inbox(loop, self.settings.ingest_queue_size)
-        for sel in schemas.SEL_DEVICE_DATA:
+        self.inbox = Inbox(loop, self.settings.ingest_queue_size, self.accept)
+        for sel in self.data_selectors:
             self.bus.subscribe(sel, self.inbox.offer)
 
         def on_token(key: str, alive: bool) -> None:  # bus thread: hand off only
@@ -306,7 +321,12 @@ class GatewayService:
                 log.exception("reel watchdog tick failed")
 
     def _emit_reel(self, out: Output) -> None:
-        """Publish reel safety stops (BLOCK, via the hub) and record their events in the store's event log."""
+        """Publish reel safety stops (BLOCK, via the hub) and record their events in the store's event log (only for
+        rods this shard serves: every shard holds every rod's auto-reel setting)."""
+        if self.accept is not None:
+            ok = self.accept
+            out.reel_commands = [c for c in out.reel_commands if ok(c[0])]
+            out.reel_events = [e for e in out.reel_events if ok(e.device_id)]
         if out.reel_commands:
             self.hub.emit(out)
         for e in out.reel_events:
@@ -331,6 +351,8 @@ class GatewayService:
         if change is None:
             return
         self.pipeline.kinds.setdefault(change.device_id, change.kind)
+        if self.accept is not None and not self.accept(change.device_id):  # its shard logs it and raises offline
+            return
         log.info("device %s %s", change.device_id, "online" if alive else "offline")
         self.writer.log_event(change.since_s, "online" if alive else "offline", change.device_id, {"kind": change.kind})
         if not alive:
@@ -358,6 +380,8 @@ class GatewayService:
         parts = selector.split("/")
         out = []
         for device_id, kind in list(self.pipeline.kinds.items()):
+            if self.accept is not None and not self.accept(device_id):  # its own shard answers
+                continue
             key = schemas.config_key(kind, device_id)
             if key_matches(selector, key):
                 out.append((key, self.device_config(kind, device_id).to_json()))
