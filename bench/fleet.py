@@ -326,7 +326,11 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[str]]], pool_p
             s1 = stats(hport)
     finally:
         stop_gateway(gw)
+    if s1.get("shards", 0) != shards:
+        print(f"  only {s1.get('shards', 0)} of {shards} shards answered the final count: the sums are short")
     gen = [json.loads(Path(j.result_path).read_text()) for j in jobs if Path(j.result_path).exists()]
+    if len(gen) < len(jobs):
+        print(f"  {len(jobs) - len(gen)} of {len(jobs)} generators did not finish (blocked by a saturated gateway?)")
     sent = sum(g["sent"] for g in gen)
     lost_seq = sum(d.get("lost", 0) for d in s1.get("devices", []))
     if sent != int(s1.get("received", 0)) or s1.get("rejected") or lost_seq:  # where were packets lost?

@@ -59,6 +59,9 @@ class Settings(BaseSettings):
                                      "(`--devices 'site1-*'`, repeatable); empty: every device.")
     shard_lease_s: float = Field(default=1.0, gt=0.0, le=60.0, description="zenoh lease of the shard's links: a "
                                  "shard whose machine vanishes without closing its links leaves the live set then.")
+    shard_mirror_hz: float = Field(default=10.0, ge=0.0, le=100.0, description="Other shards' attitude and swing "
+                                   "messages handed to this shard's dashboard stream, at most this often per device "
+                                   "(0: none; their alarms always are).")
     zenoh_config_file: Path | None = Field(default=None, description="A zenoh JSON5 config file (TLS/mTLS, "
                                            "user/password, access control); the options above override its keys.")
 

@@ -15,6 +15,8 @@ A `ShardNode` is attached to a `GatewayService` (gateway/app.py) and, over the s
 - publishes the whole configuration (kind defaults and device settings) on `gw/shard/{id}/config` after each REST
   change, applies (and persists) the others', and answers the same snapshot as a queryable: a starting shard
   adopts the configuration of the longest-running live shard that started before it.
+- hands the other shards' alarm events, and their attitude and swing messages at most `shard_mirror_hz` per device,
+  to this shard's hub listeners, so the dashboard's live stream and plots on any endpoint show every device.
 - answers `gw/shard/{id}/devices`, `gw/shard/{id}/device/{device_id}` and `gw/shard/{id}/stats` for the REST
   front (gateway/shard/routes.py).
 
@@ -25,8 +27,10 @@ the loop to build their answer (bounded by `ANSWER_TIMEOUT_S`).
 from __future__ import annotations
 
 import asyncio
+import collections
 import json
 import logging
+import math
 import time
 from collections.abc import Callable, Coroutine
 from typing import Any
@@ -44,6 +48,9 @@ from gateway.shard.ownership import SEL_SHARD_TOKENS, Ownership, ShardInfo, glob
 from gateway.store import Store, StoreWriter
 
 log = logging.getLogger("gateway.shard")
+MIRRORED = ("gw/*/*/alarm", "gw/*/*/attitude", "gw/hook/*/swing")
+MIRROR_MODELS: dict[str, type[schemas.WireModel]] = {"alarm": schemas.AlarmEvent, "attitude": schemas.Attitude,
+                                                     "swing": schemas.Swing}  # fmt: skip
 
 ANSWER_TIMEOUT_S = 2.0
 QUERY_TIMEOUT_S = 1.0
@@ -105,6 +112,9 @@ class ShardNode:
         self._reconciled_live = dict(self.ownership.live)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._reconcile_pending = False
+        self._mirrored: collections.deque[tuple[str, bytes]] = collections.deque(maxlen=100_000)
+        self._mirror_wake = False
+        self._mirror_last: dict[str, float] = {}
         self.takeovers: list[tuple[float, str]] = []  # (wall s, device) of devices moved here, newest last (≤ 1000)
 
     @property
@@ -139,6 +149,8 @@ class ShardNode:
         self._loop = loop = asyncio.get_running_loop()
         self.bus.subscribe("gw/shard/*/alarm_row", self._on_row)
         self.bus.subscribe("gw/shard/*/config", self._on_config)
+        for sel in MIRRORED:
+            self.bus.subscribe(sel, self._on_output)
         self.bus.declare_queryable(self.key("**"), self._answer, encoding=schemas.ENCODING_GW)
         await self._adopt_config(wait_s=ADOPT_WAIT_S if adopt_config else 0.0)
 
@@ -194,6 +206,39 @@ class ShardNode:
             return
         alarm = alarm_from_json(payload)
         self._loop.call_soon_threadsafe(self.writer.store_only, alarm)
+
+    # -- the other shards' outputs for this shard's listeners (dashboard) -------------------------------------
+
+    def _on_output(self, key: str, payload: bytes) -> None:  # bus thread: filter, throttle, hand off
+        parts = key.split("/")
+        if len(parts) != 4 or self._loop is None or self.ownership.owns(parts[2]):
+            return  # this shard's own outputs reach its listeners through its hub
+        if parts[3] != "alarm":
+            hz = self.settings.shard_mirror_hz
+            now = time.monotonic()
+            if hz <= 0.0 or now - self._mirror_last.get(key, -math.inf) < 1.0 / hz:
+                return
+            self._mirror_last[key] = now
+        self._mirrored.append((parts[3], payload))
+        if not self._mirror_wake:
+            self._mirror_wake = True
+            self._loop.call_soon_threadsafe(self._feed_listeners)
+
+    def _feed_listeners(self) -> None:
+        self._mirror_wake = False
+        assert self.service is not None
+        hub = self.service.hub
+        while self._mirrored:
+            topic, payload = self._mirrored.popleft()
+            try:
+                model = MIRROR_MODELS[topic].model_validate_json(payload)
+            except ValueError:
+                continue
+            for cb in list(hub.listeners):
+                try:
+                    cb(topic, model)
+                except Exception:
+                    log.exception("listener failed on a mirrored %s", topic)
 
     # -- configuration ----------------------------------------------------------------------------------------
 
@@ -269,8 +314,8 @@ class ShardNode:
             coro = self._devices()
         elif len(leaf) == 2 and leaf[0] == "device":
             coro = self._device(leaf[1])
-        elif leaf == ["stats"]:
-            coro = self._stats()
+        elif leaf == ["stats"]:  # answered here: counters must come back even when the loop is overloaded
+            return [(self.key("stats"), json.dumps(self.stats()).encode())]
         elif leaf == ["config"]:
             coro = self._config()
         else:
@@ -302,14 +347,19 @@ class ShardNode:
     async def _config(self) -> dict[str, Any]:
         return json.loads(self._config_message())  # type: ignore[no-any-return]
 
-    async def _stats(self) -> dict[str, Any]:
-        return self.stats()
-
     def stats(self) -> dict[str, Any]:
-        """This shard's ingest counters (as /api/stats) with what its inbox ignored (other shards' devices)."""
+        """This shard's ingest counters (as /api/stats) with what its inbox ignored (other shards' devices). Read
+        without the event loop (a bus thread may ask): a dict that grew meanwhile is read again."""
         sv = self.service
         assert sv is not None
-        snap = sv.counters.snapshot(int(time.time() * 1e6)).model_dump()
+        for _ in range(10):
+            try:
+                snap = sv.counters.snapshot(int(time.time() * 1e6)).model_dump()
+                break
+            except RuntimeError:  # "dictionary changed size during iteration": a new device just arrived
+                continue
+        else:
+            snap = {}
         if sv.inbox is not None:
             snap.update(queue_drops=sv.inbox.drops, offered=sv.inbox.offered, ignored=sv.inbox.ignored,
                         queue_depth=len(sv.inbox))  # fmt: skip

@@ -21,6 +21,7 @@ from gateway.api.deps import DeviceIdPath
 from gateway.shard.node import QUERY_TIMEOUT_S, ShardNode, query
 
 log = logging.getLogger("gateway.shard")
+STATS_TIMEOUT_S = 5.0  # an overloaded shard still answers (from its zenoh thread), but may be slow to
 CONFIG_PATHS = ("/api/thresholds/", "/api/devices/", "/api/rods/")  # REST writes that change the configuration
 
 
@@ -29,8 +30,8 @@ def _node(request: Request) -> ShardNode:
     return node
 
 
-async def _ask(node: ShardNode, selector: str) -> list[Any]:
-    replies = await asyncio.to_thread(query, node.bus, selector, QUERY_TIMEOUT_S)
+async def _ask(node: ShardNode, selector: str, timeout_s: float = QUERY_TIMEOUT_S) -> list[Any]:
+    replies = await asyncio.to_thread(query, node.bus, selector, timeout_s)
     return [json.loads(p) for k, p in replies if k.split("/")[2] != node.shard_id]
 
 
@@ -69,7 +70,7 @@ async def get_device_from_its_shard(device_id: DeviceIdPath, request: Request) -
 async def list_shards(request: Request) -> dict[str, Any]:
     """The live shards with their ingest counters (`owned` devices, `ignored` packets of the others' devices)."""
     node = _node(request)
-    shards = [node.stats(), *await _ask(node, "gw/shard/*/stats")]
+    shards = [node.stats(), *await _ask(node, "gw/shard/*/stats", STATS_TIMEOUT_S)]
     shards.sort(key=lambda s: str(s["shard"]))
     return {"me": node.shard_id, "live": sorted(node.ownership.live), "shards": shards}
 
