@@ -241,10 +241,12 @@ def default_thresholds(kind: str) -> ThresholdModel:
 
 
 def effective_settings(
-    kind: str, device: DeviceSettings | None, settings: Settings, defaults: ThresholdModel | None = None
+    kind: str, device: DeviceSettings | None, default_filter: str, defaults: ThresholdModel | None = None
 ) -> tuple[str, ThresholdModel]:
-    """(filter name, thresholds) for one device: kind defaults <- device override; filter falls back to default."""
+    """(filter name, thresholds) of one device: the kind's defaults (`defaults`, else the model's) with the device's
+    override merged on top; its filter, else `default_filter` (the kind's: the pipeline passes the hook filter for
+    hooks). The one place configuration is merged (`Pipeline.effective` calls it)."""
     base = defaults if defaults is not None else default_thresholds(kind)
     if device is None:
-        return settings.default_filter, base
-    return device.filter_name or settings.default_filter, merge_thresholds(base, device.thresholds)
+        return default_filter, base
+    return device.filter_name or default_filter, merge_thresholds(base, device.thresholds)

@@ -261,7 +261,7 @@ def test_controller_gets_the_default_thresholds() -> None:
     p.set_auto_reel(ROD, True)
     for g in _GROUPS[:N_AUTO]:
         p.process(g, 0.0)
-    s = p.devices[ROD].auto_reel.settings
+    s = p.reel_control.controllers[ROD].settings
     th = RodThresholds()
     assert (math.degrees(s.theta2_rad), math.degrees(s.theta3_rad), s.line_breaking_n) == pytest.approx(
         (th.line_switch_deg, th.line_limit_deg, th.line_breaking_n))
