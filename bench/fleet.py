@@ -18,7 +18,8 @@ one row:
   `gw/*/*/attitude` message; alarms the same over `gw/*/*/alarm`;
 - attitudes received vs expected (one per packet end at the default attitude interval);
 - gateway RSS (MiB) at the start and end of the window and its maximum;
-- the generators' own CPU (share of one core).
+- the generators' own CPU (share of one core);
+- REST under load: time for `/api/stats` and `/api/health` to answer, probed once a second in the window (p50/max s).
 
 The generator does not simulate physics while it runs: it replays pre-built streams (a pool of simulated rods and
 hooks, `--pool` of each, built once with the real simulators and sensor model), patching only `seq`, `t0_us` and
@@ -193,6 +194,30 @@ class Observer:
             (self.alarm_ms if key.endswith("/alarm") else self.attitude_ms).append(lat)
 
 
+class RestProbe(threading.Thread):
+    """Times `GET /api/stats` and `/api/health` once a second until stopped (each with a 30 s timeout): whether the
+    REST side keeps answering while ingest is overloaded."""
+
+    def __init__(self, http_port: int) -> None:
+        super().__init__(name="rest-probe", daemon=True)
+        self.http_port = http_port
+        self.latency_s: list[float] = []
+        self.stop = threading.Event()
+
+    def run(self) -> None:
+        import httpx
+
+        with httpx.Client(timeout=30.0) as client:
+            while not self.stop.wait(1.0):
+                for path in ("/api/stats", "/api/health"):
+                    t0 = time.perf_counter()
+                    try:
+                        client.get(f"http://127.0.0.1:{self.http_port}{path}")
+                    except httpx.HTTPError:
+                        pass  # a timeout counts as its full 30 s
+                    self.latency_s.append(time.perf_counter() - t0)
+
+
 def process_tree(pid: int) -> list[int]:
     """pid and all its descendants (from /proc)."""
     children: dict[int, list[int]] = {}
@@ -305,6 +330,8 @@ class Row:
     rss_max_mib: float
     generator_core_share: float
     devices_seen: int
+    rest_p50_s: float = float("nan")
+    rest_max_s: float = float("nan")
 
 
 def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_path: Path, spp: int, procs: int,
@@ -335,6 +362,8 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
             for g in gens:
                 g.start()
             time.sleep(max(0.0, start + warmup_s - time.time()))
+            probe = RestProbe(hport)  # from the window's start: the first stats call below may be slow itself
+            probe.start()
             s0, cpu0 = stats(hport), tree_cpu_s(gw.pid)
             obs.measuring = True
             rss: list[float] = []
@@ -343,6 +372,8 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
                 time.sleep(1.0)
             cpu1 = tree_cpu_s(gw.pid)
             obs.measuring = False
+            probe.stop.set()
+            probe.join(timeout=60)
             for g in gens:
                 g.join(timeout=60)
             time.sleep(5.0)  # let the gateway drain its queue before the final count
@@ -374,20 +405,21 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
         alarm_p99_ms=pct(obs.alarm_ms, 0.99), rss_start_mib=rss[0] if rss else float("nan"),
         rss_end_mib=rss[-1] if rss else float("nan"), rss_max_mib=max(rss) if rss else float("nan"),
         generator_core_share=gen_share, devices_seen=len(s1.get("devices", [])),
+        rest_p50_s=pct(probe.latency_s, 0.5), rest_max_s=max(probe.latency_s, default=float("nan")),
     )  # fmt: skip
 
 
 def print_table(rows: Sequence[Row]) -> None:
     print(f"{'N':>5} {'sh':>2} {'sent':>8} {'received':>8} {'processed':>9} {'lost':>7} {'q.drop':>6} "
           f"{'CPU ms/pkt':>10} {'att p50':>8} {'att p99':>8} {'att rx/exp':>13} {'alarms':>6} "
-          f"{'RSS MiB start/end/max':>22} {'gen core':>8}")
+          f"{'RSS MiB start/end/max':>22} {'gen core':>8} {'REST p50/max s':>14}")
     for r in rows:
         lost = r.sent - r.processed
         print(f"{r.n:>5} {r.shards:>2} {r.sent:>8} {r.received:>8} {r.processed:>9} {lost:>7} {r.queue_drops:>6} "
               f"{r.cpu_ms_per_packet:>10.3f} {r.attitude_p50_ms:>8.1f} {r.attitude_p99_ms:>8.1f} "
               f"{r.attitudes:>6}/{r.attitudes_expected:<6} "
               f"{r.alarms:>6} {r.rss_start_mib:>7.0f}/{r.rss_end_mib:>6.0f}/{r.rss_max_mib:>6.0f} "
-              f"{r.generator_core_share:>8.2f}")
+              f"{r.generator_core_share:>8.2f} {r.rest_p50_s:>6.2f}/{r.rest_max_s:<7.2f}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,4 +1,6 @@
-"""Composition root: `create_app(settings)` wires store, token, bus, service and routes; nothing else."""
+"""Composition root: `compose` builds the gateway's parts (store writer, blocking-put publisher, hub, pipeline,
+ingest service) and hands them to each other; `create_app(settings)` adds token, bus, the hub's sinks (dashboard
+history and live stream, metrics, 3-D view) and routes; nothing else."""
 
 from __future__ import annotations
 
@@ -19,23 +21,43 @@ from fastapi_offline import FastAPIOffline
 
 from gateway import view3d
 from gateway.api import api_router, ws
+from gateway.api.priority import RestInFlight
 from gateway.api.routes import history, metrics
 from gateway.api.routes.docs import API_DESCRIPTION, install_openapi, install_redoc
 from gateway.api.security import BrowserGuard
 from gateway.config import Settings
 from gateway.errors import BadSettings, UnknownDevice
+from gateway.hub import Hub
 from gateway.ingest.bus import Bus
-from gateway.ingest.runner import GatewayService
+from gateway.ingest.publisher import BlockingPublisher
+from gateway.ingest.runner import BATCH_BUDGET_S, GatewayService, build_pipeline
+from gateway.pipeline import PipelineSettings
 from gateway.shard import routes as shard_routes
 from gateway.shard.launch import default_shard_id
 from gateway.shard.node import ShardNode, open_bus
-from gateway.store import ApiToken, Store, ensure_token
+from gateway.store import ApiToken, Store, StoreWriter, ensure_token
 
 log = logging.getLogger("gateway")
 WEB_DIR = Path(__file__).resolve().parent.parent / "web"
 PLACEHOLDER = """<!doctype html><title>rig-gateway</title><h1>rig-gateway</h1>
 <p>The dashboard is not installed yet. See the <a href="/docs">REST API</a>, <a href="/api/devices">devices</a>,
 <a href="/api/alarms">alarms</a>, <a href="/api/spots">spots</a>, <a href="/api/stats">ingest statistics</a>.</p>"""
+
+
+def compose(
+    settings: Settings, bus: Bus, store: Store, pipeline_settings: PipelineSettings | None = None,
+    *, blocking_thread: bool = True, max_batch: int = 2000, diag_period_s: float = 1.0,
+    batch_budget_s: float = BATCH_BUDGET_S, writer_factory: Callable[[Store], StoreWriter] = StoreWriter,
+) -> GatewayService:  # fmt: skip
+    """The ingest side, wired: one `StoreWriter` thread (every store write), the hub publishing through a
+    `BlockingPublisher` thread (BLOCK puts never stall ingest; `blocking_thread=False` puts them inline, for
+    tests that read a MemoryBus right after `handle`), the pipeline loaded from the store, and the service whose
+    ingest task owns them (`max_batch`, `diag_period_s`, `batch_budget_s`: see GatewayService)."""
+    writer = writer_factory(store)  # a shard's mirrors alarm rows to the other shards (gateway/shard)
+    hub = Hub(bus, writer, BlockingPublisher(bus) if blocking_thread else None)
+    pipeline = build_pipeline(settings, store, pipeline_settings)
+    return GatewayService(settings, bus, store, pipeline, hub, max_batch=max_batch, diag_period_s=diag_period_s,
+                          batch_budget_s=batch_budget_s)  # fmt: skip
 
 
 def create_app(
@@ -92,7 +114,7 @@ def create_app(
         app.state.ready = False
         bus = bus_factory(settings)
         shard = ShardNode(settings, bus, settings.shard_id or default_shard_id(settings))
-        service = GatewayService(settings, bus, store, writer_factory=shard.writer_factory)
+        service = compose(settings, bus, store, writer_factory=shard.writer_factory)
         shard.attach(service)
         app.state.service, app.state.shard = service, shard
         metrics.start_metrics(app, service)
@@ -120,6 +142,7 @@ def create_app(
     app = FastAPIOffline(title="rig-gateway", lifespan=lifespan, description=API_DESCRIPTION, redoc_url=None,
                          swagger_ui_parameters={"persistAuthorization": True})  # the token survives a reload
     app.add_middleware(BrowserGuard, allowed_hosts=settings.allowed_hosts)  # Host check, CSP, frame options
+    app.add_middleware(RestInFlight)  # ingest lets HTTP requests finish between batches
     shard_routes.install(app)  # before api_router: device lists and details from every shard
     app.include_router(api_router, prefix="/api")
     app.include_router(ws.router)

@@ -184,6 +184,8 @@ class ShardNode:
         moved = [d for d in pl.kinds if owner_of(d, before.values()) != owner_of(d, now_live.values())]
         lost = [d for d in moved if owner_of(d, before.values()) == me]
         gained = {d for d in moved if owner_of(d, now_live.values()) == me}
+        if moved:
+            sv.config_changed()  # gw/config answers for the devices served here only
         for d in lost:
             pl.restart(d)  # if it comes back, it starts from a fresh warm-up
             pl.engine.release(d)
@@ -198,8 +200,17 @@ class ShardNode:
 
     # -- alarm history ----------------------------------------------------------------------------------------
 
+    def _put_block(self, key: str, payload: bytes) -> None:
+        """A BLOCK put through the hub's publisher thread when it has one: never on the event loop (a stalled
+        subscriber must not stall ingest)."""
+        publisher = self.service.hub.publisher if self.service is not None else None
+        if publisher is not None:
+            publisher.put(key, payload, schemas.ENCODING_GW)
+        else:
+            self.bus.put(key, payload, encoding=schemas.ENCODING_GW, block=True)
+
     def _publish_row(self, alarm: Alarm) -> None:
-        self.bus.put(self.key("alarm_row"), alarm_to_json(alarm), encoding=schemas.ENCODING_GW, block=True)
+        self._put_block(self.key("alarm_row"), alarm_to_json(alarm))
 
     def _on_row(self, key: str, payload: bytes) -> None:  # bus thread
         if key == self.key("alarm_row") or self._loop is None or self.writer is None:
@@ -250,7 +261,7 @@ class ShardNode:
     def publish_config(self) -> None:
         """After a REST change on this shard (on the event loop): send the whole configuration to the others."""
         self.config_version_us = time.time_ns() // 1000
-        self.bus.put(self.key("config"), self._config_message(), encoding=schemas.ENCODING_GW, block=True)
+        self._put_block(self.key("config"), self._config_message())
 
     def _on_config(self, key: str, payload: bytes) -> None:  # bus thread
         if key == self.key("config") or self._loop is None:
@@ -300,6 +311,7 @@ class ShardNode:
                 pl.set_device_settings(device_id, kind, DeviceSettings())
                 pl.device_settings.pop(device_id, None)
             self.config_version_us = max(self.config_version_us, int(msg["version_us"]))
+            sv.config_changed()  # the gw/config queryable's view
         log.info("configuration from shard %s applied", msg["origin"])
 
     # -- queryables for the REST front ------------------------------------------------------------------------
@@ -328,7 +340,7 @@ class ShardNode:
 
     def device_list(self) -> list[dict[str, Any]]:
         """Views of the devices this shard serves (routes/devices.py's `device_view`)."""
-        from gateway.api.routes.devices import device_view
+        from gateway.views import device_view
 
         sv = self.service
         assert sv is not None
@@ -336,7 +348,7 @@ class ShardNode:
                 for d in sorted(sv.pipeline.kinds) if self.ownership.owns(d)]  # fmt: skip
 
     async def _device(self, device_id: str) -> dict[str, Any] | None:
-        from gateway.api.routes.devices import device_view
+        from gateway.views import device_view
 
         sv = self.service
         assert sv is not None
