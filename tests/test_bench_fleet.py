@@ -32,10 +32,10 @@ def test_small_fleet_through_the_gateway(tmp_path: Path, shards: int) -> None:
     import pickle
 
     pool_path.write_bytes(pickle.dumps(pools))
-    row = fleet.run_one(4, 0.25, pools, pool_path, 5, 1, duration_s=3.0, warmup_s=1.0, work=tmp_path,
+    row = fleet.run_one(4, 0.25, pools, pool_path, 5, 1, duration_s=3.0, warmup_s=2.0, work=tmp_path,
                        shards=shards)  # fmt: skip
     assert row.shards == shards
-    assert row.sent == 4 * 4.0 * 20  # 4 devices x (1 + 3) s x 20 packets/s
+    assert row.sent == 4 * 5.0 * 20  # 4 devices x (2 + 3) s x 20 packets/s
     assert row.devices_seen == 4
     assert row.processed >= 0.98 * row.sent, row
     assert row.attitudes > 0 and row.attitude_p99_ms == row.attitude_p99_ms  # measured, not NaN

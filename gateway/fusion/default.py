@@ -28,7 +28,10 @@ class DefaultSettings:
 
     tau_acc_s: float = 2.5  # specific force low-pass in the almost-inertial frame: rejects external acceleration
     tau_mag_s: float = 20.0  # heading correction time constant (steady state; faster after a rejection)
-    rest_tau_s: float = 0.5  # low-pass of gyro/acc for rest detection
+    # low-pass of gyro/acc for rest detection: VQF's 0.5 s. VQF's time constants mean fc = √2/(2π tau) (its tau_acc
+    # 3 s is 3/√2 = 2.12 s here); taken over unconverted, 0.5 s smoothed the rest gyro more than VQF does and let
+    # the start of motion leak into the rest-bias estimate for longer (docs/fusion.md, "rest detection")
+    rest_tau_s: float = 0.5 / math.sqrt(2.0)
     rest_gyr_th_deg_s: float = 2.0  # a sample deviating more from the low-pass is motion
     rest_acc_th_m_s2: float = 0.5
     rest_min_s: float = 1.5  # rest is declared after this long below both thresholds
