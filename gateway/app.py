@@ -28,10 +28,13 @@ from gateway.api.security import BrowserGuard
 from gateway.config import Settings
 from gateway.errors import BadSettings, UnknownDevice
 from gateway.hub import Hub
-from gateway.ingest.bus import Bus, ZenohBus
+from gateway.ingest.bus import Bus
 from gateway.ingest.publisher import BlockingPublisher
 from gateway.ingest.runner import BATCH_BUDGET_S, GatewayService, build_pipeline
 from gateway.pipeline import PipelineSettings
+from gateway.shard import routes as shard_routes
+from gateway.shard.launch import default_shard_id
+from gateway.shard.node import ShardNode, open_bus
 from gateway.store import ApiToken, Store, StoreWriter, ensure_token
 
 log = logging.getLogger("gateway")
@@ -44,13 +47,13 @@ PLACEHOLDER = """<!doctype html><title>rig-gateway</title><h1>rig-gateway</h1>
 def compose(
     settings: Settings, bus: Bus, store: Store, pipeline_settings: PipelineSettings | None = None,
     *, blocking_thread: bool = True, max_batch: int = 2000, diag_period_s: float = 1.0,
-    batch_budget_s: float = BATCH_BUDGET_S,
+    batch_budget_s: float = BATCH_BUDGET_S, writer_factory: Callable[[Store], StoreWriter] = StoreWriter,
 ) -> GatewayService:  # fmt: skip
     """The ingest side, wired: one `StoreWriter` thread (every store write), the hub publishing through a
     `BlockingPublisher` thread (BLOCK puts never stall ingest; `blocking_thread=False` puts them inline, for
     tests that read a MemoryBus right after `handle`), the pipeline loaded from the store, and the service whose
     ingest task owns them (`max_batch`, `diag_period_s`, `batch_budget_s`: see GatewayService)."""
-    writer = StoreWriter(store)
+    writer = writer_factory(store)  # a shard's mirrors alarm rows to the other shards (gateway/shard)
     hub = Hub(bus, writer, BlockingPublisher(bus) if blocking_thread else None)
     pipeline = build_pipeline(settings, store, pipeline_settings)
     return GatewayService(settings, bus, store, pipeline, hub, max_batch=max_batch, diag_period_s=diag_period_s,
@@ -59,11 +62,12 @@ def compose(
 
 def create_app(
     settings: Settings,
-    bus_factory: Callable[[Settings], Bus] = ZenohBus.open,
+    bus_factory: Callable[[Settings], Bus] = open_bus,
     *,
     warm_up: bool = True,
     start_view3d: bool = False,
     on_ready: Callable[[], None] | None = None,
+    adopt_config: bool = False,
 ) -> FastAPI:
     """The gateway as an ASGI app; the bus opens (and always closes) in the lifespan.
 
@@ -73,11 +77,13 @@ def create_app(
     tests that already compiled them) ingest starts before the lifespan returns. `start_view3d`: start the viser
     3-D server with the gateway (else on the first `GET /view3d`). The URLs are logged when ready, then `on_ready`
     is called (on the event loop; `python -m gateway --with-devices` starts the simulators there, so they do not
-    compete with the warm-up for the CPU)."""
+    compete with the warm-up for the CPU). The gateway is one shard of however many share the devices over zenoh
+    (gateway/shard); `adopt_config`: wait for an older shard's configuration (a local shard of `--shards N`)."""
 
     async def start(app: FastAPI, service: GatewayService) -> None:
         t0 = time.perf_counter()
         view_task = asyncio.create_task(view3d.start_view3d(app)) if start_view3d else None
+        await app.state.shard.start(adopt_config)  # live shards, ownership, shared configuration
         # Subscriptions, presence and REST work at once (a SIGKILLed gateway sees its devices again in seconds);
         # with `warm_up` the ingest task first loads the fusion kernels in a thread (compiled once after install,
         # cached in __pycache__; scripts/env.sh does it) and packets wait in the bounded inbox meanwhile.
@@ -107,8 +113,10 @@ def create_app(
         app.state.token = ApiToken(token)
         app.state.ready = False
         bus = bus_factory(settings)
-        service = compose(settings, bus, store)
-        app.state.service = service
+        shard = ShardNode(settings, bus, settings.shard_id or default_shard_id(settings))
+        service = compose(settings, bus, store, writer_factory=shard.writer_factory)
+        shard.attach(service)
+        app.state.service, app.state.shard = service, shard
         metrics.start_metrics(app, service)
         starting: asyncio.Task[None] | None = None
         try:
@@ -135,6 +143,7 @@ def create_app(
                          swagger_ui_parameters={"persistAuthorization": True})  # the token survives a reload
     app.add_middleware(BrowserGuard, allowed_hosts=settings.allowed_hosts)  # Host check, CSP, frame options
     app.add_middleware(RestInFlight)  # ingest lets HTTP requests finish between batches
+    shard_routes.install(app)  # before api_router: device lists and details from every shard
     app.include_router(api_router, prefix="/api")
     app.include_router(ws.router)
     app.include_router(metrics.router)

@@ -59,11 +59,15 @@ T = TypeVar("T")
 class Inbox:
     """Bounded, thread-safe hand-off from bus threads to the event loop."""
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, maxsize: int) -> None:
+    def __init__(
+        self, loop: asyncio.AbstractEventLoop, maxsize: int, accept: Callable[[str], bool] | None = None
+    ) -> None:
         self.loop = loop
         self.maxsize = maxsize
+        self.accept = accept  # device id -> served here? (gateway.shard: other shards' devices are not queued)
         self.drops = 0
         self.offered = 0
+        self.ignored = 0
         self._items: collections.deque[Received] = collections.deque()
         self._ready = asyncio.Event()
         self._wake_pending = False
@@ -71,6 +75,11 @@ class Inbox:
     def offer(self, key: str, payload: bytes) -> None:
         """Called on a bus thread: enqueue or count a drop; never blocks."""
         self.offered += 1
+        if self.accept is not None:
+            parts = key.split("/", 3)  # rig/{kind}/{id}/...
+            if len(parts) > 2 and not self.accept(parts[2]):
+                self.ignored += 1
+                return
         if len(self._items) >= self.maxsize:
             self.drops += 1
             return
@@ -164,6 +173,10 @@ class GatewayService:
         self.batch_failures = 0
         self._batch_fail_logged_s = -math.inf
         self.warming_since_s: float | None = None  # set while the fusion kernels are being prepared
+        # Sharding hooks (gateway.shard, set before start): does this process serve a device id (None: all), and
+        # the key expressions of device data it subscribes to.
+        self.accept: Callable[[str], bool] | None = None
+        self.data_selectors: tuple[str, ...] = schemas.SEL_DEVICE_DATA
 
     async def start(self, warm_up: bool = False) -> None:
         """Subscribe, watch presence, serve the config queryable and start the tasks. With `warm_up` the ingest
@@ -171,9 +184,9 @@ class GatewayService:
         packets wait in the inbox meanwhile (a restart answers in seconds; a cold first compile shows in /health)."""
         self.warming_since_s = time.time() if warm_up else None
         loop = asyncio.get_running_loop()
-        self.inbox = Inbox(loop, self.settings.ingest_queue_size)
+        self.inbox = Inbox(loop, self.settings.ingest_queue_size, self.accept)
         self.commands.on_post = self.inbox.wake
-        for sel in schemas.SEL_DEVICE_DATA:
+        for sel in self.data_selectors:
             self.bus.subscribe(sel, self.inbox.offer)
 
         def on_token(key: str, alive: bool) -> None:  # bus thread: hand off only (a command for the owner)
@@ -430,7 +443,12 @@ class GatewayService:
                 log.exception("reel watchdog tick failed")
 
     def _emit_reel(self, out: Output) -> None:
-        """Publish reel safety stops (BLOCK, via the hub) and record their events in the store's event log."""
+        """Publish reel safety stops (BLOCK, via the hub) and record their events in the store's event log (only for
+        rods this shard serves: every shard holds every rod's auto-reel setting)."""
+        if self.accept is not None:
+            ok = self.accept
+            out.reel_commands = [c for c in out.reel_commands if ok(c[0])]
+            out.reel_events = [e for e in out.reel_events if ok(e.device_id)]
         if out.reel_commands:
             self.hub.emit(out)
         for e in out.reel_events:
@@ -455,6 +473,8 @@ class GatewayService:
         if change is None:
             return
         self.pipeline.kinds.setdefault(change.device_id, change.kind)
+        if self.accept is not None and not self.accept(change.device_id):  # its shard logs it and raises offline
+            return
         log.info("device %s %s", change.device_id, "online" if alive else "offline")
         self.writer.log_event(change.since_s, "online" if alive else "offline", change.device_id, {"kind": change.kind})
         if not alive:
@@ -487,6 +507,8 @@ class GatewayService:
             return
         devices = {} if self._config_dirty else dict(view.devices)
         for device_id, kind in list(kinds.items()):
+            if self.accept is not None and not self.accept(device_id):  # its own shard answers
+                continue
             key = schemas.config_key(kind, device_id)
             if key not in devices:
                 devices[key] = self.device_config(kind, device_id).to_json()
