@@ -155,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         app = create_app(settings, start_view3d=args.view3d, on_ready=start_devices if args.with_devices else None,
-                         adopt_config=args.shard_child)  # fmt: skip
+                         adopt_config=args.shard_child, announce=not args.shard_child)  # fmt: skip
         uvicorn.run(app, host=settings.http_host, port=settings.http_port, log_level="warning")
     finally:
         launch.stop_local_shards(shards)

@@ -68,6 +68,7 @@ def create_app(
     start_view3d: bool = False,
     on_ready: Callable[[], None] | None = None,
     adopt_config: bool = False,
+    announce: bool = True,
 ) -> FastAPI:
     """The gateway as an ASGI app; the bus opens (and always closes) in the lifespan.
 
@@ -75,7 +76,8 @@ def create_app(
     server does not wait for it: the lifespan returns at once, the dashboard shows "warming up" (`GET
     /api/health` -> `ready: false`) and ingest starts when the kernels are ready. Without `warm_up` (in-process
     tests that already compiled them) ingest starts before the lifespan returns. `start_view3d`: start the viser
-    3-D server with the gateway (else on the first `GET /view3d`). The URLs are logged when ready, then `on_ready`
+    3-D server with the gateway (else on the first `GET /view3d`). The URLs are printed when ready (not with
+    `announce=False`: a local shard child, whose parent's URLs and token are the ones to use), then `on_ready`
     is called (on the event loop; `python -m gateway --with-devices` starts the simulators there, so they do not
     compete with the warm-up for the CPU). The gateway is one shard of however many share the devices over zenoh
     (gateway/shard); `adopt_config`: wait for an older shard's configuration (a local shard of `--shards N`)."""
@@ -99,8 +101,8 @@ def create_app(
                 log.exception("3-D view did not start")
         app.state.ready = True
         log.info("ready in %.1f s", time.perf_counter() - t0)
-        # printed, not logged: the URLs are shown whatever --log-level says (like the API token)
-        print("rig-gateway ready\n" + "\n".join(ready_lines(settings, app)), file=sys.stderr, flush=True)
+        if announce:  # printed, not logged: the URLs are shown whatever --log-level says (like the API token)
+            print("rig-gateway ready\n" + "\n".join(ready_lines(settings, app)), file=sys.stderr, flush=True)
         if on_ready is not None:
             on_ready()
 
@@ -108,7 +110,7 @@ def create_app(
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         store = Store(settings.db_path)
         token, created = ensure_token(settings.data_dir)
-        if created:  # shown once; afterwards read it from the 0600 file
+        if created and announce:  # shown once; afterwards read it from the 0600 file
             print(f"API token (shown once, also in {settings.data_dir / 'api_token'}): {token}", file=sys.stderr)
         app.state.token = ApiToken(token)
         app.state.ready = False
@@ -122,7 +124,9 @@ def create_app(
         try:
             if warm_up:
                 starting = asyncio.create_task(start(app, service))
-                log.info("dashboard http://%s:%d/ (warming up)", _link_host(settings.http_host), settings.http_port)
+                if announce:
+                    log.info("dashboard http://%s:%d/ (warming up)", _link_host(settings.http_host),
+                             settings.http_port)  # fmt: skip
             else:
                 await start(app, service)
             yield
