@@ -33,6 +33,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Coroutine
+from functools import partial
 from typing import Any
 
 import zenoh
@@ -184,19 +185,24 @@ class ShardNode:
         moved = [d for d in pl.kinds if owner_of(d, before.values()) != owner_of(d, now_live.values())]
         lost = [d for d in moved if owner_of(d, before.values()) == me]
         gained = {d for d in moved if owner_of(d, now_live.values()) == me}
-        if moved:
-            sv.config_changed()  # gw/config answers for the devices served here only
-        for d in lost:
-            pl.restart(d)  # if it comes back, it starts from a fresh warm-up
-            pl.engine.release(d)
-        for a in pl.engine.active():  # e.g. loaded from the store at start, raised by another shard
-            if not self.ownership.owns(a.device_id):
-                pl.engine.release(a.device_id)
+
+        def hand_over() -> None:  # an owner command: the ingest task alone changes the pipeline and the engine
+            if moved:
+                sv.config_changed()  # gw/config answers for the devices served here only
+            for d in lost:
+                pl.restart(d)  # if it comes back, it starts from a fresh warm-up
+                pl.engine.release(d)
+            for a in pl.engine.active():  # e.g. loaded from the store at start, raised by another shard
+                if not self.ownership.owns(a.device_id):
+                    pl.engine.release(a.device_id)
+
+        await sv.call(hand_over)
         if gained:
             t = time.time()
             self.takeovers = (self.takeovers + [(t, d) for d in sorted(gained)])[-1000:]
-            rows = await asyncio.to_thread(sv.store.active_alarms)
-            pl.engine.resume(a for a in rows if a.device_id in gained and self.ownership.owns(a.device_id))
+            rows = await asyncio.to_thread(sv.store.active_alarms)  # a read: the writer thread is for writes
+            await sv.call(lambda: pl.engine.resume(
+                a for a in rows if a.device_id in gained and self.ownership.owns(a.device_id)))
 
     # -- alarm history ----------------------------------------------------------------------------------------
 
@@ -294,24 +300,29 @@ class ShardNode:
                 model = THRESHOLD_MODELS[kind].model_validate(values)
                 if pl.defaults.get(kind) != model:
                     try:
-                        pl.set_defaults(kind, model)
+                        await sv.call(partial(pl.set_defaults, kind, model))
                     except BadSettings as exc:  # a device override here is stale; the device settings follow
                         log.warning("config from %s: %s defaults not applied: %s", msg["origin"], kind, exc.errors)
                         continue
-                    await asyncio.to_thread(sv.store.save_defaults, kind, model)
+                    await sv.store_write(partial(Store.save_defaults, kind=kind, thresholds=model))
             for device_id, entry in snap["devices"].items():
                 ds = DeviceSettings.model_validate(entry["settings"])
                 cur = pl.device_settings.get(device_id)
                 if cur is None or cur[1] != ds:
-                    await asyncio.to_thread(sv.store.save_device_settings, device_id, entry["kind"], ds)
-                    pl.set_device_settings(device_id, entry["kind"], ds)
+                    await sv.store_write(partial(Store.save_device_settings, device_id=device_id,
+                                                 kind=entry["kind"], settings=ds))  # fmt: skip
+                    await sv.call(partial(pl.set_device_settings, device_id, entry["kind"], ds))
             for device_id in sorted(set(pl.device_settings) - set(snap["devices"])):
                 kind = pl.device_settings[device_id][0]
-                await asyncio.to_thread(sv.store.delete_device_settings, device_id)
-                pl.set_device_settings(device_id, kind, DeviceSettings())
-                pl.device_settings.pop(device_id, None)
+                await sv.store_write(partial(Store.delete_device_settings, device_id=device_id))
+
+                def forget(device_id: str = device_id, kind: str = kind) -> None:
+                    pl.set_device_settings(device_id, kind, DeviceSettings())
+                    pl.device_settings.pop(device_id, None)
+
+                await sv.call(forget)
             self.config_version_us = max(self.config_version_us, int(msg["version_us"]))
-            sv.config_changed()  # the gw/config queryable's view
+            await sv.call(sv.config_changed)  # the gw/config queryable's view
         log.info("configuration from shard %s applied", msg["origin"])
 
     # -- queryables for the REST front ------------------------------------------------------------------------
