@@ -195,23 +195,19 @@ def test_a_tag_line_pull_is_measured_not_guessed():
     assert errors[1].max() > 3.0 * errors[0].max()
 
 
-def test_a_hook_twisting_at_start_keeps_its_heading_from_the_magnetometer():
-    """A hook already twisting when the gateway starts: the warm-up cannot seed the z gyro bias (~1 °/s), so the
-    heading must come from the calibrated magnetometer. With the magnetometer weighted at 30 µT (for uncalibrated
-    hard iron) the torsion drifted ~1 °/s (92° RMSE on bench.hook_suite seed 5); at 3 µT it holds within a few
-    degrees (the calibrated board's hard iron and misalignment: ~1-4° of heading)."""
-    settings = HookPhysicsSettings(rope_length_m=8.0, gravity_m_s2=G_M_S2, earth_field_uT=EARTH_FIELD_ENU_UT,
-                                   torsion_inertia_kg_m2=40.0, torsion_stiffness_n_m_rad=40.0 * (math.pi / 4.0) ** 2,
-                                   torsion_damping_n_m_s_rad=2.0)  # fmt: skip
-    scenario = HookScenario(duration_s=60.0, output_rate_hz=RATE_HZ, initial_swing_rad=math.radians(3.0),
-                            initial_torsion_rad=math.radians(-40.0), initial_torsion_rate_rad_s=0.15, seed=4)
-    truth = simulate(settings, scenario)
-    sensor = SensorModel(ImuErrorModel.calibrated(), 1, np.random.default_rng(4))
+def test_a_suite_crane_twisting_at_start_keeps_its_heading_from_the_magnetometer():
+    """bench.hook_suite's tuning seed 5 (17.7 m rope, already swinging and twisting when the gateway starts,
+    calibrated 9D board), first 40 s: with the magnetometer weighted at 30 µT (set for uncalibrated hard iron) the
+    torsion ran away (78.8° RMSE; 92° over the suite's 180 s); at 3 µT 9.9°, most of it while the heading
+    converges in the first 15 s (4.8° over 180 s: the calibrated board's hard iron and misalignment)."""
+    from dataclasses import replace
+
+    from bench.hook_suite import hook_estimate, make_case
+
+    case = make_case(5, 180.0)  # the suite's timeline (wind is drawn after it), cut to its first 40 s
+    truth = simulate(case.physics, replace(case.scenario, duration_s=40.0))
+    sensor = SensorModel(ImuErrorModel.calibrated(), 1, np.random.default_rng(10_005))
     gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, DT_S)
-    f = HookFilter(HookFilterSettings(rope_length_m=8.0, rope_length_known=True), use_mag=True)
-    n = int(0.5 * RATE_HZ)
-    f.start(gyr[:n], acc[:n], mag[:n], DT_S)
-    q = f.run(gyr, acc, mag, DT_S)
-    late = truth.t_s >= 20.0
-    err = np.angle(np.exp(1j * (hook.torsion(q, 0.0) - truth.torsion_rad)))[late]
-    assert rmse_deg(err) < 5.0
+    q, _ = hook_estimate(gyr, acc, mag, case.physics.rope_length_m)
+    err = np.angle(np.exp(1j * (hook.torsion(q, 0.0) - truth.torsion_rad)))[truth.t_s >= 0.5]
+    assert rmse_deg(err) < 20.0, rmse_deg(err)  # measured 9.9° (mostly its first 15 s); 78.8° at 30 µT
