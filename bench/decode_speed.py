@@ -1,10 +1,12 @@
-"""Decode throughput of `gateway.schemas.decode` on realistic IMU packets, packets/s on one core.
+"""Decode throughput of `gateway.schemas.decode` on realistic IMU packets, packets per CPU-second, in one run:
+the pydantic path (`decode(..., fast=False)`, the reference), the msgspec fast path (`decode`, the default) and
+the same packets in the binary encoding (protocol v2, float32 samples).
 
-    python -m bench.decode_speed                 # 10-sample 9-axis packets, 20000 decodes
+    python -m bench.decode_speed                 # 10-sample 9-axis packets, 20000 decodes per path
     python -m bench.decode_speed --samples 5 --packets 50000
 
-Prints packets per CPU-second and, for scale, the speed of a bare `json.loads` of the same bytes (no validation). The
-gateway's target is 1000 devices x 10 packets/s = 10k packets/s, so decode should stay well above 20k/s.
+Also prints, for scale, a bare `json.loads` of the same bytes (no validation). The gateway's target is 1000 devices
+x 10 packets/s = 10k packets/s.
 """
 
 from __future__ import annotations
@@ -12,9 +14,9 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Callable
 
 import numpy as np
-from tqdm import tqdm
 
 from devices.common import ImuErrorModel, SensorModel, imu_payload
 from gateway import schemas
@@ -34,14 +36,20 @@ def make_packets(n_packets: int, samples: int, with_mag: bool, seed: int = 0) ->
     return out
 
 
-def rate(fn: object, packets: list[bytes], n: int, desc: str) -> float:
-    """Calls per CPU-second of fn(payload) over n calls cycling through packets (CPU time of this process, so
-    other load on a shared machine inflates the figure less than wall time would)."""
-    f = fn  # type: ignore[assignment]
-    t = time.process_time()
-    for i in tqdm(range(n), desc=desc, mininterval=0.5, leave=False):
-        f(packets[i % len(packets)])  # type: ignore[operator]
-    return n / (time.process_time() - t)
+def rates(fns: dict[str, tuple[Callable[[bytes], object], list[bytes]]], n: int, rounds: int = 20,
+          ) -> dict[str, float]:
+    """Calls per CPU-second of each fn(payload) over n calls cycling through its packets. CPU time of this process,
+    and the functions take turns in `rounds` slices, so load from other processes on a shared machine falls on all
+    of them alike and the ratios hold even when the absolute figures move."""
+    cpu = dict.fromkeys(fns, 0.0)
+    per = max(1, n // rounds)
+    for r in range(rounds):
+        for name, (f, packets) in fns.items():
+            t = time.process_time()
+            for i in range(r * per, (r + 1) * per):
+                f(packets[i % len(packets)])
+            cpu[name] += time.process_time() - t
+    return {name: per * rounds / cpu[name] for name in fns}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -54,14 +62,23 @@ def main(argv: list[str] | None = None) -> int:
     packets = make_packets(args.packets, args.samples, not args.no_mag)
     key = schemas.imu_key("rod", "rod-1")
     assert schemas.decode(key, packets[0]).n == args.samples
-    decode_rate = rate(lambda b: schemas.decode(key, b), packets, args.packets, "decode")
-    json_rate = rate(json.loads, packets, args.packets, "json.loads")
+    assert all(schemas.decode(key, b) == schemas.decode(key, b, fast=False) for b in packets[:100])
+    binary = [schemas.imu_to_binary(schemas.decode(key, b)) for b in packets]  # type: ignore[arg-type]
+    got = rates({"slow": (lambda b: schemas.decode(key, b, fast=False), packets),
+                 "fast": (lambda b: schemas.decode(key, b), packets),
+                 "binary": (lambda b: schemas.decode(key, b), binary),
+                 "json": (json.loads, packets)}, args.packets)  # fmt: skip
+    slow_rate, fast_rate, json_rate = got["slow"], got["fast"], got["json"]
     size = sum(map(len, packets)) / len(packets)
     print(f"packet: {args.samples} samples, {'6' if args.no_mag else '9'}-axis, {size:.0f} bytes")
-    print(f"decode (validate + range checks): {decode_rate:,.0f} packets/s per CPU-second "
-          f"= {decode_rate * args.samples:,.0f} samples/s")
-    print(f"json.loads only (no validation): {json_rate:,.0f} packets/s; decode/json.loads = "
-          f"{decode_rate / json_rate:.2f}")
+    print(f"decode, pydantic (before):      {slow_rate:>9,.0f} packets per CPU-second "
+          f"= {slow_rate * args.samples:,.0f} samples/s")
+    print(f"decode, msgspec fast path (now): {fast_rate:>8,.0f} packets per CPU-second "
+          f"= {fast_rate * args.samples:,.0f} samples/s; {fast_rate / slow_rate:.2f}x")
+    print(f"binary v2 ({sum(map(len, binary)) / len(binary):.0f} bytes):           {got['binary']:>8,.0f} packets per "
+          f"CPU-second; {got['binary'] / slow_rate:.2f}x")
+    print(f"json.loads only (no validation): {json_rate:>8,.0f} packets per CPU-second; fast/json.loads = "
+          f"{fast_rate / json_rate:.2f}")
     return 0
 
 

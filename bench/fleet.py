@@ -19,7 +19,8 @@ generator and an observer, each its own process, then prints one row:
 
 The generator does not simulate physics while it runs: it replays pre-built streams (a pool of simulated rods and
 hooks, `--pool` of each, built once with the real simulators and sensor model), patching only `seq`, `t0_us` and
-`wall_t0_us` into the JSON text, so it costs a few microseconds per packet and the gateway is what is measured.
+`wall_t0_us` into the JSON text (with `--encoding binary`: into the protocol v2 header, docs/protocol.md 3.6), so
+it costs a few microseconds per packet and the gateway is what is measured.
 Devices are spread evenly over each packet period (no synchronised bursts). A pooled stream loops every
 `--pool-seconds`; the loop joint is a small jump in the signals, not a gap in time.
 """
@@ -32,6 +33,7 @@ import multiprocessing as mp
 import os
 import pickle
 import re
+import struct
 import tempfile
 import threading
 import time
@@ -43,17 +45,24 @@ from typing import Any
 import zenoh
 
 from bench.bite_latency import _stats, free_port, observer_config, start_gateway, stop_gateway, wait_http
+from gateway import schemas
 
 RATE_HZ = 100.0
+ENCODINGS = {"json": schemas.ENCODING_IMU, "binary": schemas.ENCODING_IMU_BINARY}
+KIND_CODES = {kind: code for code, kind in enumerate(schemas.IMU_KINDS)}
+BIN_IDS, BIN_SEQ, BIN_WALL = struct.Struct("<BB"), struct.Struct("<IIq"), struct.Struct("<q")  # header offsets 2, 8, 32
 HEADER_KEYS = ("v", "device_id", "kind", "boot_id", "seq", "t0_us", "wall_t0_us")
 WALL_RE = re.compile(rb'"wall_t_us":\s*(\d+)')
 
 
 # -- the pool of pre-built streams ----------------------------------------------------------------------------
 
-def build_pool(kind: str, count: int, seconds: float, spp: int, seed: int) -> list[list[str]]:
-    """`count` simulated streams of `kind`, `seconds` long: per stream, the JSON body of each packet without its
-    header fields (what the generator patches in), in packet order."""
+Body = str | tuple[bytes, bytes]  # JSON text without the header fields, or (binary header template, float32 rows)
+
+
+def build_pool(kind: str, count: int, seconds: float, spp: int, seed: int, encoding: str = "json") -> list[list[Body]]:
+    """`count` simulated streams of `kind`, `seconds` long: per stream, the body of each packet without its header
+    fields (what the generator patches in), in packet order."""
     from devices.common import FleetSettings
 
     fleet_settings = FleetSettings(count=count, seed=seed, samples_per_packet=spp, truth=False,
@@ -69,10 +78,15 @@ def build_pool(kind: str, count: int, seconds: float, spp: int, seed: int) -> li
         scenario = HookScenario(duration_s=seconds + 1.0, initial_swing_rad=0.05)
         fleet = HookFleet(fleet_settings, HookPhysicsSettings(), scenario)
     packets = max(1, round(seconds * RATE_HZ / spp))
-    bodies: list[list[str]] = [[] for _ in range(count)]
+    bodies: list[list[Body]] = [[] for _ in range(count)]
     for k in range(packets):
         data, _ = fleet.tick(k)
         for i, msgs in enumerate(data):
+            if encoding == "binary":
+                b = schemas.imu_to_binary(schemas.decode(msgs[0].key, msgs[0].payload))  # type: ignore[arg-type]
+                head = schemas.IMU_BINARY_HEADER.size
+                bodies[i].append((b[:head], b[head + b[3]:]))  # b[3]: length of the device id after the header
+                continue
             d = json.loads(msgs[0].payload)
             body = {key: v for key, v in d.items() if key not in HEADER_KEYS}
             bodies[i].append(json.dumps(body, separators=(",", ":"))[1:-1])
@@ -90,25 +104,27 @@ class GenJob:
     start_wall_s: float
     duration_s: float
     result_path: str
+    encoding: str = "json"
 
 
 def generator(job: GenJob) -> None:
     """Publish every device's packets at 100 Hz / spp, spread over the period; write (sent, cpu_s) to result_path."""
     with open(job.pool_path, "rb") as f:
-        pools: dict[str, list[list[str]]] = pickle.load(f)
+        pools: dict[str, list[list[Body]]] = pickle.load(f)
     period_s = job.spp / RATE_HZ
     n = len(job.devices)
     conf = observer_config(job.port)
     sent = 0
     with zenoh.open(conf) as session:
-        pubs, tokens, heads = [], [], []
+        pubs, tokens, heads, idents = [], [], [], []
         for j, (kind, dev, _) in enumerate(job.devices):
             pubs.append(session.declare_publisher(
-                f"rig/{kind}/{dev}/imu", encoding="application/json;schema=rig.imu.v1",
+                f"rig/{kind}/{dev}/imu", encoding=ENCODINGS[job.encoding],
                 congestion_control=zenoh.CongestionControl.BLOCK,
             ))  # fmt: skip
             tokens.append(session.liveliness().declare_token(f"rig/{kind}/{dev}"))
             heads.append(f'{{"v":1,"device_id":"{dev}","kind":"{kind}","boot_id":{1000 + j},')
+            idents.append(dev.encode())
         deadline = time.time() + 60.0  # the gateway's subscription must reach this session before the first put
         while not all(p.matching_status.matching for p in pubs) and time.time() < deadline:
             time.sleep(0.05)
@@ -129,8 +145,15 @@ def generator(job: GenJob) -> None:
                 t0_us = k * round(period_s * 1e6)
                 wall_last_us = int(slot_wall * 1e6)
                 wall_t0_us = wall_last_us - round((job.spp - 1) * 1e6 / RATE_HZ)
-                payload = f'{heads[j]}"seq":{k},"t0_us":{t0_us},"wall_t0_us":{wall_t0_us},{body[k % len(body)]}}}'
-                pubs[j].put(payload)
+                part = body[k % len(body)]
+                if isinstance(part, tuple):  # binary: patch kind, id length, boot_id, seq, t0_us, wall_t0_us
+                    h = bytearray(part[0])
+                    BIN_IDS.pack_into(h, 2, KIND_CODES[kind], len(idents[j]))
+                    BIN_SEQ.pack_into(h, 8, 1000 + j, k, t0_us)
+                    BIN_WALL.pack_into(h, 32, wall_t0_us)
+                    pubs[j].put(bytes(h) + idents[j] + part[1])
+                else:
+                    pubs[j].put(f'{heads[j]}"seq":{k},"t0_us":{t0_us},"wall_t0_us":{wall_t0_us},{part}}}')
                 sent += 1
             k += 1
         cpu = time.process_time() - cpu0
@@ -254,8 +277,8 @@ class Row:
     devices_seen: int
 
 
-def run_one(n: int, hook_share: float, pools: dict[str, list[list[str]]], pool_path: Path, spp: int, procs: int,
-            duration_s: float, warmup_s: float, work: Path) -> Row:
+def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_path: Path, spp: int, procs: int,
+            duration_s: float, warmup_s: float, work: Path, encoding: str = "json") -> Row:
     """Start a gateway, run n devices for warmup + duration seconds, measure the last `duration_s`."""
     zport, hport = free_port(), free_port()
     n_hook = round(n * hook_share)
@@ -274,7 +297,7 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[str]]], pool_p
             start = time.time() + 3.0  # generators connect and declare first
             ctx = mp.get_context("spawn")  # zenoh sessions do not survive fork
             jobs = [GenJob(zport, tuple(devices[g::procs]), str(pool_path), spp, start, warmup_s + duration_s,
-                           str(work / f"gen-{n}-{g}.json")) for g in range(procs)]  # fmt: skip
+                           str(work / f"gen-{n}-{g}.json"), encoding) for g in range(procs)]  # fmt: skip
             gens = [ctx.Process(target=generator, args=(job,)) for job in jobs]
             for g in gens:
                 g.start()
@@ -341,10 +364,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--pool", type=int, default=16, help="distinct simulated streams per kind (default 16)")
     p.add_argument("--pool-seconds", type=float, default=20.0, help="length of each pooled stream (default 20 s)")
     p.add_argument("--json", type=Path, help="also write the rows as JSON to this file")
+    p.add_argument("--encoding", choices=tuple(ENCODINGS), default="json",
+                   help="IMU packets as JSON or protocol v2 binary (default json)")
     args = p.parse_args(argv)
     spp = args.samples_per_packet
     print(f"building the stream pool: {args.pool} rods + {args.pool} hooks x {args.pool_seconds:g} s ...", flush=True)
-    pools = {kind: build_pool(kind, args.pool, args.pool_seconds, spp, seed=7) for kind in ("rod", "hook")}
+    pools = {kind: build_pool(kind, args.pool, args.pool_seconds, spp, seed=7, encoding=args.encoding)
+             for kind in ("rod", "hook")}
     rows = []
     with tempfile.TemporaryDirectory(prefix="rig-fleet-") as tmp:
         work = Path(tmp)
@@ -353,14 +379,15 @@ def main(argv: list[str] | None = None) -> int:
         for n in args.counts:
             print(f"N = {n}: {args.warmup:g} s warm-up + {args.duration:g} s measured ...", flush=True)
             rows.append(run_one(n, args.hook_share, pools, pool_path, spp, args.procs, args.duration, args.warmup,
-                                work))  # fmt: skip
+                                work, args.encoding))  # fmt: skip
             print_table(rows[-1:])
             logs = (work / f"gw-{n}.log").read_text(errors="replace").strip().splitlines()
             errors = [x for x in logs if "ERROR" in x or "Traceback" in x]
             if errors:
                 print(f"  gateway log: {len(errors)} error lines, first: {errors[0][:160]}")
-    print(f"\nfleet at {RATE_HZ:g} Hz, {spp} samples/packet, {args.hook_share:.0%} hooks, {args.procs} generator "
-          f"process(es), {os.cpu_count()} cores; gateway = `python -m gateway` (all its processes)")
+    print(f"\nfleet at {RATE_HZ:g} Hz, {spp} samples/packet, {args.encoding} IMU packets, {args.hook_share:.0%} hooks, "
+          f"{args.procs} generator process(es), {os.cpu_count()} cores; gateway = `python -m gateway` "
+          "(all its processes)")
     print_table(rows)
     if args.json:
         args.json.write_text(json.dumps([r.__dict__ for r in rows], indent=1))

@@ -14,7 +14,8 @@ Public API (the hook simulator builds on it; keep it stable):
   --truth/--no-truth --loss --burst --jitter-ms --duration --id-prefix`; `add_imu_args(parser)`: `--imu PRESET`.
 - `Fleet` (protocol your simulator implements) and `run_fleet(session, fleet, settings)`: liveliness tokens,
   publishers, paced loop, command hand-off, loss; `run_main(fleet_factory, argv, ...)` wires it all for a `main()`.
-- `imu_payload(...)`: JSON bytes of one `rig.imu.v1` packet (fast path, same bytes pydantic would accept).
+- `imu_payload(...)`: JSON bytes of one `rig.imu.v1` packet (fast path, same bytes pydantic would accept);
+  `imu_message(key, encoding, ...)`: that or the binary protocol v2 packet (`--encoding binary`) as a Message.
 - `DeviceClock`: per-instance monotonic µs clock with a random boot offset and its wall-clock anchor.
 - `encode_json(obj)`, `rows(array, decimals)`, `new_boot_id(rng)`: fast payload helpers.
 
@@ -343,6 +344,16 @@ def imu_payload(
     return encode_json(d)
 
 
+IMU_ENCODINGS: tuple[str, ...] = ("json", "binary")
+
+
+def imu_message(key: str, encoding: str, **fields: Any) -> Message:
+    """One IMU put in `encoding` (`json`: `imu_payload`, `binary`: `schemas.imu_binary`, float32 samples)."""
+    if encoding == "binary":
+        return Message(key, schemas.imu_binary(**fields), schemas.ENCODING_IMU_BINARY)
+    return Message(key, imu_payload(**fields), schemas.ENCODING_IMU)
+
+
 def new_boot_id(rng: random.Random | np.random.Generator) -> int:
     """Random uint32 boot id (the firmware uses its hardware RNG at start)."""
     return int(rng.integers(0, schemas.UINT32)) if isinstance(rng, np.random.Generator) else rng.getrandbits(32)
@@ -427,6 +438,7 @@ class FleetSettings:
     duration_s: float | None = None
     id_prefix: str = "dev"
     progress: bool = True
+    imu_encoding: str = "json"  # or "binary" (protocol v2, docs/protocol.md section 3.6)
 
     @property
     def ids(self) -> list[str]:
@@ -445,6 +457,7 @@ class FleetSettings:
             count=args.count, seed=args.seed, rate_hz=args.rate, samples_per_packet=args.samples_per_packet,
             truth=args.truth, link=LinkModel(args.loss, args.burst, args.jitter_ms / 1000.0),
             duration_s=args.duration, id_prefix=args.id_prefix, progress=not args.no_progress,
+            imu_encoding=args.encoding,
         )
 
 
@@ -481,6 +494,8 @@ def add_fleet_args(
     g.add_argument("--jitter-ms", type=float, default=0.0, help="publish time jitter std, ms (default: 0)")
     g.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: run on)")
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
+    g.add_argument("--encoding", choices=IMU_ENCODINGS, default="json",
+                   help="IMU packets as JSON (rig.imu.v1) or the binary protocol v2 (rig.imu.v2) (default: json)")
     g.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
 
 

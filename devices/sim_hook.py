@@ -87,11 +87,12 @@ class HookFleet:
         for i, dev in enumerate(self.ids):
             t0_us = self.clocks[i].boot_offset_us + t0_rel_us
             wall = self.clocks[i].wall_us(t0_us)
-            data.append([Message(self._imu_keys[i], common.imu_payload(
+            data.append([common.imu_message(
+                self._imu_keys[i], fl.imu_encoding,
                 device_id=dev, kind="hook", boot_id=self.boot_ids[i], seq=self.seq[i], t0_us=t0_us,
                 rate_hz=fl.rate_hz, gyr_rad_s=gyr_l[i], acc_m_s2=acc_l[i], mag_uT=None if mag_l is None else mag_l[i],
                 wall_t0_us=wall,
-            ), schemas.ENCODING_IMU)])  # fmt: skip
+            )])  # fmt: skip
             if fl.truth:
                 extra.append(Message(self._truth_keys[i], truth_payload(
                     truths[i], device_id=dev, boot_id=self.boot_ids[i], seq=self.seq[i], t0_us=t0_us,

@@ -129,11 +129,12 @@ class RodFleet:
         for i, dev in enumerate(self.ids):
             t0_us = self.clocks[i].boot_offset_us + t0_rel_us
             wall = self.clocks[i].wall_us(t0_us)
-            msgs = [Message(self._imu_keys[i], common.imu_payload(
+            msgs = [common.imu_message(
+                self._imu_keys[i], fl.imu_encoding,
                 device_id=dev, kind="rod", boot_id=self.boot_ids[i], seq=self.seq[i], t0_us=t0_us,
                 rate_hz=fl.rate_hz, gyr_rad_s=gyr_l[i], acc_m_s2=acc_l[i], mag_uT=None if mag_l is None else mag_l[i],
                 wall_t0_us=wall, temp_c=temp_c, battery_v=battery_v, rssi_dbm=rssi[i],
-            ), schemas.ENCODING_IMU)]
+            )]
             if send_reel or i in self._reel_now:
                 msgs.append(self._reel_message(i, t0_us, wall))
             data.append(msgs)
@@ -221,10 +222,11 @@ class ScenarioFleet:
                 continue
             t0_us = self.clocks[i].boot_offset_us + int(round(sc.t_s[a] * 1e6))
             wall = self.clocks[i].wall_us(t0_us)
-            data.append([Message(self._imu_keys[i], common.imu_payload(
+            data.append([common.imu_message(
+                self._imu_keys[i], self.fleet.imu_encoding,
                 device_id=dev, kind="rod", boot_id=self.boot_ids[i], seq=k, t0_us=t0_us, rate_hz=100.0,
                 gyr_rad_s=sc.gyr_rad_s[a:b], acc_m_s2=sc.acc_m_s2[a:b], mag_uT=sc.mag_uT[a:b], wall_t0_us=wall,
-            ), schemas.ENCODING_IMU)])  # fmt: skip
+            )])  # fmt: skip
             if self.fleet.truth:
                 t_end = float(sc.t_s[b - 1])
                 events = [{"label": lab, "phase": ph, "t_us": self.clocks[i].boot_offset_us + int(round(t * 1e6))}

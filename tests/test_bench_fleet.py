@@ -36,3 +36,28 @@ def test_small_fleet_through_the_gateway(tmp_path: Path) -> None:
     assert row.processed >= 0.98 * row.sent, row
     assert row.attitudes > 0 and row.attitude_p99_ms == row.attitude_p99_ms  # measured, not NaN
     assert row.cpu_ms_per_packet > 0
+
+
+def test_binary_pool_packets_decode_with_the_patched_header() -> None:
+    """--encoding binary: the generator's patched v2 header + id + pooled rows is the pooled packet, re-addressed."""
+    import struct
+
+    from gateway import schemas
+
+    json_pool = fleet.build_pool("rod", 1, 0.1, 5, seed=3)
+    head, rows = fleet.build_pool("rod", 1, 0.1, 5, seed=3, encoding="binary")[0][1]  # type: ignore[misc]
+    h = bytearray(head)
+    ident = b"fleet-rod-0007"
+    fleet.BIN_IDS.pack_into(h, 2, fleet.KIND_CODES["rod"], len(ident))
+    fleet.BIN_SEQ.pack_into(h, 8, 1006, 42, 210_000)
+    fleet.BIN_WALL.pack_into(h, 32, 1_767_225_610_420_000)
+    p = schemas.decode("rig/rod/fleet-rod-0007/imu", bytes(h) + ident + rows)
+    assert isinstance(p, schemas.ImuPacket)
+    assert (p.boot_id, p.seq, p.t0_us, p.wall_t0_us, p.n) == (1006, 42, 210_000, 1_767_225_610_420_000, 5)
+    twin = schemas.decode("rig/rod/fleet-rod-0007/imu", (
+        '{"v":1,"device_id":"fleet-rod-0007","kind":"rod","boot_id":1006,"seq":42,"t0_us":210000,'
+        f'"wall_t0_us":1767225610420000,{json_pool[0][1]}}}').encode())
+    assert isinstance(twin, schemas.ImuPacket)
+    for a, b in zip(twin.arrays(), p.arrays(), strict=True):
+        assert a is not None and b is not None and (a.astype("float32") == b).all()
+    assert struct.unpack_from("<B", h)[0] == schemas.IMU_BINARY_MAGIC

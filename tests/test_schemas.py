@@ -13,8 +13,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from gateway import schemas
-from gateway.schemas import DecodeError, SequenceTracker, decode
+from gateway import protocol_doc, schemas
+from gateway.ingest.sequence import SequenceTracker
+from gateway.schemas import DecodeError, decode
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "protocol.md"
 
@@ -52,7 +53,7 @@ def test_imu_round_trip_preserves_every_value() -> None:
 
 
 def test_examples_round_trip_through_their_keys() -> None:
-    examples = schemas.examples()
+    examples = protocol_doc.examples()
     assert {type(m) for _, m in examples.values()} >= {
         schemas.ImuPacket, schemas.EnvPacket, schemas.ReelStatus, schemas.RodTruth, schemas.HookTruth,
         schemas.BallTruth, schemas.ReelCommand, schemas.BallCommand,
@@ -103,7 +104,7 @@ def test_malformed_packets_are_rejected_with_their_reason(key: str, payload: byt
 
 
 def test_truth_quaternion_must_be_unit() -> None:
-    key, truth = schemas.examples()["rod_truth"]
+    key, truth = protocol_doc.examples()["rod_truth"]
     d = json.loads(truth.to_json())
     d["quat_wxyz"][0] = [0.5, 0.0, 0.0, 0.0]
     with pytest.raises(DecodeError) as info:
@@ -158,11 +159,11 @@ def test_fuzz_arbitrary_json(key: str, value: object) -> None:
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(st.sampled_from(sorted(k for k in schemas.examples() if schemas.examples()[k][0].startswith("rig/"))),
+@given(st.sampled_from(sorted(k for k in protocol_doc.examples() if protocol_doc.examples()[k][0].startswith("rig/"))),
        st.data())
 def test_fuzz_mutated_valid_packets(name: str, data: st.DataObject) -> None:
     """Replace one top-level field of a valid packet with an arbitrary JSON value."""
-    key, model = schemas.examples()[name]
+    key, model = protocol_doc.examples()[name]
     d = json.loads(model.to_json())
     field = data.draw(st.sampled_from(sorted(d)))
     d[field] = data.draw(json_values)
@@ -226,7 +227,7 @@ def doc_examples() -> list[tuple[str, str]]:
 
 def test_protocol_doc_examples_validate() -> None:
     pairs = doc_examples()
-    assert len(pairs) >= len(schemas.examples())
+    assert len(pairs) >= len(protocol_doc.examples())
     models = {
         "attitude": schemas.Attitude, "swing": schemas.Swing, "alarm": schemas.AlarmEvent, "height": schemas.Height,
         "attitude/block": schemas.AttitudeBlock,
@@ -242,11 +243,11 @@ def test_protocol_doc_examples_validate() -> None:
 
 
 def test_protocol_doc_is_current() -> None:
-    """The doc's examples are generated from the models; regenerate with `python -m gateway.schemas --doc`."""
+    """The doc's examples are generated from the models; regenerate: `python -m gateway.schemas --write-doc ...`."""
     text = DOC.read_text()
-    for key, model in schemas.examples().values():
+    for key, model in protocol_doc.examples().values():
         assert f"Key: `{key}`" in text
-        assert schemas.example_json(model) in text, key
+        assert protocol_doc.example_json(model) in text, key
 
 
 def test_alarm_event_carries_the_engines_severities_and_string_ids() -> None:
@@ -254,7 +255,7 @@ def test_alarm_event_carries_the_engines_severities_and_string_ids() -> None:
 
     assert schemas.SEVERITIES == tuple(s.value for s in Severity)  # same levels, most severe first
     assert set(typing.get_args(schemas.Severity)) == set(schemas.SEVERITIES)
-    _, alarm = schemas.examples()["alarm"]
+    _, alarm = protocol_doc.examples()["alarm"]
     assert isinstance(alarm, schemas.AlarmEvent)
     for sev in schemas.SEVERITIES:
         assert schemas.AlarmEvent.model_validate({**alarm.model_dump(), "severity": sev}).severity == sev
@@ -268,7 +269,7 @@ def test_alarm_event_carries_the_engines_severities_and_string_ids() -> None:
 def test_device_config_example_uses_real_threshold_names() -> None:
     from gateway.config import RodThresholds
 
-    _, cfg = schemas.examples()["config"]
+    _, cfg = protocol_doc.examples()["config"]
     assert isinstance(cfg, schemas.DeviceConfig)
     assert set(cfg.thresholds) <= set(RodThresholds.model_fields)
 

@@ -20,6 +20,7 @@ import zenoh
 
 from devices.common import zenoh_config
 from gateway import schemas
+from gateway.ingest.sequence import SequenceTracker
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -116,7 +117,7 @@ def test_rod_process_publishes_data_truth_and_liveliness_and_obeys_a_reel_comman
     assert {p.device_id for p in imus} == {"rod-1", "rod-2"} and truths
     assert encodings["imu"] == schemas.ENCODING_IMU and encodings["truth"] == schemas.ENCODING_TRUTH
     for dev in ("rod-1", "rod-2"):
-        tracker = schemas.SequenceTracker()
+        tracker = SequenceTracker()
         for p in imus:
             if p.device_id == dev:
                 tracker.update(p.boot_id, p.seq)
@@ -149,7 +150,7 @@ def test_device_keeps_publishing_until_the_gateway_appears() -> None:
     assert len(packets) >= 40
     seqs = [p.seq for p in packets]  # type: ignore[union-attr]
     assert min(seqs) > 20  # the first 2 s (40 packets) went out before anyone listened
-    tracker = schemas.SequenceTracker()
+    tracker = SequenceTracker()
     for s in seqs:
         tracker.update(1, s)
     assert tracker.lost > 0  # --loss 0.2 shows up as sequence gaps

@@ -25,9 +25,9 @@ from typing import Any
 
 from gateway import schemas
 
-DATA_TOPICS: dict[str, tuple[str, ...]] = {"rod": ("imu", "reel", "truth"), "hook": ("imu", "truth"),
-                                           "ball": ("env", "truth")}  # fmt: skip
-COMMAND_TOPICS: dict[str, tuple[str, ...]] = {"rod": ("reel/cmd",), "hook": (), "ball": ("cmd",)}
+# Key suffixes each kind may publish on / receive, from the protocol's topic table.
+DATA_TOPICS: dict[str, tuple[str, ...]] = {k: schemas.device_suffixes(k, "device", "simulator") for k in schemas.KINDS}
+COMMAND_TOPICS: dict[str, tuple[str, ...]] = {k: schemas.device_suffixes(k, "command") for k in schemas.KINDS}
 OBSERVER = "observer"
 
 
@@ -125,7 +125,7 @@ def main(argv: list[str] | None = None) -> None:
     for d in a.device:
         kind, _, device_id = d.partition(":")
         if kind not in DATA_TOPICS or not schemas.valid_device_id(device_id):
-            p.error(f"--device {d!r}: want KIND:ID with KIND in rod, hook, ball")
+            p.error(f"--device {d!r}: want KIND:ID with KIND in {', '.join(schemas.KINDS)}")
         devices[device_id] = kind
     for path in write(a.certs, a.out, devices, a.listen or ["tls/0.0.0.0:7447"], a.connect or ["tls/localhost:7447"]):
         print(path)

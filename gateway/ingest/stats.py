@@ -1,6 +1,6 @@
 """Ingest accounting: received / queue drops / rejects by reason, per-device stream counters, rate-limited logs.
 
-Streams are tracked per (device, topic) with `schemas.SequenceTracker` (loss, reorder, duplicate, reboot);
+Streams are tracked per (device, topic) with `ingest.sequence.SequenceTracker` (loss, reorder, duplicate, reboot);
 the per-device figures reported are those of the device's main stream (`imu` or `env`).
 """
 
@@ -11,6 +11,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 from gateway import schemas
+from gateway.ingest.sequence import SequenceTracker
 from gateway.ingest.timecheck import DeviceClock
 
 log = logging.getLogger("gateway.ingest")
@@ -24,7 +25,7 @@ class DeviceStream:
 
     device_id: str
     kind: str
-    trackers: dict[str, schemas.SequenceTracker] = field(default_factory=dict)
+    trackers: dict[str, SequenceTracker] = field(default_factory=dict)
     rejected: Counter[str] = field(default_factory=Counter)
     filter_restarts: Counter[str] = field(default_factory=Counter)
     last_arrival_s: float | None = None
@@ -32,11 +33,11 @@ class DeviceStream:
     clock: DeviceClock = field(default_factory=lambda: DeviceClock())
     conflict_last_s: float | None = None  # arrival (monotonic s) of the newest packet that showed a second publisher
 
-    def main(self) -> schemas.SequenceTracker:
+    def main(self) -> SequenceTracker:
         for topic in MAIN_TOPICS:
             if topic in self.trackers:
                 return self.trackers[topic]
-        return next(iter(self.trackers.values()), schemas.SequenceTracker())
+        return next(iter(self.trackers.values()), SequenceTracker())
 
     def loss_fraction(self) -> float:
         """Lost / (received + lost) on the main stream."""
@@ -89,7 +90,7 @@ class IngestCounters:
         dev = self.stream(kind, device_id)
         tracker = dev.trackers.get(topic)
         if tracker is None:
-            tracker = dev.trackers[topic] = schemas.SequenceTracker()
+            tracker = dev.trackers[topic] = SequenceTracker()
         res = tracker.update(boot_id, seq)
         dev.last_arrival_s = now_s
         dev.packets += 1

@@ -122,3 +122,26 @@ def test_scenario_fleet_plays_the_recordings_with_labelled_truth_then_falls_sile
         assert isinstance(first, schemas.ImuPacket) and isinstance(truths[0], schemas.RodTruth)
         assert truths[0].t0_us == first.t0_us and truths[0].seq == first.seq == 0
     assert ticks[-1] == ([[], []], [])
+
+
+def test_binary_encoding_sends_the_same_packets_at_float32() -> None:
+    """`--encoding binary`: the same rods with the same seed send protocol v2 packets that decode to the JSON
+    packets' values rounded to float32, with the v2 zenoh encoding."""
+    args = sim_rod.build_parser().parse_args(["--encoding", "binary"])
+    assert common.FleetSettings.from_args(args).imu_encoding == "binary"
+    settings = FleetSettings(count=2, seed=11, samples_per_packet=5, id_prefix="rod")
+    as_json = sim_rod.RodFleet(settings, script=[])
+    as_binary = sim_rod.RodFleet(FleetSettings(**{**settings.__dict__, "imu_encoding": "binary"}), script=[])
+    for k in range(3):
+        imu_j = [m for msgs in as_json.tick(k)[0] for m in msgs if m.key.endswith("/imu")]
+        imu_b = [m for msgs in as_binary.tick(k)[0] for m in msgs if m.key.endswith("/imu")]
+        for mj, mb in zip(imu_j, imu_b, strict=True):
+            assert mb.payload[0] == schemas.IMU_BINARY_MAGIC and mb.encoding == schemas.ENCODING_IMU_BINARY
+            pj, pb = schemas.decode(mj.key, mj.payload), schemas.decode(mb.key, mb.payload)
+            assert isinstance(pj, schemas.ImuPacket) and isinstance(pb, schemas.ImuPacket)
+            assert (pb.seq, pb.t0_us, pb.boot_id) == (pj.seq, pj.t0_us, pj.boot_id)
+            assert pb.wall_t0_us is not None  # the wall clock is read at each tick, so not compared
+            for a, b in zip(pj.arrays(), pb.arrays(), strict=True):
+                assert a is not None and b is not None
+                np.testing.assert_array_equal(a.astype(np.float32), b)
+            assert len(mb.payload) < 0.6 * len(mj.payload)

@@ -138,7 +138,7 @@ def test_agrees_with_the_physics_truth():
 def test_the_worked_example_of_protocol_section_3_5():
     """docs/protocol.md 3.5's worked example and the `swing` example payload: the quaternion gives the published
     Θ, displacement bearing, Φ (eq. 7), torsion and θx/θy to the printed digits, and the other half period flips Φ."""
-    from gateway.schemas import examples
+    from gateway.protocol_doc import examples
 
     swing = examples()["swing"][1]
     q = np.array([0.94292, 0.03305, -0.02827, 0.33016])

@@ -17,7 +17,7 @@ import pytest
 
 from devices.common import FleetSettings
 from devices.sim_rod import RodFleet
-from gateway import schemas
+from gateway import protocol_doc, schemas
 from gateway.config import Settings
 from gateway.ingest.bus import MemoryBus
 from gateway.ingest.runner import GatewayService
@@ -211,7 +211,7 @@ def test_a_resumed_alarm_without_its_cause_clears(tmp_path: Path) -> None:
 def test_an_extreme_env_wall_time_does_not_pin_a_spot(tmp_path: Path) -> None:
     """A ball's reading with wall_t_us 2**63 - 1 stayed the spot's newest reading for good (the ranking keeps the
     reading with the latest wall time); now its wall time is ignored and counted."""
-    key, env = schemas.examples()["env"]
+    key, env = protocol_doc.examples()["env"]
     now_us = int(time.time() * 1e6)
     first = env.model_copy(update={"wall_t_us": 2**63 - 1, "water_temp_c": 30.0, "seq": 1})
     second = env.model_copy(update={"wall_t_us": now_us, "water_temp_c": 12.0, "seq": 2})
