@@ -533,11 +533,43 @@ class HookFilter(AttitudeFilter):
         s = self.settings
         quiet = gyr.std(axis=0) < s.rest_gyr_std_rad_s if gyr.shape[0] > 1 else np.zeros(3, dtype=bool)
         level = abs(float(np.linalg.norm(acc.mean(axis=0))) - s.gravity_m_s2) < s.rest_acc_tol_m_s2
-        if level and quiet[0] and quiet[1]:
+        swing = self.swing_from_window(gyr, dt_s)
+        if level and quiet[0] and quiet[1] and swing is None:
             if seed_bias:
                 self.seed_gyro_bias(gyr.mean(axis=0), axes=(0, 1, 2) if quiet[2] else (0, 1))
         else:
             self.assume_moving()
+            if swing is not None:
+                p, v, std = swing
+                self.x[_P], self.x[_V] = p, v
+                for i in (0, 1):
+                    self.P[i, i] = std**2
+
+    def swing_from_window(self, gyr_rad_s: FloatArray, dt_s: float) -> tuple[FloatArray, FloatArray, float] | None:
+        """A hook already swinging at start: the rope's horizontal direction `p` and rate `p'` at the window's
+        first sample (the gateway then runs the filter over the window) and the std of `p`; None if the window shows
+        no swing above 3σ (or is shorter than 0.2 s).
+
+        Pendulum law `p = -(l/g) p''` (small angles, no force), with `p'` the gyroscope's x/y turned by the start
+        heading and `p''` the slope of a line fitted to it (bias-free: a constant bias has no slope), at the window's
+        middle and carried back to its start. A long rope's slow swing looks "quiet" over 0.5 s: started at plumb
+        with the swing rate taken for gyro bias, a 7° swing on 20 m read 4.4° off at first (bench.hook_suite 108)."""
+        gyr = np.asarray(gyr_rad_s, dtype=np.float64)
+        n = gyr.shape[0]
+        if n * dt_s < 0.2:
+            return None
+        ca, sa = math.cos(self.x[_ALPHA]), math.sin(self.x[_ALPHA])
+        rate = np.stack([sa * gyr[:, 0] + ca * gyr[:, 1], -(ca * gyr[:, 0] - sa * gyr[:, 1])], axis=1)  # ≈ p'
+        t = (np.arange(n) - 0.5 * (n - 1)) * dt_s  # 0 at the window's middle
+        slope = t @ (rate - rate.mean(axis=0)) / float(t @ t)
+        scale = self.rope_length_m / self.settings.gravity_m_s2
+        p_mid = -scale * slope
+        sigma = scale * self.settings.gyro_noise_rad_s * math.sqrt(12.0 / (n * (n * dt_s) ** 2))
+        norm = float(np.hypot(*p_mid))
+        if norm < max(3.0 * sigma, 0.005) or norm > 0.5:  # no swing to see, or not a pendulum's (a knock, a jerk)
+            return None
+        p_start = p_mid + rate.mean(axis=0) * t[0]
+        return p_start, rate[:5].mean(axis=0), math.hypot(2.0 * sigma, 0.1 * norm)
 
     def _inputs(self, gyr: FloatArray, acc: FloatArray, dt_s: float) -> FloatArray:
         """Process inputs (N, N_INPUT) for the samples, continuing the gyro difference across calls."""
