@@ -569,7 +569,8 @@ class HookFilter(AttitudeFilter):
         if norm < max(3.0 * sigma, 0.005) or norm > 0.5:  # no swing to see, or not a pendulum's (a knock, a jerk)
             return None
         p_start = p_mid + rate.mean(axis=0) * t[0]
-        return p_start, rate[:5].mean(axis=0), math.hypot(2.0 * sigma, 0.1 * norm)
+        rel = 0.1 if self.settings.rope_length_known else 1.0  # p scales with l: an unknown rope, only its direction
+        return p_start, rate[:5].mean(axis=0), math.hypot(2.0 * sigma, rel * norm)
 
     def _inputs(self, gyr: FloatArray, acc: FloatArray, dt_s: float) -> FloatArray:
         """Process inputs (N, N_INPUT) for the samples, continuing the gyro difference across calls."""
