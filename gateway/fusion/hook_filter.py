@@ -539,7 +539,7 @@ class HookFilter(AttitudeFilter):
                 self.seed_gyro_bias(gyr.mean(axis=0), axes=(0, 1, 2) if quiet[2] else (0, 1))
         else:
             self.assume_moving()
-            if swing is not None:
+            if swing is not None and s.rope_length_known:  # p scales with l: an unknown rope starts at plumb
                 p, v, std = swing
                 self.x[_P], self.x[_V] = p, v
                 for i in (0, 1):
@@ -565,12 +565,13 @@ class HookFilter(AttitudeFilter):
         scale = self.rope_length_m / self.settings.gravity_m_s2
         p_mid = -scale * slope
         sigma = scale * self.settings.gyro_noise_rad_s * math.sqrt(12.0 / (n * (n * dt_s) ** 2))
+        slope_z = float(t @ (gyr[:, 2] - gyr[:, 2].mean())) / float(t @ t)
+        sigma = math.hypot(sigma, scale * 0.02 * abs(slope_z))  # a twisting hook: x/y see 2 % of z (cross-axis)
         norm = float(np.hypot(*p_mid))
         if norm < max(3.0 * sigma, 0.005) or norm > 0.5:  # no swing to see, or not a pendulum's (a knock, a jerk)
             return None
         p_start = p_mid + rate.mean(axis=0) * t[0]
-        rel = 0.1 if self.settings.rope_length_known else 1.0  # p scales with l: an unknown rope, only its direction
-        return p_start, rate[:5].mean(axis=0), math.hypot(2.0 * sigma, rel * norm)
+        return p_start, rate[:5].mean(axis=0), math.hypot(2.0 * sigma, 0.1 * norm)
 
     def _inputs(self, gyr: FloatArray, acc: FloatArray, dt_s: float) -> FloatArray:
         """Process inputs (N, N_INPUT) for the samples, continuing the gyro difference across calls."""
