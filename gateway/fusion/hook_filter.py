@@ -566,7 +566,7 @@ class HookFilter(AttitudeFilter):
         p_mid = -scale * slope
         sigma = scale * self.settings.gyro_noise_rad_s * math.sqrt(12.0 / (n * (n * dt_s) ** 2))
         slope_z = float(t @ (gyr[:, 2] - gyr[:, 2].mean())) / float(t @ t)
-        sigma = math.hypot(sigma, scale * 0.02 * abs(slope_z))  # a twisting hook: x/y see 2 % of z (cross-axis)
+        sigma = math.hypot(sigma, scale * self.settings.init_cross_axis_std * abs(slope_z))  # twisting: x/y see z
         norm = float(np.hypot(*p_mid))
         if norm < max(3.0 * sigma, 0.005) or norm > 0.5:  # no swing to see, or not a pendulum's (a knock, a jerk)
             return None
