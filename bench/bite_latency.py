@@ -56,7 +56,8 @@ def start_gateway(
     out = open(log_path, "wb") if log_path else subprocess.DEVNULL  # noqa: SIM115
     return subprocess.Popen(
         [sys.executable, "-m", "gateway", "--data-dir", str(data_dir), "--port", str(http_port),
-         "--listen", f"tcp/127.0.0.1:{zenoh_port}", "--log-level", "WARNING"],
+         "--listen", f"tcp/127.0.0.1:{zenoh_port}", "--log-level", "WARNING",
+         "--shards", "1"],  # one process: these benches read one gateway's /api/stats
         cwd=REPO, stdout=out, stderr=subprocess.STDOUT, env=os.environ | {"PYTHONUNBUFFERED": "1"},
     )  # fmt: skip
 

@@ -15,9 +15,9 @@ from tqdm import tqdm
 from devices.common import FleetSettings
 from devices.sim_rod import RodFleet
 from gateway.api.ws import ClientQueue, LiveStream
+from gateway.app import compose
 from gateway.config import Settings
 from gateway.ingest.bus import MemoryBus
-from gateway.ingest.runner import GatewayService
 from gateway.store import Store
 
 
@@ -25,11 +25,10 @@ def measure(n: int, clients: int, reps: int) -> dict[str, float]:
     tmp = Path(tempfile.mkdtemp())
     settings = Settings(data_dir=tmp, zenoh_listen=[])
     bus, store = MemoryBus(), Store(tmp / "db.sqlite3")
-    svc = GatewayService(settings, bus, store)
+    svc = compose(settings, bus, store, blocking_thread=False)
     live = LiveStream(svc)
-    svc.hub.listeners.append(live.on_hub)
-    for sel in ("rig/*/*/imu", "rig/ball/*/env"):
-        bus.subscribe(sel, live.on_raw)
+    svc.hub.listeners.append(live.on_hub)  # as HubSink.start_sink wires it (without the tick task)
+    svc.hub.packet_listeners.append(live.on_packet)
     fleet = RodFleet(FleetSettings(count=n, seed=1, samples_per_packet=5, progress=False, id_prefix="rod"))
     now = time.time()
     for k in tqdm(range(20), desc=f"{n} rods: 1 s of packets", leave=False):
@@ -37,18 +36,17 @@ def measure(n: int, clients: int, reps: int) -> dict[str, float]:
         items = []
         for dev in data:
             for m in dev:
-                bus.put(m.key, m.payload, encoding="")
                 items.append((m.key, m.payload, time.monotonic()))
         svc.handle(items, now + k * 0.05)
     # one tick's worth of pending data is what a 10 Hz tick sees; refill the raw deques before each rep
-    snapshot = {k: list(v) for k, v in live._raw.items()}
+    snapshot = {k: list(v) for k, v in live._imu.items()}
     series = {k: (list(s.t_s), {kk: list(vv) for kk, vv in s.values.items()}) for k, s in live._series.items()}
     t_build = 0.0
     t_full = 0.0
     size = 0
     for _ in tqdm(range(reps), desc=f"{n} rods: tick frames", leave=False):
         for k, v in snapshot.items():
-            live._raw[k].extend(v[-2:])
+            live._imu[k].extend(v[-2:])
         for k, (ts, vals) in series.items():
             s = live._series[k]
             s.t_s.extend(ts[-5:])

@@ -50,7 +50,9 @@ def measure(name: str, trial: broad.Trial, mode: broad.Mode, n_update: int, repe
     def batch() -> None:
         fresh().run(trial.gyr_rad_s, trial.acc_m_s2, mag, trial.dt_s)
 
+    # warm-up of both paths (numba compile or cache load is not counted)
     fresh().run(trial.gyr_rad_s[:200], trial.acc_m_s2[:200], None if mag is None else mag[:200], trial.dt_s)
+    fresh().update(trial.gyr_rad_s[0], trial.acc_m_s2[0], None if mag is None else mag[0], trial.dt_s)
     return _rate(stream, n_update, repeats), _rate(batch, trial.n, repeats)
 
 

@@ -3,19 +3,23 @@
     python -m bench.fleet                              # N = 100, 300, 1000 (80 % rods, 20 % hooks), 30 s each
     python -m bench.fleet --counts 100 --duration 600  # one 10-minute soak (RSS over time)
     python -m bench.fleet --counts 50 --duration 10 --procs 1   # quick look
+    python -m bench.fleet --counts 300 --shards 1 2            # one shard vs two shard processes, same session
 
-For each N it starts `python -m gateway` (zenoh peer on a free loopback port, REST on another), a cheap load
-generator and an observer, each its own process, then prints one row:
+For each N (and each `--shards` S) it starts `python -m gateway --shards S` (zenoh peer, with S > 1 router, on a
+free loopback port, REST on another), a cheap load generator and an observer, each its own process, then prints
+one row:
 
 - sent / processed / lost: IMU packets the generators put, the gateway's `received` counter and the sum of
-  per-device `ok`, queue drops (packets the gateway's inbox had to drop);
+  per-device `ok`, queue drops (packets the gateway's inbox had to drop), all summed over the shards
+  (`/api/shards`; each counts only the devices it serves);
 - gateway CPU per packet (ms): user + system CPU of the gateway and all its child processes over the measured
   window, divided by the packets processed in it (all-in: decode, fusion, rules, outputs, REST);
 - latency p50/p99 (ms): observer receipt time minus the device wall time of the packet's last sample, over every
   `gw/*/*/attitude` message; alarms the same over `gw/*/*/alarm`;
 - attitudes received vs expected (one per packet end at the default attitude interval);
 - gateway RSS (MiB) at the start and end of the window and its maximum;
-- the generators' own CPU (share of one core).
+- the generators' own CPU (share of one core);
+- REST under load: time for `/api/stats` and `/api/health` to answer, probed once a second in the window (p50/max s).
 
 The generator does not simulate physics while it runs: it replays pre-built streams (a pool of simulated rods and
 hooks, `--pool` of each, built once with the real simulators and sensor model), patching only `seq`, `t0_us` and
@@ -44,7 +48,7 @@ from typing import Any
 
 import zenoh
 
-from bench.bite_latency import _stats, free_port, observer_config, start_gateway, stop_gateway, wait_http
+from bench.bite_latency import REPO, free_port, observer_config, stop_gateway, wait_http
 from gateway import schemas
 
 RATE_HZ = 100.0
@@ -190,6 +194,30 @@ class Observer:
             (self.alarm_ms if key.endswith("/alarm") else self.attitude_ms).append(lat)
 
 
+class RestProbe(threading.Thread):
+    """Times `GET /api/stats` and `/api/health` once a second until stopped (each with a 30 s timeout): whether the
+    REST side keeps answering while ingest is overloaded."""
+
+    def __init__(self, http_port: int) -> None:
+        super().__init__(name="rest-probe", daemon=True)
+        self.http_port = http_port
+        self.latency_s: list[float] = []
+        self.stop = threading.Event()
+
+    def run(self) -> None:
+        import httpx
+
+        with httpx.Client(timeout=30.0) as client:
+            while not self.stop.wait(1.0):
+                for path in ("/api/stats", "/api/health"):
+                    t0 = time.perf_counter()
+                    try:
+                        client.get(f"http://127.0.0.1:{self.http_port}{path}")
+                    except httpx.HTTPError:
+                        pass  # a timeout counts as its full 30 s
+                    self.latency_s.append(time.perf_counter() - t0)
+
+
 def process_tree(pid: int) -> list[int]:
     """pid and all its descendants (from /proc)."""
     children: dict[int, list[int]] = {}
@@ -238,9 +266,35 @@ def tree_rss_mib(pid: int) -> float:
     return total / 1024.0
 
 
+def start_gateway(data_dir: Path, zenoh_port: int, http_port: int, log_path: Path, shards: int) -> Any:
+    """`python -m gateway --shards S` listening on tcp/127.0.0.1:zenoh_port, REST on http_port."""
+    import subprocess
+    import sys
+
+    return subprocess.Popen(
+        [sys.executable, "-m", "gateway", "--data-dir", str(data_dir), "--port", str(http_port), "--no-3d",
+         "--listen", f"tcp/127.0.0.1:{zenoh_port}", "--log-level", "WARNING", "--shards", str(shards)],
+        cwd=REPO, stdout=log_path.open("wb"), stderr=subprocess.STDOUT, env=os.environ | {"PYTHONUNBUFFERED": "1"},
+    )  # fmt: skip
+
+
+SUMMED = ("received", "offered", "ignored", "queue_drops")
+
+
 def stats(http_port: int) -> dict[str, Any]:
-    """/api/stats with a long timeout: an overloaded gateway answers slowly, and the count is what matters."""
-    return _stats(http_port, timeout_s=30.0)
+    """The shards' ingest counters summed (`/api/shards`), with a long timeout: an overloaded gateway answers
+    slowly, and the count is what matters. {} if it does not answer."""
+    import httpx
+
+    try:
+        shards = httpx.get(f"http://127.0.0.1:{http_port}/api/shards", timeout=30.0).json()["shards"]
+    except (httpx.HTTPError, KeyError, ValueError):
+        return {}
+    out: dict[str, Any] = {k: sum(int(s.get(k, 0)) for s in shards) for k in SUMMED}
+    out["rejected"] = {k: v for s in shards for k, v in s.get("rejected", {}).items()}
+    out["devices"] = [d for s in shards for d in s.get("devices", [])]
+    out["shards"] = len(shards)
+    return out
 
 
 def processed(s: dict[str, Any]) -> int:
@@ -259,6 +313,7 @@ def pct(xs: Sequence[float], q: float) -> float:
 @dataclass
 class Row:
     n: int
+    shards: int
     sent: int
     received: int
     processed: int
@@ -275,18 +330,23 @@ class Row:
     rss_max_mib: float
     generator_core_share: float
     devices_seen: int
+    rest_p50_s: float = float("nan")
+    rest_max_s: float = float("nan")
 
 
 def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_path: Path, spp: int, procs: int,
-            duration_s: float, warmup_s: float, work: Path, encoding: str = "json") -> Row:
+            duration_s: float, warmup_s: float, work: Path, encoding: str = "json", shards: int = 1) -> Row:
     """Start a gateway, run n devices for warmup + duration seconds, measure the last `duration_s`."""
     zport, hport = free_port(), free_port()
     n_hook = round(n * hook_share)
     devices = [("hook", f"fleet-hook-{i + 1:04d}", i % len(pools["hook"])) for i in range(n_hook)]
     devices += [("rod", f"fleet-rod-{i + 1:04d}", i % len(pools["rod"])) for i in range(n - n_hook)]
-    gw = start_gateway(work / f"gw-{n}", zport, hport, work / f"gw-{n}.log")
+    gw = start_gateway(work / f"gw-{n}-{shards}", zport, hport, work / f"gw-{n}-{shards}.log", shards)
     try:
         wait_http(hport, timeout_s=600.0)
+        deadline = time.time() + 300.0  # every shard up (its kernels loaded) and in the live set
+        while stats(hport).get("shards", 0) < shards and time.time() < deadline:
+            time.sleep(0.5)
         obs = Observer()
         with zenoh.open(observer_config(zport)) as session:
             session.declare_subscriber("gw/*/*/attitude", obs.on_sample)
@@ -302,6 +362,8 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
             for g in gens:
                 g.start()
             time.sleep(max(0.0, start + warmup_s - time.time()))
+            probe = RestProbe(hport)  # from the window's start: the first stats call below may be slow itself
+            probe.start()
             s0, cpu0 = stats(hport), tree_cpu_s(gw.pid)
             obs.measuring = True
             rss: list[float] = []
@@ -310,18 +372,25 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
                 time.sleep(1.0)
             cpu1 = tree_cpu_s(gw.pid)
             obs.measuring = False
+            probe.stop.set()
+            probe.join(timeout=60)
             for g in gens:
                 g.join(timeout=60)
             time.sleep(5.0)  # let the gateway drain its queue before the final count
             s1 = stats(hport)
     finally:
         stop_gateway(gw)
+    if s1.get("shards", 0) != shards:
+        print(f"  only {s1.get('shards', 0)} of {shards} shards answered the final count: the sums are short")
     gen = [json.loads(Path(j.result_path).read_text()) for j in jobs if Path(j.result_path).exists()]
+    if len(gen) < len(jobs):
+        print(f"  {len(jobs) - len(gen)} of {len(jobs)} generators did not finish (blocked by a saturated gateway?)")
     sent = sum(g["sent"] for g in gen)
     lost_seq = sum(d.get("lost", 0) for d in s1.get("devices", []))
     if sent != int(s1.get("received", 0)) or s1.get("rejected") or lost_seq:  # where were packets lost?
         print(f"  loss: observer got {imu_seen[0]} of {sent} imu packets from zenoh, the gateway's callbacks "
-              f"{s1.get('offered')}, its ingest {s1.get('received')}; rejected {s1.get('rejected')}, "
+              f"{s1.get('offered')} (summed over shards, {s1.get('ignored')} of them other shards' devices), its "
+              f"ingest {s1.get('received')}; rejected {s1.get('rejected')}, "
               f"sequence gaps {lost_seq}")
     # packets in the measured window: what the gateway processed between the two stats calls
     done = processed(s1) - processed(s0)
@@ -329,27 +398,28 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
     expected_att = int(n * duration_s * RATE_HZ / spp)
     gen_share = sum(g["cpu_s"] for g in gen) / max(1e-9, max((g["wall_s"] for g in gen), default=1.0))
     return Row(
-        n=n, sent=sent, received=int(s1.get("received", 0)), processed=processed(s1),
+        n=n, shards=shards, sent=sent, received=int(s1.get("received", 0)), processed=processed(s1),
         queue_drops=int(s1.get("queue_drops", 0)), cpu_ms_per_packet=cpu_ms,
         attitude_p50_ms=pct(obs.attitude_ms, 0.5), attitude_p99_ms=pct(obs.attitude_ms, 0.99),
         attitudes=len(obs.attitude_ms), attitudes_expected=expected_att, alarms=len(obs.alarm_ms),
         alarm_p99_ms=pct(obs.alarm_ms, 0.99), rss_start_mib=rss[0] if rss else float("nan"),
         rss_end_mib=rss[-1] if rss else float("nan"), rss_max_mib=max(rss) if rss else float("nan"),
         generator_core_share=gen_share, devices_seen=len(s1.get("devices", [])),
+        rest_p50_s=pct(probe.latency_s, 0.5), rest_max_s=max(probe.latency_s, default=float("nan")),
     )  # fmt: skip
 
 
 def print_table(rows: Sequence[Row]) -> None:
-    print(f"{'N':>5} {'sent':>8} {'received':>8} {'processed':>9} {'lost':>7} {'q.drop':>6} {'CPU ms/pkt':>10} "
-          f"{'att p50':>8} {'att p99':>8} {'att rx/exp':>13} {'alarms':>6} {'RSS MiB start/end/max':>22} "
-          f"{'gen core':>8}")
+    print(f"{'N':>5} {'sh':>2} {'sent':>8} {'received':>8} {'processed':>9} {'lost':>7} {'q.drop':>6} "
+          f"{'CPU ms/pkt':>10} {'att p50':>8} {'att p99':>8} {'att rx/exp':>13} {'alarms':>6} "
+          f"{'RSS MiB start/end/max':>22} {'gen core':>8} {'REST p50/max s':>14}")
     for r in rows:
         lost = r.sent - r.processed
-        print(f"{r.n:>5} {r.sent:>8} {r.received:>8} {r.processed:>9} {lost:>7} {r.queue_drops:>6} "
+        print(f"{r.n:>5} {r.shards:>2} {r.sent:>8} {r.received:>8} {r.processed:>9} {lost:>7} {r.queue_drops:>6} "
               f"{r.cpu_ms_per_packet:>10.3f} {r.attitude_p50_ms:>8.1f} {r.attitude_p99_ms:>8.1f} "
               f"{r.attitudes:>6}/{r.attitudes_expected:<6} "
               f"{r.alarms:>6} {r.rss_start_mib:>7.0f}/{r.rss_end_mib:>6.0f}/{r.rss_max_mib:>6.0f} "
-              f"{r.generator_core_share:>8.2f}")
+              f"{r.generator_core_share:>8.2f} {r.rest_p50_s:>6.2f}/{r.rest_max_s:<7.2f}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -360,6 +430,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--duration", type=float, default=30.0, help="measured seconds per fleet size (default 30)")
     p.add_argument("--warmup", type=float, default=8.0, help="seconds before measuring (filter warm-up; default 8)")
     p.add_argument("--samples-per-packet", type=int, default=5, help="samples per packet (default 5, as sim_rod)")
+    p.add_argument("--shards", type=int, nargs="+", default=[1],
+                   help="gateway shard processes (python -m gateway --shards S), each in turn (default 1)")
     p.add_argument("--procs", type=int, default=2, help="generator processes (default 2)")
     p.add_argument("--pool", type=int, default=16, help="distinct simulated streams per kind (default 16)")
     p.add_argument("--pool-seconds", type=float, default=20.0, help="length of each pooled stream (default 20 s)")
@@ -377,16 +449,18 @@ def main(argv: list[str] | None = None) -> int:
         pool_path = work / "pool.pickle"
         pool_path.write_bytes(pickle.dumps(pools))
         for n in args.counts:
-            print(f"N = {n}: {args.warmup:g} s warm-up + {args.duration:g} s measured ...", flush=True)
-            rows.append(run_one(n, args.hook_share, pools, pool_path, spp, args.procs, args.duration, args.warmup,
-                                work, args.encoding))  # fmt: skip
-            print_table(rows[-1:])
-            logs = (work / f"gw-{n}.log").read_text(errors="replace").strip().splitlines()
-            errors = [x for x in logs if "ERROR" in x or "Traceback" in x]
-            if errors:
-                print(f"  gateway log: {len(errors)} error lines, first: {errors[0][:160]}")
+            for sh in args.shards:
+                print(f"N = {n}, {sh} shard(s): {args.warmup:g} s warm-up + {args.duration:g} s measured ...",
+                      flush=True)  # fmt: skip
+                rows.append(run_one(n, args.hook_share, pools, pool_path, spp, args.procs, args.duration,
+                                    args.warmup, work, args.encoding, sh))  # fmt: skip
+                print_table(rows[-1:])
+                logs = (work / f"gw-{n}-{sh}.log").read_text(errors="replace").strip().splitlines()
+                errors = [x for x in logs if "ERROR" in x or "Traceback" in x]
+                if errors:
+                    print(f"  gateway log: {len(errors)} error lines, first: {errors[0][:160]}")
     print(f"\nfleet at {RATE_HZ:g} Hz, {spp} samples/packet, {args.encoding} IMU packets, {args.hook_share:.0%} hooks, "
-          f"{args.procs} generator process(es), {os.cpu_count()} cores; gateway = `python -m gateway` "
+          f"{args.procs} generator process(es), {os.cpu_count()} cores; gateway = `python -m gateway --shards S` "
           "(all its processes)")
     print_table(rows)
     if args.json:

@@ -218,7 +218,7 @@ def fuzz_zenoh(data_dir: Path, packets: int, seed: int = 0, valid_streams: int =
         "valid_ok": sum(devices[f"rod-{i + 1}"]["loss_fraction"] == 0.0 for i in range(valid_streams)),
         "valid_streams": valid_streams, "devices_known": len(devices), "health": health["status"],
         "invalid_tokens": stats["invalid_tokens"], "tick_devices": len(frame["devices"]),
-        "raw_buffers": len(live._raw), "rss_mb": (round(rss0, 1), round(rss1, 1)),
+        "raw_buffers": len(live._imu) + len(live._env), "rss_mb": (round(rss0, 1), round(rss1, 1)),
     }  # fmt: skip
 
 

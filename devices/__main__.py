@@ -99,6 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         rc = 130
     finally:
+        common.ignore_termination_signals()
         for p in procs.values():
             p.send_signal(signal.SIGTERM)
         for p in procs.values():

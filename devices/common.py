@@ -661,6 +661,13 @@ def stop_on_termination_signals() -> None:
         signal.signal(sig, _interrupt)
 
 
+def ignore_termination_signals() -> None:
+    """Once stopping: a repeated SIGTERM/SIGINT (a launcher and a process group both signalling) must not break
+    off the clean-up (closing the zenoh session, stopping children) with a traceback."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
+
+
 def run_main(
     make_fleet: Callable[[argparse.Namespace, FleetSettings], Fleet],
     args: argparse.Namespace,
@@ -676,6 +683,7 @@ def run_main(
         try:
             stats = run_fleet(session, fleet, settings)
         except KeyboardInterrupt:
+            ignore_termination_signals()
             return 130
     log.info(
         "%s: %d ticks, %d messages sent, %d lost, %d late ticks, %d commands",

@@ -45,6 +45,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "names; repeatable")  # fmt: skip
     s.add_argument("--allowed-origin", dest="allowed_origins", action="append", metavar="ORIGIN",
                    help="a browser origin (https://host:port) that may open /ws/stream without the token; repeatable")
+    h = p.add_argument_group("shards (docs/gateway.md, Shards)")
+    h.add_argument("--shards", type=int, metavar="N",
+                   help="gateway processes on this machine sharing the devices; with N > 1 this process is also the "
+                        "zenoh router the others connect to (default: one per core)")  # fmt: skip
+    h.add_argument("--shard-id", metavar="ID", help="this shard's id (default: host name and REST port)")
+    h.add_argument("--devices", dest="shard_devices", action="append", metavar="GLOB",
+                   help="serve only device ids matching this pattern, e.g. 'site1-*'; repeatable (default: all)")
+    h.add_argument("--shard-child", action="store_true", help=argparse.SUPPRESS)  # a local shard of --shards N
     p.add_argument("--max-devices", type=int, metavar="N",
                    help="devices the gateway keeps state for; further new ids are dropped and counted (default: 1000)")
     p.add_argument("--filter", dest="default_filter", help="default attitude filter for rods (default: default)")
@@ -80,7 +88,7 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
     names = ("data_dir", "http_host", "http_port", "zenoh_mode", "zenoh_listen", "zenoh_connect",
              "zenoh_multicast_scouting", "default_filter", "attitude_interval_s", "attitude_blocks",
              "warmup_bias_seed", "zenoh_config_file", "allowed_hosts", "allowed_origins",
-             "max_devices")  # fmt: skip
+             "max_devices", "shards", "shard_id", "shard_devices")  # fmt: skip
     overrides: dict[str, Any] = {n: getattr(args, n) for n in names if getattr(args, n) is not None}
     return Settings(**overrides)
 
@@ -124,19 +132,33 @@ def main(argv: list[str] | None = None) -> int:
     import uvicorn
 
     from gateway.app import create_app
+    from gateway.shard import launch
+
+    n_shards = launch.shard_count(settings)
+    update: dict[str, Any] = {"shard_id": settings.shard_id or launch.default_shard_id(settings)}
+    if settings.zenoh_mode == "client" and "zenoh_listen" not in settings.model_fields_set:
+        update["zenoh_listen"] = []  # a client reaches everything through its router (a shard on another machine)
+    if n_shards > 1 and settings.zenoh_mode == "peer":
+        update["zenoh_mode"] = "router"  # the local shards are its clients: it relays the devices' data to them
+    settings = settings.model_copy(update=update)
+    if args.shard_child:
+        launch.exit_with_parent()
 
     # uvicorn shuts down gracefully on SIGTERM, then re-raises it; with Python's default disposition that kills the
     # process before `finally`, orphaning the devices. As an exception it unwinds through the cleanup below.
     signal.signal(signal.SIGTERM, _terminate)
     devices: list[subprocess.Popen[bytes]] = []
+    shards = launch.start_local_shards(settings, str(settings.shard_id), n_shards - 1, args.log_level)
 
     def start_devices() -> None:  # when the gateway is ready: the simulators do not slow its warm-up
         devices.append(subprocess.Popen(device_command(settings, args.devices_args)))
 
     try:
-        app = create_app(settings, start_view3d=args.view3d, on_ready=start_devices if args.with_devices else None)
+        app = create_app(settings, start_view3d=args.view3d, on_ready=start_devices if args.with_devices else None,
+                         adopt_config=args.shard_child, announce=not args.shard_child)  # fmt: skip
         uvicorn.run(app, host=settings.http_host, port=settings.http_port, log_level="warning")
     finally:
+        launch.stop_local_shards(shards)
         for p in devices:
             p.terminate()
             try:

@@ -51,6 +51,17 @@ class Settings(BaseSettings):
                                      "IP literals, localhost, dotless and .local names (DNS-rebinding guard).")
     allowed_origins: list[str] = Field(default_factory=list, description="Browser origins (e.g. "
                                        "`https://ops.example`) that may open /ws/stream without the token.")
+    shards: int = Field(default=0, ge=0, le=64, description="Gateway shard processes on this machine (`--shards`); "
+                        "0: one per core. Each serves a share of the devices (docs/gateway.md, Shards).")
+    shard_id: str | None = Field(default=None, pattern=r"^[A-Za-z0-9_-]{1,64}$", description="This shard's id "
+                                 "(default: host name and REST port); the devices it serves follow from the ids.")
+    shard_devices: list[str] = Field(default_factory=list, description="Device-id glob patterns this shard serves "
+                                     "(`--devices 'site1-*'`, repeatable); empty: every device.")
+    shard_lease_s: float = Field(default=1.0, gt=0.0, le=60.0, description="zenoh lease of the shard's links: a "
+                                 "shard whose machine vanishes without closing its links leaves the live set then.")
+    shard_mirror_hz: float = Field(default=10.0, ge=0.0, le=100.0, description="Other shards' attitude and swing "
+                                   "messages handed to this shard's dashboard stream, at most this often per device "
+                                   "(0: none; their alarms always are).")
     zenoh_config_file: Path | None = Field(default=None, description="A zenoh JSON5 config file (TLS/mTLS, "
                                            "user/password, access control); the options above override its keys.")
 
@@ -230,10 +241,12 @@ def default_thresholds(kind: str) -> ThresholdModel:
 
 
 def effective_settings(
-    kind: str, device: DeviceSettings | None, settings: Settings, defaults: ThresholdModel | None = None
+    kind: str, device: DeviceSettings | None, default_filter: str, defaults: ThresholdModel | None = None
 ) -> tuple[str, ThresholdModel]:
-    """(filter name, thresholds) for one device: kind defaults <- device override; filter falls back to default."""
+    """(filter name, thresholds) of one device: the kind's defaults (`defaults`, else the model's) with the device's
+    override merged on top; its filter, else `default_filter` (the kind's: the pipeline passes the hook filter for
+    hooks). The one place configuration is merged (`Pipeline.effective` calls it)."""
     base = defaults if defaults is not None else default_thresholds(kind)
     if device is None:
-        return settings.default_filter, base
-    return device.filter_name or settings.default_filter, merge_thresholds(base, device.thresholds)
+        return default_filter, base
+    return device.filter_name or default_filter, merge_thresholds(base, device.thresholds)

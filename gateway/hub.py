@@ -1,7 +1,11 @@
 """Fan-out of pipeline results: zenoh outputs, the store (alarm history, through the `StoreWriter` thread), and
-in-process listeners (websocket, 3-D view). Alarms, reel commands, hook swing (at most 20 Hz per hook) and (opt-in)
-attitude blocks are published with CongestionControl.BLOCK; attitude and height with DROP (a newer sample follows
-shortly)."""
+in-process sinks (dashboard history and live stream, metrics, 3-D view), wired in `gateway.app`.
+
+Alarms (raised, cleared and acknowledged), reel commands, hook swing (at most 20 Hz per hook) and (opt-in) attitude
+blocks are published with CongestionControl.BLOCK, through the `BlockingPublisher` thread so a slow subscriber
+never stalls ingest; attitude and height with DROP (a newer sample follows shortly), coalesced to the newest per
+device per batch. Sinks get the typed outputs (`listeners`) and the decoded, accepted device packets
+(`packet_listeners`): nothing downstream parses a payload again."""
 
 from __future__ import annotations
 
@@ -11,10 +15,12 @@ import itertools
 import logging
 import time
 from collections.abc import Callable
+from typing import TypeVar
 
 from gateway import schemas
 from gateway.alarm.engine import Alarm
 from gateway.ingest.bus import Bus
+from gateway.ingest.publisher import BlockingPublisher
 from gateway.pipeline import AlarmOut, Output
 from gateway.store import StoreWriter
 
@@ -22,68 +28,88 @@ log = logging.getLogger("gateway.hub")
 
 Listener = Callable[[str, schemas.WireModel], None]
 """(topic, model): topic is `attitude`, `attitude_block`, `swing`, `height`, `alarm`, `spots` or `reel_cmd`."""
+PacketListener = Callable[[schemas.Packet], None]
+"""A decoded device packet the ingest task accepted (after sequence and time checks), before the pipeline."""
+STATE_OF_CHANGE = {"raised": "raised", "updated": "raised", "cleared": "cleared", "acknowledged": "acknowledged"}
 
 
 def alarm_event(out: AlarmOut, now_us: int) -> schemas.AlarmEvent:
-    """Wire event of an engine change: raised/updated -> `raised` (with the current severity), cleared -> `cleared`.
+    """Wire event of an engine change: raised/updated -> `raised` (with the current severity), cleared -> `cleared`,
+    acknowledged -> `acknowledged` (the message names who acknowledged it).
 
     `alarm_id` and `severity` are the engine's (= the store's) own; `t_us` is device time, `wall_t_us` = `now_us`.
     """
     a: Alarm = out.change.alarm
     return schemas.AlarmEvent(
         alarm_id=a.id, device_id=a.device_id, kind=out.kind, alarm=a.type,  # type: ignore[arg-type]
-        state="cleared" if out.change.kind == "cleared" else "raised", severity=a.severity.value,
-        t_us=out.t_us, wall_t_us=now_us, source_wall_us=out.source_wall_us,
-        value=a.value, threshold=a.threshold, message=a.message[:500],
+        state=STATE_OF_CHANGE[out.change.kind], severity=a.severity.value,  # type: ignore[arg-type]
+        t_us=out.t_us, wall_t_us=now_us, source_wall_us=out.source_wall_us, value=a.value, threshold=a.threshold,
+        message=(a.message if out.change.kind != "acknowledged" else f"acknowledged by {a.acknowledged_by}")[:500],
     )  # fmt: skip
 
 
 class Hub:
-    """Publishes and persists one `Output` at a time; `listeners` get every published model too."""
+    """Publishes and persists one `Output` at a time; `listeners` get every published model too. BLOCK puts go
+    through `publisher` (a thread) when given, else straight to the bus (tests on a MemoryBus)."""
 
-    def __init__(self, bus: Bus, writer: StoreWriter, clock: Callable[[], float] = time.time) -> None:
+    def __init__(
+        self, bus: Bus, writer: StoreWriter, publisher: BlockingPublisher | None = None,
+        clock: Callable[[], float] = time.time,
+    ) -> None:  # fmt: skip
         self.bus = bus
         self.writer = writer
+        self.publisher = publisher
         self.clock = clock
         self.listeners: list[Listener] = []
+        self.packet_listeners: list[PacketListener] = []
         self._cmd_ids = itertools.count(int(clock()) % 1_000_000 * 1000)
         self.published = 0
 
-    def _put(self, key: str, topic: str, model: schemas.WireModel, *, block: bool = False) -> None:
-        self.bus.put(key, model.to_json(), encoding=schemas.ENCODING_GW, block=block)
+    def _send(self, key: str, payload: bytes, encoding: str, block: bool) -> None:
+        if block and self.publisher is not None:
+            self.publisher.put(key, payload, encoding)
+        else:
+            self.bus.put(key, payload, encoding=encoding, block=block)
+
+    def _put(self, topic: schemas.Topic, model: schemas.WireModel, kind: str | None = None,
+             device_id: str | None = None) -> None:  # fmt: skip
+        """Publish on the topic's key with the row's encoding and congestion control (BLOCK or DROP)."""
+        self._send(topic.key(kind, device_id), model.to_json(), topic.encoding, topic.block)
         self.published += 1
         for cb in self.listeners:
             try:
-                cb(topic, model)
+                cb(topic.name, model)
             except Exception:
-                log.exception("listener failed on %s", topic)
+                log.exception("listener failed on %s", topic.name)
 
     def emit(self, out: Output) -> None:
         """Alarms first (they matter most and are rare), then reel commands, attitude, attitude blocks (BLOCK: a
-        scoring run or a full-rate recording must not lose samples), swing, height, spots."""
+        scoring run or a full-rate recording must not lose samples), swing, height, spots. Attitude and height (DROP,
+        "the latest" by protocol) are coalesced: one put per device per batch, its newest."""
         now_us = int(self.clock() * 1e6)
         for al in out.alarms:
             # Publish first, then hand the row to the writer thread: a failing disk must cost no alarm (it retries
-            # the write from its journal) and the event loop never waits on SQLite.
-            if al.change.kind != "acknowledged":
-                try:
-                    self._put(schemas.alarm_key(al.kind, al.change.alarm.device_id), "alarm", alarm_event(al, now_us),
-                              block=True)  # fmt: skip
-                except Exception:
-                    log.exception("alarm %s of %s not published", al.change.alarm.type, al.change.alarm.device_id)
+            # the write from its journal) and the event loop never waits on SQLite. The store row is the engine's
+            # record (the authority), acknowledgements included.
+            try:
+                self._put(schemas.T_ALARM, alarm_event(al, now_us), al.kind, al.change.alarm.device_id)
+            except Exception:
+                log.exception("alarm %s of %s not published", al.change.alarm.type, al.change.alarm.device_id)
             self.writer.upsert_alarm(al.change.alarm)
         for device_id, fields in out.reel_commands:
             self.send_reel(device_id, sender="auto", **fields)
-        for a in out.attitudes:
-            self._put(schemas.attitude_key(a.kind, a.device_id), "attitude", a)
+        for a in _newest_per_device(out.attitudes):
+            self._put(schemas.T_ATTITUDE, a, a.kind, a.device_id)
         for b in out.attitude_blocks:
-            self._put(schemas.attitude_block_key(b.kind, b.device_id), "attitude_block", b, block=True)
-        for s in out.swings:  # BLOCK: at <= 20 Hz per hook, a crane app must not lose any (docs/protocol.md)
-            self._put(schemas.swing_key(s.device_id), "swing", s, block=True)
-        for h in out.heights:
-            self._put(schemas.height_key(h.kind, h.device_id), "height", h)
+            self._put(schemas.T_ATTITUDE_BLOCK, b, b.kind, b.device_id)
+        for s in out.swings:  # BLOCK (its row): at <= 20 Hz per hook, a crane app must not lose any
+            self._put(schemas.T_SWING, s, "hook", s.device_id)
+        for h in _newest_per_device(out.heights):
+            self._put(schemas.T_HEIGHT, h, h.kind, h.device_id)
         if out.spots is not None:
-            self._put(schemas.SPOTS_KEY, "spots", out.spots)
+            self._put(schemas.T_SPOTS, out.spots)
+        for e in out.extra:  # a kind's own topics (docs/design.md, "Adding a device kind")
+            self._put(e.topic, e.model, e.kind, e.device_id)
 
     def send_reel(
         self, device_id: str, action: str, speed_m_s: float | None = None, drag_n: float | None = None,
@@ -94,10 +120,34 @@ class Hub:
             v=1, cmd_id=next(self._cmd_ids) % schemas.UINT32, action=action,  # type: ignore[arg-type]
             speed_m_s=speed_m_s, drag_n=drag_n, sent_wall_us=int(self.clock() * 1e6), sender=sender,
         )  # fmt: skip
-        self.bus.put(schemas.reel_cmd_key(device_id), cmd.to_json(), encoding=schemas.ENCODING_REEL_CMD, block=True)
+        t = schemas.T_REEL_CMD
+        self._send(t.key("rod", device_id), cmd.to_json(), t.encoding, t.block)
         for cb in self.listeners:
             cb("reel_cmd", cmd)
         return cmd
+
+    def emit_packets(self, packets: list[schemas.Packet]) -> None:
+        """Hand the batch's accepted packets to the packet sinks (live stream, 3-D view): decoded once, here."""
+        for cb in self.packet_listeners:
+            for p in packets:
+                try:
+                    cb(p)
+                except Exception:
+                    log.exception("packet listener failed on %s", type(p).__name__)
+
+
+_M = TypeVar("_M", schemas.Attitude, schemas.Height)
+
+
+def _newest_per_device(models: list[_M]) -> list[_M]:
+    """The last model of each device, in the order of those last ones (outputs come oldest first)."""
+    if len(models) < 2:
+        return models
+    newest: dict[str, _M] = {}
+    for m in models:
+        newest.pop(m.device_id, None)
+        newest[m.device_id] = m
+    return list(newest.values())
 
 
 class HubSink:
@@ -106,8 +156,12 @@ class HubSink:
     `stop` register/unregister and start/cancel both, on the event loop."""
 
     _task: asyncio.Task[None] | None = None
+    wants_packets = False  # True: `on_packet` gets every accepted device packet too
 
     def on_hub(self, topic: str, model: schemas.WireModel) -> None:
+        raise NotImplementedError
+
+    def on_packet(self, packet: schemas.Packet) -> None:
         raise NotImplementedError
 
     async def run(self) -> None:
@@ -116,12 +170,16 @@ class HubSink:
     def start_sink(self, hub: Hub) -> None:
         self._hub = hub
         hub.listeners.append(self.on_hub)
+        if self.wants_packets:
+            hub.packet_listeners.append(self.on_packet)
         self._task = asyncio.get_running_loop().create_task(self.run())
 
     async def stop(self) -> None:
         hub: Hub | None = getattr(self, "_hub", None)
         if hub is not None and self.on_hub in hub.listeners:
             hub.listeners.remove(self.on_hub)
+        if hub is not None and self.wants_packets and self.on_packet in hub.packet_listeners:
+            hub.packet_listeners.remove(self.on_packet)
         if self._task is not None:
             self._task.cancel()
             with contextlib.suppress(asyncio.CancelledError):

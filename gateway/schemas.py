@@ -451,14 +451,15 @@ class Height(WireModel):
     aided: Literal["rest", "depth", "highpass", "none"]
 
 
-AlarmState: TypeAlias = Literal["raised", "cleared"]
+AlarmState: TypeAlias = Literal["raised", "cleared", "acknowledged"]
 Severity: TypeAlias = Literal["critical", "major", "minor", "warning", "indeterminate"]
 SEVERITIES: Final[tuple[str, ...]] = ("critical", "major", "minor", "warning", "indeterminate")  # most severe first
 AlarmId = Annotated[str, Field(pattern=DEVICE_ID_PATTERN)]
 
 
 class AlarmEvent(WireModel):
-    """An alarm raised (or updated: `raised` again, e.g. with a new severity) or cleared.
+    """An alarm raised (or updated: `raised` again, e.g. with a new severity), acknowledged (still active) or
+    cleared.
 
     `alarm_id` is the gateway's alarm id, the same string as REST `/api/alarms` `id` (acknowledge it with
     `POST /api/alarms/{alarm_id}/ack`). Times: `t_us` is the device clock of the sample that raised, updated or

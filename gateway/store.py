@@ -11,6 +11,8 @@ inspected without leaking it; anyone who can read the file already owns the gate
 
 from __future__ import annotations
 
+import collections
+import concurrent.futures
 import hmac
 import itertools
 import json
@@ -27,7 +29,7 @@ from collections.abc import Callable, Hashable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from gateway.alarm.engine import Alarm, AlarmStatus, Severity
 from gateway.alarm.rules import SPECS
@@ -385,6 +387,7 @@ class ApiToken:
 # -- the ingest side's writer ---------------------------------------------------------------------------------------
 
 log = logging.getLogger("gateway.store")
+T = TypeVar("T")
 
 
 class StoreWriter:
@@ -395,7 +398,8 @@ class StoreWriter:
     every `retry_s` until it succeeds; later writes wait behind it, so order is kept (a raise is never stored after
     its clear). Upserts of one alarm replace each other in the journal (the newest row is the one to store), so an
     outage keeps one entry per alarm, not one per update; past `max_pending` the oldest entry is dropped and counted.
-    `status()` is what /api/health reports.
+    `status()` is what /api/health reports. REST configuration writes go through `call` on the same thread (once,
+    ahead of the journal, their result or error back to the caller): SQLite has one writer.
     """
 
     def __init__(self, store: Store, max_pending: int = 10_000, retry_s: float = 1.0) -> None:
@@ -408,6 +412,8 @@ class StoreWriter:
         self.last_error: str | None = None
         self._ops: OrderedDict[Hashable, Callable[[Store], object]] = OrderedDict()
         self._seq = itertools.count()
+        self._calls: collections.deque[tuple[Callable[[Store], Any], concurrent.futures.Future[Any]]] = (
+            collections.deque())  # fmt: skip
         self._cond = threading.Condition()
         self._stop = False
         self._busy = False
@@ -424,6 +430,33 @@ class StoreWriter:
         payload = dict(payload or {})
         self._put(("event", next(self._seq)), lambda s: s.log_event(t, kind, device_id, payload))
 
+    def call(self, op: Callable[[Store], T]) -> concurrent.futures.Future[T]:
+        """Run `op(store)` once on the writer thread, before the journal's pending writes (a retried failing write
+        must not hold a REST request); its result or exception lands in the future (`asyncio.wrap_future` it)."""
+        fut: concurrent.futures.Future[T] = concurrent.futures.Future()
+        with self._cond:
+            if self._stop:
+                fut.set_exception(RuntimeError("store writer stopped"))
+                return fut
+            self._calls.append((op, fut))
+            self._cond.notify_all()
+        return fut
+
+    def _run_call(self) -> None:
+        with self._cond:
+            op, fut = self._calls.popleft()
+            self._busy = True
+        try:
+            if fut.set_running_or_notify_cancel():
+                try:
+                    fut.set_result(op(self.store))
+                except Exception as exc:
+                    fut.set_exception(exc)
+        finally:
+            with self._cond:
+                self._busy = False
+                self._cond.notify_all()
+
     def _put(self, key: Hashable, op: Callable[[Store], object]) -> None:
         with self._cond:
             self._ops[key] = op  # an alarm already pending keeps its place and gets the newest row
@@ -435,10 +468,20 @@ class StoreWriter:
     def _run(self) -> None:
         while True:
             with self._cond:
-                while not self._ops and not self._stop:
+                while not self._ops and not self._calls and not self._stop:
                     self._cond.wait()
-                if not self._ops:
+                if self._calls:
+                    run_call = True
+                elif not self._ops:
                     return
+                else:
+                    run_call = False
+            if run_call:
+                self._run_call()
+                continue
+            with self._cond:
+                if not self._ops:
+                    continue
                 key, op = next(iter(self._ops.items()))
                 self._busy = True
             try:
@@ -455,7 +498,7 @@ class StoreWriter:
                                   self.retry_s, self.last_error)  # fmt: skip
                     if self._stop:
                         return
-                    self._cond.wait(self.retry_s)
+                    self._cond.wait_for(lambda: bool(self._calls) or self._stop, self.retry_s)
                 continue
             with self._cond:
                 self._busy = False
@@ -471,7 +514,7 @@ class StoreWriter:
         """Wait until every pending write is stored; False on timeout (the store is failing)."""
         deadline = time.monotonic() + timeout_s
         with self._cond:
-            while self._ops or self._busy:
+            while self._ops or self._calls or self._busy:
                 left = deadline - time.monotonic()
                 if left <= 0 or not self._thread.is_alive():
                     return False
@@ -485,6 +528,9 @@ class StoreWriter:
             self._stop = True
             self._cond.notify_all()
         self._thread.join(timeout_s)
+        with self._cond:
+            while self._calls:  # not run: the caller must not wait for ever
+                self._calls.popleft()[1].set_exception(RuntimeError("store writer stopped"))
 
     def status(self) -> dict[str, Any]:
         """Health of the write path: `ok` False while writes fail or wait; `reason` says why."""

@@ -5,8 +5,9 @@ Geometry is pure (`rod_curve`, `hook_geometry`, `raw_attitude`); `View3D` owns a
 a 20 Hz update thread. `python -m gateway` starts it with the gateway (`start_view3d`); in-process apps start it on
 the first `GET /view3d` (the dashboard's link), so tests that never open it pay nothing; the lifespan stops it.
 
-Inputs: fused attitude and swing from the hub (listener on the ingest task, stores the latest values only), raw
-IMU and ground truth (`rig/{kind}/{id}/truth`) from bus subscriptions whose callbacks only keep the latest bytes.
+Inputs: fused attitude and swing from the hub, and the raw IMU packets ingest decoded (hub sinks on the ingest task
+that keep the latest values of devices with a fused attitude only); ground truth (`rig/{kind}/{id}/truth`, which
+only simulators publish and ingest does not read) from a bus subscription whose callback keeps the latest bytes.
 Scene frames are ENU (viser's z is up, as ours). Quaternions are wxyz body->earth, which is what viser takes.
 """
 
@@ -162,7 +163,7 @@ class View3D:
         self.server.gui.configure_theme(show_share_button=False, dark_mode=False)
         self.rate_hz = rate_hz
         self.devices: dict[str, DeviceView] = {}
-        self._raw: dict[str, bytes] = {}
+        self._imu: dict[str, schemas.ImuPacket] = {}
         self._truth: dict[str, bytes] = {}
         self._nodes: dict[str, dict[str, Any]] = {}
         self._slots: dict[str, int] = {}
@@ -205,8 +206,10 @@ class View3D:
                 "direction_deg": math.degrees(model.swing_direction_rad),
             }  # fmt: skip
 
-    def on_raw(self, key: str, payload: bytes) -> None:
-        self._keep(self._raw, key, payload)
+    def on_packet(self, packet: schemas.Packet) -> None:
+        """Hub packet sink: the newest IMU packet of each device with a fused attitude (for the raw layer)."""
+        if isinstance(packet, schemas.ImuPacket) and packet.device_id in self.devices:
+            self._imu[packet.device_id] = packet
 
     def on_truth(self, key: str, payload: bytes) -> None:
         self._keep(self._truth, key, payload)
@@ -226,7 +229,7 @@ class View3D:
 
         self.swing_limit_deg = swing_limit_deg
         service.hub.listeners.append(self.on_hub)
-        service.bus.subscribe(schemas.SEL_IMU, self.on_raw)
+        service.hub.packet_listeners.append(self.on_packet)
         service.bus.subscribe(schemas.SEL_TRUTH, self.on_truth)
 
     # scene updates (own thread; viser handles may be set from any thread)
@@ -338,9 +341,11 @@ class View3D:
             if not on:
                 continue
             raw_q = None
-            acc = self._latest(self._raw, device_id, "acc_m_s2")
-            if self.show_raw.value and acc is not None and np.linalg.norm(acc) > 1e-6:
-                raw_q = raw_attitude(acc, self._latest(self._raw, device_id, "mag_uT"))
+            imu = self._imu.get(device_id)
+            acc = None if imu is None else np.asarray(imu.acc_m_s2[-1], dtype=np.float64)
+            if self.show_raw.value and imu is not None and acc is not None and np.linalg.norm(acc) > 1e-6:
+                mag = None if imu.mag_uT is None else np.asarray(imu.mag_uT[-1], dtype=np.float64)
+                raw_q = raw_attitude(acc, mag)
             truth = self._latest(self._truth, device_id, "quat_wxyz")
             self._place(nodes, "fused", d.kind, d.fused, d, self.show_fused.value)
             self._place(nodes, "raw", d.kind, raw_q, d, self.show_raw.value)
@@ -431,7 +436,7 @@ def open_view3d(request: Request) -> RedirectResponse:
 
 
 @router.get("/api/view3d", tags=["health"])
-def view3d_info(request: Request) -> dict[str, Any]:
+async def view3d_info(request: Request) -> dict[str, Any]:
     """Whether the 3-D view runs, its port and scene updates so far."""
     view: View3D | None = getattr(request.app.state, "view3d", None)
     if view is None:

@@ -23,15 +23,19 @@ def test_pool_bodies_decode_as_imu_packets() -> None:
     assert isinstance(p, schemas.ImuPacket) and p.n == 5 and p.seq == 3
 
 
-def test_small_fleet_through_the_gateway(tmp_path: Path) -> None:
-    """4 devices for 3 s: every device reaches the gateway, nearly every packet is processed, attitudes arrive."""
+@pytest.mark.parametrize("shards", [1, 2])
+def test_small_fleet_through_the_gateway(tmp_path: Path, shards: int) -> None:
+    """4 devices for 3 s: every device reaches the gateway (with 2 shards: the counts of both are summed), nearly
+    every packet is processed, attitudes arrive."""
     pools = {k: fleet.build_pool(k, 2, 2.0, 5, seed=1) for k in ("rod", "hook")}
     pool_path = tmp_path / "pool.pickle"
     import pickle
 
     pool_path.write_bytes(pickle.dumps(pools))
-    row = fleet.run_one(4, 0.25, pools, pool_path, 5, 1, duration_s=3.0, warmup_s=1.0, work=tmp_path)
-    assert row.sent == 4 * 4.0 * 20  # 4 devices x (1 + 3) s x 20 packets/s
+    row = fleet.run_one(4, 0.25, pools, pool_path, 5, 1, duration_s=3.0, warmup_s=2.0, work=tmp_path,
+                       shards=shards)  # fmt: skip
+    assert row.shards == shards
+    assert row.sent == 4 * 5.0 * 20  # 4 devices x (2 + 3) s x 20 packets/s
     assert row.devices_seen == 4
     assert row.processed >= 0.98 * row.sent, row
     assert row.attitudes > 0 and row.attitude_p99_ms == row.attitude_p99_ms  # measured, not NaN

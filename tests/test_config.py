@@ -18,6 +18,7 @@ from gateway.config import (
     effective_settings,
     merge_thresholds,
 )
+from gateway.pipeline import Pipeline
 
 
 def test_defaults(monkeypatch, tmp_path):
@@ -90,11 +91,13 @@ def test_merge_and_effective_settings():
         merge_thresholds(base, {"line_limit_deg": 10.0})
     with pytest.raises(ValidationError, match="extra"):
         merge_thresholds(base, {"no_such_field": 1})
-    s = Settings()
-    assert effective_settings("rod", None, s) == ("default", RodThresholds())
-    name, th = effective_settings("rod", DeviceSettings(filter_name="ekf", thresholds={"sensitivity": 1}), s, base)
+    assert effective_settings("rod", None, "default") == ("default", RodThresholds())
+    name, th = effective_settings("rod", DeviceSettings(filter_name="ekf", thresholds={"sensitivity": 1}), "default",
+                                  base)
     assert name == "ekf" and th == RodThresholds(bite_deviation_deg=8.0, sensitivity=1)
-    assert effective_settings("hook", DeviceSettings(), s)[0] == "default"
+    # the kind's default filter is the caller's (the pipeline gives hooks the hook filter), no second copy here
+    assert effective_settings("hook", DeviceSettings(), "hook")[0] == "hook"
+    assert Pipeline().effective("hook", "h-1") == effective_settings("hook", None, "hook")
 
 
 def test_threshold_kinds_are_the_wire_kinds():

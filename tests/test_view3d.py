@@ -112,8 +112,9 @@ def _free_port() -> int:
 
 
 def test_scene_follows_attitude_truth_and_picker(tmp_path: Path) -> None:
-    """Feed the view like the hub and the bus do; one step() draws the picked rod from the fused quaternion and
-    the truth ghost from the truth packet; the picker lists the devices; raw appears when switched on."""
+    """Feed the view like the hub (outputs, decoded packets) and the bus (truth) do; one step() draws the picked
+    rod from the fused quaternion and the truth ghost from the truth packet; the picker lists the devices; raw appears
+    when switched on."""
     view = View3D(Settings(viser_port=_free_port(), data_dir=tmp_path))
     try:
         q = quat.from_euler(0.0, math.radians(20), 0.5)
@@ -122,7 +123,8 @@ def test_scene_follows_attitude_truth_and_picker(tmp_path: Path) -> None:
         view.on_hub("attitude", att)
         q_truth = quat.from_euler(0.0, math.radians(25), 0.4)
         view.on_truth("rig/rod/rod-1/truth", json.dumps({"quat_wxyz": [list(q_truth)]}).encode())
-        view.on_raw("rig/rod/rod-1/imu", json.dumps({"acc_m_s2": [[0.0, 0.0, 9.81]]}).encode())
+        view.on_packet(schemas.ImuPacket(v=1, device_id="rod-1", kind="rod", boot_id=1, seq=1, t0_us=0, rate_hz=100.0,
+                                         gyr_rad_s=[(0.0, 0.0, 0.0)], acc_m_s2=[(0.0, 0.0, 9.81)]))  # fmt: skip
         view.step()
         assert tuple(view.pick.options) == (ALL, "rod-1") and view.pick.value == ALL  # every device shown
         nodes = view._nodes["rod-1"]

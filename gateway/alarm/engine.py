@@ -184,6 +184,19 @@ class AlarmEngine:
         rows = [a for a in self._active.values() if device_id is None or a.device_id == device_id]
         return sorted(rows, key=lambda a: (-a.severity.rank, a.started_at))
 
+    def resume(self, alarms: Iterable[Alarm]) -> None:
+        """Take over active alarms raised elsewhere (a gateway shard that served their device before, from the
+        store), as the constructor does after a restart: they update and clear here instead of being raised again."""
+        for a in alarms:
+            if a.active:
+                self._active.setdefault((a.device_id, a.type), a)
+
+    def release(self, device_id: str) -> list[Alarm]:
+        """Stop holding a device's active alarms without clearing them (another shard serves the device now and
+        resumes them); returns them."""
+        keys = [k for k in self._active if k[0] == device_id]
+        return [self._active.pop(k) for k in keys]
+
     def forget_device(self, device_id: str, t_s: float) -> list[AlarmChange]:
         """Clear every active alarm of a device (e.g. removed from the gateway)."""
         keys = [k for k in self._active if k[0] == device_id]

@@ -6,9 +6,10 @@ every client. A `tick` frame (every `tick_s`) carries the device cards, the buff
 the raw acceleration of each rod and the spot ranking. Each client owns a `ClientQueue` of encoded frames: when it
 is full the OLDEST frame is dropped and counted, so a slow browser sees a gap, never a stall of ingest.
 
-Raw IMU, reel and environment packets come from a second bus subscription whose callback (a zenoh thread) only
-appends the payload bytes to a short per-key deque; they are parsed at tick time and only while a client is
-connected. Frames are JSON objects with a `type`: `hello`, `tick`, `alarm`, `reel_cmd`.
+Raw IMU and environment readings come from the hub too, as the packets ingest decoded and accepted (`on_packet`,
+wired in `gateway.app`): a short deque of packet references per known device, summarised at tick time only while
+a client is connected; nothing here parses a payload. Frames are JSON objects with a `type`: `hello`, `tick`,
+`alarm`, `reel_cmd`.
 """
 
 from __future__ import annotations
@@ -27,12 +28,11 @@ import numpy as np
 from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect
 
 from gateway import schemas
-from gateway.api.routes.devices import device_view
-from gateway.api.routes.history import plot_point
 from gateway.api.security import origin_allowed
 from gateway.hub import HubSink
 from gateway.ingest.runner import GatewayService
 from gateway.store import ApiToken
+from gateway.views import device_view, plot_point
 
 log = logging.getLogger("gateway.ws")
 router = APIRouter()
@@ -71,16 +71,14 @@ class ClientQueue:
 class LiveSettings:
     """Stream rates and bounds. `tick_s`: period of tick frames; `series_max`: samples kept per device between
     ticks (older ones are dropped); `raw_packets`: raw packets kept per key between ticks; `cards_every`: ticks between
-    full device cards (the other ticks carry only the new samples); `max_raw_keys`, `unknown_raw_bytes`: see
-    `LiveStream.on_raw`."""
+    full device cards (the other ticks carry only the new samples); `max_raw_keys`: devices with raw packets kept."""
 
     queue_size: int = 256
     tick_s: float = 0.1
     cards_every: int = 5  # full device cards and the spot ranking every this many ticks (2 Hz)
     series_max: int = 200
     raw_packets: int = 8
-    max_raw_keys: int = 512  # raw buffers (one per known device's imu/env key)
-    unknown_raw_bytes: int = 4 * 1024 * 1024  # raw payloads of not (yet) known devices kept between two ticks
+    max_raw_keys: int = 2048  # raw buffers (one per known device)
 
 
 @dataclass
@@ -107,33 +105,25 @@ def _finite(x: Any) -> float | None:
     return float(x) if isinstance(x, int | float) and math.isfinite(x) else None
 
 
-def raw_imu_summary(payloads: list[bytes], now_s: float) -> dict[str, Any]:
-    """One acceleration point per raw IMU packet (oldest first) plus the link fields of the newest.
+def raw_imu_summary(packets: list[schemas.ImuPacket], now_s: float) -> dict[str, Any]:
+    """One acceleration point per IMU packet (oldest first) plus the link fields of the newest.
 
     Point = mean of the packet's samples per axis (m/s²) and the PEAK |a| over its samples (so a short shock
     stays visible at packet rate), at the time of the packet's last sample: `wall_t0_us + (n-1)/rate_hz`, or
-    `now_s - 1/rate_hz` when the packet carries no wall time. Non-finite or malformed rows are skipped."""
+    `now_s - 1/rate_hz` when the packet carries no wall time. Non-finite rows are skipped."""
     t: list[float] = []
     ax: list[float] = []
     ay: list[float] = []
     az: list[float] = []
     peak: list[float] = []
     link: dict[str, Any] = {}
-    for raw in payloads:
-        try:
-            p = json.loads(raw)
-            rate = float(p["rate_hz"])
-            acc = np.asarray(p["acc_m_s2"], dtype=np.float64)
-            t0 = p.get("wall_t0_us")
-        except (ValueError, KeyError, TypeError, RecursionError):  # RecursionError: deeply nested arrays
-            continue
-        if acc.ndim != 2 or acc.shape[1] != 3 or rate <= 0:
-            continue
+    for p in packets:
+        acc = np.asarray(p.acc_m_s2, dtype=np.float64).reshape(-1, 3)
         n = acc.shape[0]
         acc = acc[np.all(np.isfinite(acc), axis=1)]
         if not len(acc):
             continue
-        end = t0 / 1e6 + (n - 1) / rate if isinstance(t0, int | float) else now_s - 1.0 / rate
+        end = p.wall_t0_us / 1e6 + (n - 1) / p.rate_hz if p.wall_t0_us is not None else now_s - 1.0 / p.rate_hz
         mean = acc.mean(axis=0)
         t.append(round(end, 3))
         ax.append(round(float(mean[0]), 4))
@@ -141,13 +131,15 @@ def raw_imu_summary(payloads: list[bytes], now_s: float) -> dict[str, Any]:
         az.append(round(float(mean[2]), 4))
         peak.append(round(float(np.sqrt((acc * acc).sum(axis=1)).max()), 4))
         for k in ("battery_v", "rssi_dbm", "temp_c"):
-            if _finite(p.get(k)) is not None:
-                link[k] = p[k]
+            if _finite(getattr(p, k)) is not None:
+                link[k] = getattr(p, k)
     return {"acc": {"t_s": t, "ax": ax, "ay": ay, "az": az, "norm": peak}, "link": link}
 
 
 class LiveStream(HubSink):
     """Fans pipeline results and sampled device state out to dashboard clients (see module docstring)."""
+
+    wants_packets = True
 
     def __init__(self, service: GatewayService, settings: LiveSettings | None = None) -> None:
         self.service = service
@@ -156,10 +148,10 @@ class LiveStream(HubSink):
         self.alarm_seq = 0
         self.ticks = 0
         self._series: dict[str, _Series] = {}
-        self._raw: dict[str, collections.deque[bytes]] = {}
+        self._imu: dict[str, collections.deque[schemas.ImuPacket]] = {}
+        self._env: dict[str, schemas.EnvPacket] = {}
         self.entry_failures = 0
         self._entry_fail_logged_s = -math.inf
-        self._unknown_bytes = 0
 
     # -- producers --------------------------------------------------------------------------------------------
 
@@ -180,45 +172,33 @@ class LiveStream(HubSink):
             s = self._series[device_id] = _Series(collections.deque(maxlen=self.settings.series_max))
         return s
 
-    def on_raw(self, key: str, payload: bytes) -> None:
-        """Bus callback (zenoh thread): keep the payload, nothing else. Anyone can publish on `rig/*/*/imu`, and a
-        buffer per arbitrary key used to keep rejected payloads forever (150 keys of large payloads: +700 MB), so:
-        at most `max_raw_keys` buffers, payloads of devices the pipeline does not know (yet: a new device's first
-        packets) only up to `unknown_raw_bytes` between two ticks, and each tick drops their buffers (`prune_raw`)."""
-        if len(payload) > schemas.MAX_PAYLOAD_BYTES:  # ingest rejects it too
-            return
-        parts = key.split("/")
-        if len(parts) != 4:
-            return
-        if parts[2] not in self.service.pipeline.kinds:
-            if self._unknown_bytes + len(payload) > self.settings.unknown_raw_bytes:
-                return
-            self._unknown_bytes += len(payload)
-        q = self._raw.get(key)
-        if q is None:
-            if len(self._raw) >= self.settings.max_raw_keys:
-                return
-            q = self._raw.setdefault(key, collections.deque(maxlen=self.settings.raw_packets))
-        q.append(payload)
+    def on_packet(self, packet: schemas.Packet) -> None:
+        """Hub packet sink (ingest task): keep a reference to the newest IMU packets / environment reading of the
+        device (already decoded and accepted: a device ingest knows); at most `max_raw_keys` devices."""
+        if isinstance(packet, schemas.ImuPacket):
+            q = self._imu.get(packet.device_id)
+            if q is None:
+                if len(self._imu) >= self.settings.max_raw_keys:
+                    return
+                q = self._imu[packet.device_id] = collections.deque(maxlen=self.settings.raw_packets)
+            q.append(packet)
+        elif isinstance(packet, schemas.EnvPacket):
+            if packet.device_id in self._env or len(self._env) < self.settings.max_raw_keys:
+                self._env[packet.device_id] = packet
 
     def prune_raw(self) -> None:
-        """Drop the raw buffers of devices the pipeline does not know (event loop, every tick)."""
+        """Drop the raw buffers of devices the pipeline no longer knows (event loop, every tick)."""
         kinds = self.service.pipeline.kinds
-        for key in list(self._raw):
-            if key.split("/")[2] not in kinds:
-                self._raw.pop(key, None)
-        self._unknown_bytes = 0
+        for buffers in (self._imu, self._env):
+            for device_id in [d for d in buffers if d not in kinds]:
+                del buffers[device_id]
 
-    def _take_raw(self, key: str) -> list[bytes]:
-        q = self._raw.get(key)
+    def _take_imu(self, device_id: str) -> list[schemas.ImuPacket]:
+        q = self._imu.get(device_id)
         if not q:
             return []
-        out = []
-        while q:
-            try:
-                out.append(q.popleft())
-            except IndexError:
-                break
+        out = list(q)
+        q.clear()
         return out
 
     # -- frames -----------------------------------------------------------------------------------------------
@@ -261,15 +241,15 @@ class LiveStream(HubSink):
         s = self._series.get(device_id)
         entry["series"] = s.take() if s is not None else {"t_s": []}
         if kind in schemas.IMU_KINDS:
-            raw = raw_imu_summary(self._take_raw(schemas.imu_key(kind, device_id)), now_s)
+            raw = raw_imu_summary(self._take_imu(device_id), now_s)
             entry["acc"] = raw["acc"]
             if raw["link"]:
                 entry["link"] = raw["link"]
         elif kind == "ball" and full:
-            for raw_env in self._take_raw(schemas.env_key(device_id))[-1:]:
-                with contextlib.suppress(ValueError):
-                    p = json.loads(raw_env)
-                    entry["link"] = {k: p[k] for k in ("battery_v", "rssi_dbm") if _finite(p.get(k)) is not None}
+            env = self._env.pop(device_id, None)
+            if env is not None:
+                entry["link"] = {k: getattr(env, k) for k in ("battery_v", "rssi_dbm")
+                                 if _finite(getattr(env, k)) is not None}  # fmt: skip
         return entry
 
     async def run(self) -> None:
@@ -289,9 +269,7 @@ class LiveStream(HubSink):
                 log.exception("tick failed")
 
     def start(self) -> None:
-        """Subscribe to raw device data and start ticking (call on the event loop after the service started)."""
-        for sel in (schemas.SEL_IMU, schemas.SEL_ENV):
-            self.service.bus.subscribe(sel, self.on_raw)
+        """Register with the hub and start ticking (call on the event loop after the service started)."""
         self.start_sink(self.service.hub)
 
 
@@ -344,8 +322,9 @@ async def stream(ws: WebSocket) -> None:
 
 
 @router.get("/api/live", tags=["health"])
-def live_stats(request: Request) -> dict[str, Any]:
-    """Dashboard stream: connected clients, frames dropped for slow clients, ticks sent."""
+async def live_stats(request: Request) -> dict[str, Any]:
+    """Dashboard stream: connected clients, frames dropped for slow clients, ticks sent (read on the event loop,
+    which owns the stream's state)."""
     live: LiveStream = request.app.state.live
     return {"clients": len(live.clients), "dropped": sum(c.dropped for c in live.clients), "ticks": live.ticks,
             "alarm_seq": live.alarm_seq, "queue_size": live.settings.queue_size}  # fmt: skip

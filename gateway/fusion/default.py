@@ -28,7 +28,10 @@ class DefaultSettings:
 
     tau_acc_s: float = 2.5  # specific force low-pass in the almost-inertial frame: rejects external acceleration
     tau_mag_s: float = 20.0  # heading correction time constant (steady state; faster after a rejection)
-    rest_tau_s: float = 0.5  # low-pass of gyro/acc for rest detection
+    # low-pass of gyro/acc for rest detection: VQF's 0.5 s. VQF's time constants mean fc = √2/(2π tau) (its tau_acc
+    # 3 s is 3/√2 = 2.12 s here); taken over unconverted, 0.5 s smoothed the rest gyro more than VQF does and let
+    # the start of motion leak into the rest-bias estimate for longer (docs/fusion.md, "rest detection")
+    rest_tau_s: float = 0.5 / math.sqrt(2.0)
     rest_gyr_th_deg_s: float = 2.0  # a sample deviating more from the low-pass is motion
     rest_acc_th_m_s2: float = 0.5
     rest_min_s: float = 1.5  # rest is declared after this long below both thresholds
@@ -193,8 +196,9 @@ class DefaultFilter(AttitudeFilter):
         self.settings = settings or DefaultSettings()
         self._params = self.settings.to_array()
         self.state = K.new_state(self._params)
-        self._one_out = np.empty((1, 4))
-        self._one_in = np.zeros((3, 1, 3))
+        self._coeffs = np.empty(K.N_COEFFS)  # for `_coeffs_dt_s`; recomputed only when the period changes
+        self._coeffs_dt_s = math.nan
+        self._work = np.empty(K.N_WORK)
         self._q = np.array([1.0, 0.0, 0.0, 0.0])
 
     @property
@@ -212,17 +216,25 @@ class DefaultFilter(AttitudeFilter):
         self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float
     ) -> FloatArray:
         """One sample; returns the body->ENU quaternion (4,). A zero acc or mag sample means "no reading"."""
-        if not dt_s > 0:
-            raise ValueError(f"dt_s must be positive, got {dt_s}")
-        buf = self._one_in
-        buf[0, 0] = gyr_rad_s
-        buf[1, 0] = acc_m_s2
+        c = self._coefficients(dt_s)
+        gyr = np.asarray(gyr_rad_s, dtype=np.float64)
+        acc = np.asarray(acc_m_s2, dtype=np.float64)
         use_mag = self.use_mag and mag_uT is not None
-        if use_mag:
-            buf[2, 0] = mag_uT
-        K.step_device(self.state, self._params, buf[0], buf[1], buf[2], use_mag, float(dt_s), self._one_out)
-        self._q = self._one_out[0].copy()
-        return self._q
+        mag = np.asarray(mag_uT, dtype=np.float64) if use_mag else gyr
+        assert gyr.shape == (3,) and acc.shape == (3,) and mag.shape == (3,)
+        q = np.empty(4)
+        K.step_sample(self.state, self._params, c, self._work, gyr, acc, mag, use_mag, float(dt_s), q)
+        self._q = q
+        return q
+
+    def _coefficients(self, dt_s: float) -> FloatArray:
+        """The kernels' coefficients for this sample period (cached: a stream keeps one period)."""
+        if dt_s != self._coeffs_dt_s:
+            if not dt_s > 0:
+                raise ValueError(f"dt_s must be positive, got {dt_s}")
+            K.coefficients(self._params, float(dt_s), self._coeffs)
+            self._coeffs_dt_s = dt_s
+        return self._coeffs
 
     def update_block(
         self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float
@@ -232,15 +244,14 @@ class DefaultFilter(AttitudeFilter):
         Rows with a non-finite gyro are skipped (the attitude is held); zero or non-finite acc / mag rows are treated
         as missing readings.
         """
-        if not dt_s > 0:
-            raise ValueError(f"dt_s must be positive, got {dt_s}")
+        c = self._coefficients(dt_s)
         gyr = np.ascontiguousarray(gyr_rad_s, dtype=np.float64)
         acc = np.ascontiguousarray(acc_m_s2, dtype=np.float64)
         use_mag = self.use_mag and mag_uT is not None
         mag = np.ascontiguousarray(mag_uT, dtype=np.float64) if use_mag else gyr
         assert gyr.ndim == 2 and gyr.shape[1] == 3 and acc.shape == gyr.shape and mag.shape == gyr.shape
         out = np.empty((gyr.shape[0], 4))
-        K.step_device(self.state, self._params, gyr, acc, mag, use_mag, float(dt_s), out)
+        K.step_prepared(self.state, self._params, c, self._work, gyr, acc, mag, use_mag, float(dt_s), out)
         if out.shape[0]:
             self._q = out[-1].copy()
         return out

@@ -1,6 +1,12 @@
 """The running gateway: bus callbacks -> bounded inbox -> one asyncio task that decodes, sequence-checks, runs the
 pipeline on whole batches and hands results to the hub; plus presence, diagnostics and the config queryable.
 
+That ingest task is the ONE owner of the live state (pipeline, alarm engine, counters): everything else sends it
+commands (`gateway.ingest.owner.Commands`, run between batches) or reads what it publishes (`config_view` for the
+zenoh queryable, which runs on a zenoh thread). A batch is bounded in work (`batch_budget_s` of CPU, by adapting
+the number of packets taken) and HTTP requests in flight finish before the next batch, so REST requests and
+commands wait about one batch even under overload.
+
 Hand-off (the only work done on zenoh's threads): `Inbox.offer` appends `(key, bytes, arrival_s)` to a deque
 and, if no wake-up is pending, schedules one with `loop.call_soon_threadsafe`; a full inbox counts a queue
 drop. One wake-up per burst instead of one per packet keeps the event loop's overhead flat under load.
@@ -16,35 +22,52 @@ import collections
 import logging
 import math
 import time
-from typing import Any
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, TypeVar
 
 from gateway import schemas
-from gateway.alarm.engine import Condition, Severity, presence_condition
+from gateway.alarm.engine import Alarm, AlarmChange, ChangeKind, Condition, Severity, presence_condition
 from gateway.config import Settings
 from gateway.hub import Hub
 from gateway.ingest.bus import Bus, key_matches
+from gateway.ingest.owner import Commands
 from gateway.ingest.presence import Presence
 from gateway.ingest.stats import IngestCounters
 from gateway.ingest.timecheck import wall_time_plausible
 from gateway.pipeline import AlarmOut, Output, Pipeline, PipelineSettings
-from gateway.store import Store, StoreWriter
+from gateway.store import Store
 
 log = logging.getLogger("gateway.ingest")
 
 REJECTED_PER_S = 20
 BATCH_FAIL_LOG_S = 10.0
 CONFLICT_CLEAR_S = 10.0  # a device_conflict alarm clears this long after the last packet of a second publisher
+BATCH_BUDGET_S = 0.25  # CPU seconds of work a batch takes at most (sized on the recent CPU per packet): a request
+# that arrives during a batch waits for its end. Smaller batches cost more per packet (per-device work per batch):
+# bench.rest_overload at 300 rods on a machine at load ~10, CPU per packet 0.335 / 0.277 / 0.201 / 0.178 ms and
+# /api/stats p50 0.46 / 0.80 / 1.29 / 1.06 s at 0.1 / 0.25 / 0.5 / 1.0 s (5.9 s before). 0.25: REST within ~1 s.
+MIN_BATCH = 200  # never fewer packets a batch: the cost is paid mostly per device per batch, so small batches
+# under overload would process fewer packets, not answer faster
+REST_GRACE_S = 0.25  # after a batch, wait up to this long for HTTP requests in flight to finish (gateway.api.priority)
+YIELDS_PER_BATCH = 8  # event-loop turns between two batches: a REST request needs several (accept, read, handler,
+# write), so one turn per batch made it wait for several batches
 Received = tuple[str, bytes, float]
+T = TypeVar("T")
 
 
 class Inbox:
     """Bounded, thread-safe hand-off from bus threads to the event loop."""
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, maxsize: int) -> None:
+    def __init__(
+        self, loop: asyncio.AbstractEventLoop, maxsize: int, accept: Callable[[str], bool] | None = None
+    ) -> None:
         self.loop = loop
         self.maxsize = maxsize
+        self.accept = accept  # device id -> served here? (gateway.shard: other shards' devices are not queued)
         self.drops = 0
         self.offered = 0
+        self.ignored = 0
         self._items: collections.deque[Received] = collections.deque()
         self._ready = asyncio.Event()
         self._wake_pending = False
@@ -52,6 +75,11 @@ class Inbox:
     def offer(self, key: str, payload: bytes) -> None:
         """Called on a bus thread: enqueue or count a drop; never blocks."""
         self.offered += 1
+        if self.accept is not None:
+            parts = key.split("/", 3)  # rig/{kind}/{id}/...
+            if len(parts) > 2 and not self.accept(parts[2]):
+                self.ignored += 1
+                return
         if len(self._items) >= self.maxsize:
             self.drops += 1
             return
@@ -64,8 +92,12 @@ class Inbox:
         self._wake_pending = False
         self._ready.set()
 
+    def wake(self) -> None:
+        """Make `drain` return (with what is there, maybe nothing): a command is waiting (event loop thread)."""
+        self._ready.set()
+
     async def drain(self, max_n: int) -> list[Received]:
-        """Wait for packets, then take up to `max_n` of them (oldest first)."""
+        """Wait for packets (or `wake`), then take up to `max_n` of them (oldest first)."""
         await self._ready.wait()
         self._ready.clear()
         items = self._items
@@ -84,30 +116,51 @@ def pipeline_settings_from(settings: Settings) -> PipelineSettings:
                             attitude_blocks=settings.attitude_blocks, warmup_bias_seed=settings.warmup_bias_seed)
 
 
+@dataclass(frozen=True)
+class ConfigView:
+    """What the `gw/config/...` queryable answers from, published by the owner task and never changed afterwards:
+    `devices` config key -> DeviceConfig JSON of each known device; `defaults` kind -> its defaults."""
+
+    devices: Mapping[str, bytes]
+    defaults: Mapping[str, schemas.DeviceConfig]
+
+
+def build_pipeline(settings: Settings, store: Store, pipeline_settings: PipelineSettings | None = None) -> Pipeline:
+    """The pipeline with what the store holds: kind defaults, device settings, alarms still active."""
+    active, _ = store.list_alarms(status="active", limit=1_000_000)
+    stored = store.load_device_settings()
+    for bad in [d for d in stored if not schemas.valid_device_id(d)]:  # stored by an older gateway's REST
+        log.warning("ignoring stored settings of invalid device id %r", bad[:80])
+        del stored[bad]
+    return Pipeline(
+        pipeline_settings or pipeline_settings_from(settings),
+        store.load_defaults(), stored, [a for a in active if schemas.valid_device_id(a.device_id)],
+    )  # fmt: skip
+
+
 class GatewayService:
-    """Owns bus subscriptions, the pipeline, the hub, presence and counters. `start()` on the event loop,
-    `stop()` before closing the bus."""
+    """Runs ingest: bus subscriptions, presence, counters and the owner task of the pipeline and alarm engine it is
+    given (built by `gateway.app.compose`). `start()` on the event loop, `stop()` before closing the bus."""
 
     def __init__(
-        self, settings: Settings, bus: Bus, store: Store, pipeline_settings: PipelineSettings | None = None,
-        max_batch: int = 2000, diag_period_s: float = 1.0,
+        self, settings: Settings, bus: Bus, store: Store, pipeline: Pipeline, hub: Hub,
+        max_batch: int = 2000, diag_period_s: float = 1.0, batch_budget_s: float = BATCH_BUDGET_S,
     ) -> None:  # fmt: skip
         self.settings = settings
         self.bus = bus
         self.store = store
         self.max_batch = max_batch
         self.diag_period_s = diag_period_s
-        active, _ = store.list_alarms(status="active", limit=1_000_000)
-        stored = store.load_device_settings()
-        for bad in [d for d in stored if not schemas.valid_device_id(d)]:  # stored by an older gateway's REST
-            log.warning("ignoring stored settings of invalid device id %r", bad[:80])
-            del stored[bad]
-        self.pipeline = Pipeline(
-            pipeline_settings or pipeline_settings_from(settings),
-            store.load_defaults(), stored, [a for a in active if schemas.valid_device_id(a.device_id)],
-        )  # fmt: skip
-        self.writer = StoreWriter(store)
-        self.hub = Hub(bus, self.writer)
+        self.batch_budget_s = batch_budget_s
+        self.rest_inflight = 0  # HTTP requests running (gateway.api.priority); ingest lets them finish first
+        self.rest_grace_s = REST_GRACE_S
+        self.pipeline = pipeline
+        self.hub = hub
+        self.writer = hub.writer
+        self.commands = Commands()
+        self._s_per_packet = 0.0  # running mean of a batch's CPU time per packet (sizes the next batch)
+        self.config_view = ConfigView({}, {})  # what the config queryable answers from (see `refresh_config_view`)
+        self._config_dirty = True
         self.counters = IngestCounters()
         self.presence = Presence()
         self.started_s = time.time()
@@ -120,6 +173,10 @@ class GatewayService:
         self.batch_failures = 0
         self._batch_fail_logged_s = -math.inf
         self.warming_since_s: float | None = None  # set while the fusion kernels are being prepared
+        # Sharding hooks (gateway.shard, set before start): does this process serve a device id (None: all), and
+        # the key expressions of device data it subscribes to.
+        self.accept: Callable[[str], bool] | None = None
+        self.data_selectors: tuple[str, ...] = schemas.SEL_DEVICE_DATA
 
     async def start(self, warm_up: bool = False) -> None:
         """Subscribe, watch presence, serve the config queryable and start the tasks. With `warm_up` the ingest
@@ -127,14 +184,16 @@ class GatewayService:
         packets wait in the inbox meanwhile (a restart answers in seconds; a cold first compile shows in /health)."""
         self.warming_since_s = time.time() if warm_up else None
         loop = asyncio.get_running_loop()
-        self.inbox = Inbox(loop, self.settings.ingest_queue_size)
-        for sel in schemas.SEL_DEVICE_DATA:
+        self.inbox = Inbox(loop, self.settings.ingest_queue_size, self.accept)
+        self.commands.on_post = self.inbox.wake
+        for sel in self.data_selectors:
             self.bus.subscribe(sel, self.inbox.offer)
 
-        def on_token(key: str, alive: bool) -> None:  # bus thread: hand off only
-            loop.call_soon_threadsafe(self._on_presence, key, alive)
+        def on_token(key: str, alive: bool) -> None:  # bus thread: hand off only (a command for the owner)
+            loop.call_soon_threadsafe(self.commands.post, lambda: self._on_presence(key, alive))
 
         self.bus.watch_liveliness(schemas.SEL_DEVICE_TOKENS, on_token)
+        self.refresh_config_view()  # answers at once, also while the kernels warm up
         self.bus.declare_queryable(schemas.SEL_GW_CONFIG, self.config_replies, encoding=schemas.ENCODING_GW)
         self.bus.declare_token(schemas.GW_ALIVE_KEY)
         self._tasks = [asyncio.create_task(self._ingest_loop()), asyncio.create_task(self._diag_loop()),
@@ -149,33 +208,106 @@ class GatewayService:
             except (asyncio.CancelledError, Exception):
                 pass
         self._tasks = []
+        self.commands.cancel_pending()
+        if self.hub.publisher is not None:
+            await asyncio.to_thread(self.hub.publisher.close)  # make the queued BLOCK puts (bounded wait)
         await asyncio.to_thread(self.writer.close)  # store what is pending (bounded wait), stop the thread
 
     # -- ingest ---------------------------------------------------------------------------------------------
 
+    async def call(self, fn: Callable[[], T]) -> T:
+        """Run `fn` on the owner (ingest) task between batches and return its result: how REST handlers and timers
+        change the pipeline, the alarm engine or the counters."""
+        return await self.commands.call(fn)
+
+    async def store_write(self, op: Callable[[Store], T]) -> T:
+        """Run a store write on the one writer thread (`StoreWriter.call`) and await its result; raises its error."""
+        return await asyncio.wrap_future(self.writer.call(op))
+
+    def acknowledge_alarm(self, alarm_id: str, by: str, now_s: float) -> Alarm | None:
+        """Owner command: acknowledge an alarm the engine holds, publish it (`state: acknowledged`) and project it
+        to the store; None if the engine holds no unacknowledged alarm with this id."""
+        change = self.pipeline.engine.acknowledge(alarm_id, by, now_s)
+        if change is None:
+            return None
+        self._emit_alarm(change, now_s)
+        return change.alarm
+
+    def clear_alarm(self, alarm_id: str, by: str, now_s: float) -> Alarm | None:
+        """Owner command: clear an active alarm by hand through the engine, publish and store it; None if the engine
+        holds no active alarm with this id."""
+        change = self.pipeline.engine.clear(alarm_id, by, now_s)
+        if change is None:
+            return None
+        self._emit_alarm(change, now_s)
+        return change.alarm
+
+    def publish_stored_alarm(self, kind: ChangeKind, alarm: Alarm, now_s: float) -> None:
+        """Owner command for an alarm only the store still has (cleared, or active from before a restart and never
+        resumed by a rule): publish its change and store the row, as for an engine change."""
+        self._emit_alarm(AlarmChange(kind, alarm), now_s)
+
+    def _emit_alarm(self, change: AlarmChange, now_s: float) -> None:
+        kind = self.pipeline.kinds.get(change.alarm.device_id, "rod")
+        self.hub.emit(Output(alarms=[AlarmOut(kind, change, int(now_s * 1e6), None)]))
+
     async def _ingest_loop(self) -> None:
         assert self.inbox is not None
+        self.commands.owner = asyncio.current_task()
         if self.warming_since_s is not None:
             log.info("preparing fusion kernels (the first start after install compiles them: up to a minute)")
             t0 = time.perf_counter()
+            warm = asyncio.ensure_future(asyncio.to_thread(self.pipeline.warm_up))
+            while not warm.done():  # commands (REST writes, presence) run meanwhile; packets wait in the inbox
+                waiter = asyncio.ensure_future(self.commands.pending.wait())
+                await asyncio.wait({warm, waiter}, return_when=asyncio.FIRST_COMPLETED)
+                waiter.cancel()
+                self.commands.run_pending()
+                self.refresh_config_view()
             try:
-                await asyncio.to_thread(self.pipeline.warm_up)
+                warm.result()
                 log.info("fusion kernels ready in %.1f s", time.perf_counter() - t0)
             except Exception:  # the first packets will compile what is missing
                 log.exception("fusion kernel warm-up failed")
             self.warming_since_s = None
         while True:
-            items = await self.inbox.drain(self.max_batch)
-            try:
-                self.handle(items)
-            except Exception:  # a pipeline bug must not stop ingest; one traceback per BATCH_FAIL_LOG_S
-                self.batch_failures += 1
-                now = time.monotonic()
-                if now - self._batch_fail_logged_s >= BATCH_FAIL_LOG_S:
-                    self._batch_fail_logged_s = now
-                    log.exception("batch of %d packets failed (%d batches failed so far)", len(items),
-                                  self.batch_failures)  # fmt: skip
-            await asyncio.sleep(0)  # let REST handlers in between batches
+            items = await self.inbox.drain(self.batch_limit())
+            self.commands.run_pending()
+            if items:
+                t0 = time.thread_time()  # CPU of this thread: the batch's work, not the machine's other load
+                try:
+                    self.handle(items)
+                except Exception:  # a pipeline bug must not stop ingest; one traceback per BATCH_FAIL_LOG_S
+                    self.batch_failures += 1
+                    now = time.monotonic()
+                    if now - self._batch_fail_logged_s >= BATCH_FAIL_LOG_S:
+                        self._batch_fail_logged_s = now
+                        log.exception("batch of %d packets failed (%d batches failed so far)", len(items),
+                                      self.batch_failures)  # fmt: skip
+                per_packet = (time.thread_time() - t0) / len(items)
+                mean = self._s_per_packet
+                self._s_per_packet = per_packet if not mean else 0.8 * mean + 0.2 * per_packet
+            self.refresh_config_view()
+            for _ in range(YIELDS_PER_BATCH if items else 1):  # let REST handlers in between batches
+                await asyncio.sleep(0)
+            if self.rest_inflight:
+                await self._let_rest_finish()
+
+    async def _let_rest_finish(self) -> None:
+        """HTTP requests are running: run their commands and give them the loop until they are done (at most
+        `rest_grace_s`), so a request waits for about one batch, not several."""
+        deadline = time.monotonic() + self.rest_grace_s
+        while self.rest_inflight and time.monotonic() < deadline:
+            self.commands.run_pending()
+            await asyncio.sleep(0.001)
+        self.commands.run_pending()
+
+    def batch_limit(self) -> int:
+        """Packets to take next: what fits in `batch_budget_s` at the recent cost per packet, within
+        [MIN_BATCH, max_batch] (bigger batches are cheaper per packet, but REST waits for the batch to end)."""
+        if self._s_per_packet <= 0.0:  # no estimate yet: a small first batch
+            return min(MIN_BATCH, self.max_batch)
+        return max(min(MIN_BATCH, self.max_batch), min(self.max_batch, int(self.batch_budget_s / self._s_per_packet)))
 
     def handle(self, items: list[Received], now_wall_s: float | None = None) -> None:
         """Decode, sequence-check and process one batch; publish what it produced."""
@@ -218,6 +350,7 @@ class GatewayService:
             for f in out.filter_failures:
                 c.filter_failed(f.kind, f.device_id, f.reason, f.detail, items[-1][2])
             self.hub.emit(out)
+            self.hub.emit_packets(packets)
             self.batch_delay_s.append(time.monotonic() - items[0][2])
 
     def _check_time(self, p: schemas.ImuPacket, now: float, arrival: float) -> schemas.ImuPacket | None:
@@ -283,15 +416,19 @@ class GatewayService:
             self.bus.put(schemas.DIAG_REJECTED_KEY, msg.to_json(), encoding=schemas.ENCODING_GW)
         self._rejected_window = (second, n + 1)
 
+    def _diag_tick(self) -> bytes:
+        """Owner command of the diagnostics timer: clear stale conflicts, snapshot the counters."""
+        if self.inbox is not None:
+            self.counters.queue_drops = self.inbox.drops
+        self._clear_conflicts(time.time(), time.monotonic())
+        return self.counters.snapshot(int(time.time() * 1e6)).to_json()
+
     async def _diag_loop(self) -> None:
         while True:
             await asyncio.sleep(self.diag_period_s)
             try:
-                if self.inbox is not None:
-                    self.counters.queue_drops = self.inbox.drops
-                self._clear_conflicts(time.time(), time.monotonic())
-                stats = self.counters.snapshot(int(time.time() * 1e6))
-                self.bus.put(schemas.DIAG_INGEST_KEY, stats.to_json(), encoding=schemas.ENCODING_GW)
+                stats = await self.call(self._diag_tick)
+                self.bus.put(schemas.DIAG_INGEST_KEY, stats, encoding=schemas.ENCODING_GW)
             except Exception:
                 log.exception("diagnostics publish failed")
 
@@ -301,12 +438,17 @@ class GatewayService:
         while True:
             await asyncio.sleep(self.pipeline.settings.reel_watchdog_s)
             try:
-                self._emit_reel(self.pipeline.tick_reel(time.time()))
+                await self.call(lambda: self._emit_reel(self.pipeline.tick_reel(time.time())))
             except Exception:
                 log.exception("reel watchdog tick failed")
 
     def _emit_reel(self, out: Output) -> None:
-        """Publish reel safety stops (BLOCK, via the hub) and record their events in the store's event log."""
+        """Publish reel safety stops (BLOCK, via the hub) and record their events in the store's event log (only for
+        rods this shard serves: every shard holds every rod's auto-reel setting)."""
+        if self.accept is not None:
+            ok = self.accept
+            out.reel_commands = [c for c in out.reel_commands if ok(c[0])]
+            out.reel_events = [e for e in out.reel_events if ok(e.device_id)]
         if out.reel_commands:
             self.hub.emit(out)
         for e in out.reel_events:
@@ -331,6 +473,8 @@ class GatewayService:
         if change is None:
             return
         self.pipeline.kinds.setdefault(change.device_id, change.kind)
+        if self.accept is not None and not self.accept(change.device_id):  # its shard logs it and raises offline
+            return
         log.info("device %s %s", change.device_id, "online" if alive else "offline")
         self.writer.log_event(change.since_s, "online" if alive else "offline", change.device_id, {"kind": change.kind})
         if not alive:
@@ -351,19 +495,36 @@ class GatewayService:
         values = {k: float(v) for k, v in th.model_dump().items() if isinstance(v, int | float)}
         return schemas.DeviceConfig(device_id=device_id, kind=kind, thresholds=values)  # type: ignore[arg-type]
 
-    def config_replies(self, selector: str) -> list[tuple[str, bytes]]:
-        """Replies of the `gw/config/{kind}/{id}` queryable: one per known device matching the selector;
-        an unknown concrete device gets its kind's defaults."""
+    def config_changed(self) -> None:
+        """Owner: settings or defaults changed; `config_view` is rebuilt after the current command/batch."""
+        self._config_dirty = True
 
-        parts = selector.split("/")
-        out = []
-        for device_id, kind in list(self.pipeline.kinds.items()):
+    def refresh_config_view(self) -> None:
+        """Owner, after each batch: publish a new `config_view` if devices appeared or settings changed (a new dict
+        each time, so the queryable's thread always reads a whole one)."""
+        view, kinds = self.config_view, self.pipeline.kinds
+        if not self._config_dirty and len(view.devices) == len(kinds):
+            return
+        devices = {} if self._config_dirty else dict(view.devices)
+        for device_id, kind in list(kinds.items()):
+            if self.accept is not None and not self.accept(device_id):  # its own shard answers
+                continue
             key = schemas.config_key(kind, device_id)
-            if key_matches(selector, key):
-                out.append((key, self.device_config(kind, device_id).to_json()))
-        if not out and len(parts) == 4 and parts[2] in schemas.KINDS and "*" not in selector:
-            try:
-                out.append((selector, self.device_config(parts[2], parts[3]).to_json()))
-            except ValueError:
-                pass
+            if key not in devices:
+                devices[key] = self.device_config(kind, device_id).to_json()
+        defaults = view.defaults if view.defaults and not self._config_dirty else {
+            kind: self.device_config(kind, "defaults") for kind in schemas.KINDS}  # fmt: skip
+        self._config_dirty = False
+        self.config_view = ConfigView(devices, defaults)
+
+    def config_replies(self, selector: str) -> list[tuple[str, bytes]]:
+        """Replies of the `gw/config/{kind}/{id}` queryable (a zenoh thread: reads the owner's `config_view` only):
+        one per known device matching the selector; an unknown concrete device gets its kind's defaults."""
+        parts = selector.split("/")
+        view = self.config_view
+        out = [(key, payload) for key, payload in view.devices.items() if key_matches(selector, key)]
+        if not out and len(parts) == 4 and parts[2] in view.defaults and "*" not in selector:
+            if schemas.valid_device_id(parts[3]):
+                config = view.defaults[parts[2]].model_copy(update={"device_id": parts[3]})
+                out.append((selector, config.to_json()))
         return out

@@ -43,8 +43,21 @@ class Running:
     def auth(self) -> dict[str, str]:
         return {"Authorization": f"Bearer {self.token}"}
 
-    def feed(self, messages: list[tuple[str, bytes]], timeout_s: float = 30.0) -> None:
-        """Put messages on the bus and wait until the gateway has counted them all."""
+    def feed(self, messages: list[tuple[str, bytes]], timeout_s: float = 30.0, paced: bool = False) -> None:
+        """Put messages on the bus and wait until the gateway has counted them all. At once, they are one burst: a
+        few batches, whose attitudes are coalesced to one per device per batch. `paced`: one message at a time, each
+        processed before the next is put, as a gateway that keeps up sees them (one attitude per packet)."""
+        if paced:
+            service = self.client.app.state.service  # type: ignore[attr-defined]
+            deadline = time.monotonic() + timeout_s
+            for key, payload in messages:
+                n = service.counters.received
+                self.bus.put(key, payload, encoding="application/json")
+                while service.counters.received <= n:
+                    assert time.monotonic() < deadline, "gateway did not ingest the messages in time"
+                    time.sleep(0.0005)
+            self.flush()
+            return
         before = self.client.get("/api/stats").json()["received"]
         for key, payload in messages:
             self.bus.put(key, payload, encoding="application/json")
@@ -52,6 +65,12 @@ class Running:
         while self.client.get("/api/stats").json()["received"] < before + len(messages):
             assert time.monotonic() < deadline, "gateway did not ingest the messages in time"
             time.sleep(0.05)
+        self.flush()
+
+    def flush(self, timeout_s: float = 5.0) -> None:
+        """Wait until the BLOCK puts queued so far (alarms, swing, reel commands) are on the bus."""
+        publisher = self.client.app.state.service.hub.publisher  # type: ignore[attr-defined]
+        assert publisher is None or publisher.flush(timeout_s), "blocking puts still queued"
 
 
 @pytest.fixture

@@ -104,7 +104,7 @@ def test_settings_thresholds_and_alarms_survive_a_restart(running: Callable[[], 
 def test_bite_alarm_is_published_with_block_and_listed(running: Callable[[], Running]) -> None:
     app = running()
     messages = rod_messages(6.0, BITE)
-    app.feed(messages)
+    app.feed(messages, paced=True)  # one attitude per packet, as in real time
     published = [(k, json.loads(p), block) for k, p, block in app.bus.sent if k.endswith("/alarm")]
     assert [(k, a["alarm"], a["state"]) for k, a, _ in published] == [("gw/rod/rod-1/alarm", "bite", "raised")]
     assert all(block for _, _, block in published)
@@ -119,6 +119,10 @@ def test_bite_alarm_is_published_with_block_and_listed(running: Callable[[], Run
     assert listed[0]["severity"] == event.severity
     ack = app.client.post(f"/api/alarms/{event.alarm_id}/ack", headers=app.auth)
     assert ack.status_code == 200 and ack.json()["acknowledged"] is True
+    app.flush()  # the acknowledgement is published on the alarm's key, through the engine (issue 12 item 5)
+    acked = [json.loads(p) for k, p, _ in app.bus.sent if k == "gw/rod/rod-1/alarm"][-1]
+    assert (acked["alarm_id"], acked["state"]) == (event.alarm_id, "acknowledged")
+    assert acked["message"] == "acknowledged by api"
     dev = app.client.get("/api/devices/rod-1").json()
     assert dev["kind"] == "rod" and dev["active_alarms"] == ["bite"]
     assert dev["stream"]["ok"] == 120 and dev["stream"]["lost"] == 0

@@ -97,9 +97,9 @@ def test_changed_calibration_restarts_fusion_and_the_same_one_does_not() -> None
     other = {**cal, "mag_offset_uT": [v + 1.0 for v in cal["mag_offset_uT"]]}
     pipe.set_device_settings("rod-1", "rod", DeviceSettings(calibration=other))
     assert "rod-1" not in pipe.devices
-    np.testing.assert_allclose(pipe._cal["rod-1"].mag_offset_uT, other["mag_offset_uT"])
+    np.testing.assert_allclose(pipe.bank.cal["rod-1"].mag_offset_uT, other["mag_offset_uT"])
     pipe.set_device_settings("rod-1", "rod", DeviceSettings())
-    assert "rod-1" not in pipe._cal
+    assert "rod-1" not in pipe.bank.cal
 
 
 _vec = st.lists(st.floats(-50, 50), min_size=3, max_size=3)
@@ -167,7 +167,7 @@ def test_calibration_over_rest_is_stored_applied_and_survives_a_restart(running:
     assert app.client.get("/api/devices/rod-1/settings").json()["settings"]["calibration"] == cal
     app.feed(rod_messages(0.2))
     pipe = app.client.app.state.service.pipeline  # type: ignore[attr-defined]
-    np.testing.assert_allclose(pipe._cal["rod-1"].mag_offset_uT, cal["mag_offset_uT"])
+    np.testing.assert_allclose(pipe.bank.cal["rod-1"].mag_offset_uT, cal["mag_offset_uT"])
 
     bad = {**cal, "mag_soft_iron": [[1.0, 0.0], [0.0, 1.0]]}
     r = app.client.put("/api/devices/rod-1/settings", json={"calibration": bad}, headers=app.auth)
@@ -176,4 +176,4 @@ def test_calibration_over_rest_is_stored_applied_and_survives_a_restart(running:
 
     r = app.client.put("/api/devices/rod-1/settings", json={"calibration": None}, headers=app.auth)
     assert r.status_code == 200 and r.json()["settings"]["calibration"] is None
-    assert "rod-1" not in pipe._cal
+    assert "rod-1" not in pipe.bank.cal

@@ -5,6 +5,7 @@ at the file's size gives SQLITE_FULL ("database or disk is full") on the gateway
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -115,3 +116,31 @@ def test_writer_keeps_order_coalesces_and_bounds_its_journal(tmp_path: Path) -> 
             writer.close()
         assert store.get_alarm("a0") is None  # dropped as the oldest entry: counted, never half-written
         assert [e["t"] for e in store.events(limit=10) if e["kind"] == "x"] == [7.0, 6.0, 5.0, 4.0, 3.0]
+
+
+def test_config_writes_go_through_the_writer_and_are_not_held_by_a_failing_journal(tmp_path: Path) -> None:
+    """REST config writes run on the one writer thread (`StoreWriter.call`) ahead of the journal: while alarm rows
+    fail and are retried, a config write still runs at once and its error (disk full) reaches the caller; after
+    the disk is freed it succeeds, also from another thread, and the journal drains."""
+    with Store(tmp_path / "gw.db") as store:
+        fill(store)
+        writer = StoreWriter(store, retry_s=60.0)  # a long retry: a call waiting behind it would time out below
+        try:
+            writer.upsert_alarm(_alarm(0))
+            wait_for(lambda: writer.status()["failures"] >= 1)
+            threads: list[str] = []
+
+            def save(s: Store) -> None:  # a settings-sized write, as PUT /api/devices/{id}/settings makes
+                threads.append(threading.current_thread().name)
+                s.log_event(9.0, "settings_changed", "rod-1", {"x": "y" * 4000})
+
+            fut = writer.call(save)
+            err = fut.exception(timeout=5.0)
+            assert err is not None and "full" in str(err), err
+            assert threads == ["store-writer"]
+            free(store)
+            assert writer.call(lambda s: s.events(limit=1)).result(timeout=5.0) is not None
+            assert writer.flush(65.0)
+        finally:
+            writer.close()
+        assert store.get_alarm("a0") is not None

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from gateway import schemas
+from gateway.app import compose
 from gateway.config import DeviceSettings, Settings
 from gateway.fusion import registry
 from gateway.fusion.base import FloatArray
 from gateway.ingest.bus import MemoryBus
-from gateway.ingest.runner import GatewayService
 from gateway.pipeline import Output, Pipeline
 from gateway.store import Store
 from tests.gateway.conftest import Running, rod_messages
@@ -100,7 +100,7 @@ def test_a_failing_filter_restarts_its_device_only(name: str, reason: str) -> No
 def test_failures_are_counted_per_device_and_reason_on_diag_ingest(tmp_path: Path) -> None:
     bus = MemoryBus()
     with Store(tmp_path / "gw.sqlite3") as store:
-        service = GatewayService(Settings(data_dir=tmp_path, zenoh_listen=[]), bus, store)
+        service = compose(Settings(data_dir=tmp_path, zenoh_listen=[]), bus, store, blocking_thread=False)
         service.pipeline.set_device_settings("rod-1", "rod", DeviceSettings(filter_name="raising"))
         raw = [(k, p) for k, p in rod_messages(2.0) if k.endswith("/imu")]
         for key, payload in raw:

@@ -9,6 +9,7 @@ from types import SimpleNamespace
 
 import pytest
 
+from gateway import schemas
 from gateway.api.ws import LiveSettings, LiveStream
 from gateway.config import DeviceSettings, Settings
 from gateway.store import Store
@@ -17,26 +18,25 @@ from tests.gateway.conftest import Running, rod_messages
 BAD_IDS = ["a.b", "*", "..", "<script>x</script>", "x" * 5000, "rod 1", "évil"]
 
 
-def test_raw_buffers_are_kept_only_for_known_devices() -> None:
-    """Old code: one 8-deep buffer per key ever seen, rejected payloads included, kept forever (150 keys of large
-    payloads: +700 MB RSS). Now only keys of devices the pipeline knows get one, and at most max_raw_keys."""
-    svc = SimpleNamespace(pipeline=SimpleNamespace(kinds={"rod-1": "rod"}))
-    live = LiveStream(svc, LiveSettings(max_raw_keys=40, unknown_raw_bytes=1_000_000))  # type: ignore[arg-type]
-    big = b"x" * 100_000
-    for _ in range(3):  # three ticks of spam
-        for i in range(1000):
-            live.on_raw(f"rig/rod/spam-{i}/imu", big)
-        held = sum(len(p) for k, q in live._raw.items() if "spam" in k for p in q)
-        assert held <= 1_000_000 and len(live._raw) <= 40
-        live.on_raw("rig/rod/rod-1/imu", b"{}")
-        live.prune_raw()
-        assert list(live._raw) == ["rig/rod/rod-1/imu"]
-    live.on_raw("rig/rod/rod-1/imu", b"x" * 600_000)  # over the packet limit: never kept
-    assert len(live._raw["rig/rod/rod-1/imu"]) == 3
-    for i in range(50):
-        svc.pipeline.kinds[f"rod-{i + 2}"] = "rod"
-        live.on_raw(f"rig/rod/rod-{i + 2}/imu", big)
-    assert len(live._raw) == 40
+def test_raw_buffers_are_bounded_and_only_for_known_devices() -> None:
+    """Old code: one 8-deep buffer of raw payloads per key ever seen, rejected payloads included, kept forever (150
+    keys of large payloads: +700 MB RSS). Now the stream keeps references to the packets ingest decoded and accepted,
+    at most `raw_packets` per device and `max_raw_keys` devices, and a tick drops devices the pipeline forgot."""
+    kinds: dict[str, str] = {}
+    live = LiveStream(SimpleNamespace(pipeline=SimpleNamespace(kinds=kinds)),  # type: ignore[arg-type]
+                      LiveSettings(max_raw_keys=40, raw_packets=8))  # fmt: skip
+    for i in range(100):
+        kinds[f"rod-{i}"] = "rod"
+        for seq in range(20):
+            live.on_packet(schemas.ImuPacket(v=1, device_id=f"rod-{i}", kind="rod", boot_id=1, seq=seq, t0_us=seq,
+                                             rate_hz=100.0, gyr_rad_s=[(0.0, 0.0, 0.0)],
+                                             acc_m_s2=[(0.0, 0.0, 9.81)]))  # fmt: skip
+    assert len(live._imu) == 40 and all(len(q) == 8 for q in live._imu.values())
+    assert [p.seq for p in live._imu["rod-0"]] == list(range(12, 20))  # the newest
+    kinds.clear()
+    kinds["rod-3"] = "rod"
+    live.prune_raw()
+    assert list(live._imu) == ["rod-3"]
 
 
 def _wait(cond: Callable[[], bool], timeout_s: float = 10.0) -> None:
@@ -65,9 +65,18 @@ def test_one_broken_device_card_does_not_stop_the_tick(running: Callable[[], Run
     app = running()
     app.feed(rod_messages(1.0))
     svc = app.client.app.state.service  # type: ignore[attr-defined]
+    live = app.client.app.state.live  # type: ignore[attr-defined]
+    take = live._take_imu
+
+    def broken(device_id: str) -> object:
+        if device_id == "bad.id":
+            raise ValueError("a card that cannot be built")
+        return take(device_id)
+
     svc.pipeline.kinds["bad.id"] = "rod"  # however it got there
+    live._take_imu = broken
     try:
-        frame = app.client.app.state.live.tick_frame(time.time())  # type: ignore[attr-defined]
+        frame = live.tick_frame(time.time())
     finally:
         del svc.pipeline.kinds["bad.id"]
     assert [d["device_id"] for d in frame["devices"]] == ["rod-1"]

@@ -18,6 +18,7 @@ import pytest
 from devices.common import FleetSettings
 from devices.sim_rod import RodFleet
 from gateway import protocol_doc, schemas
+from gateway.app import compose
 from gateway.config import Settings
 from gateway.ingest.bus import MemoryBus
 from gateway.ingest.runner import GatewayService
@@ -46,7 +47,7 @@ def edit(msg: Msg, **fields: object) -> Msg:
 def service(tmp_path: Path) -> Iterator[tuple[GatewayService, MemoryBus, Store]]:
     """A service on a MemoryBus and a real SQLite file; its store writer is flushed and closed at the end."""
     bus, store = MemoryBus(), Store(tmp_path / "gw.db")
-    svc = GatewayService(Settings(data_dir=tmp_path, zenoh_listen=[]), bus, store)
+    svc = compose(Settings(data_dir=tmp_path, zenoh_listen=[]), bus, store, blocking_thread=False)
     try:
         yield svc, bus, store
     finally:
@@ -54,8 +55,9 @@ def service(tmp_path: Path) -> Iterator[tuple[GatewayService, MemoryBus, Store]]
         store.close()
 
 
-def run(svc: GatewayService, msgs: list[Msg], batch: int = 10) -> None:
-    """Feed in batches at the simulated pace (2 devices x 20 packets/s: 0.025 s a packet)."""
+def run(svc: GatewayService, msgs: list[Msg], batch: int = 1) -> None:
+    """Feed in batches at the simulated pace (2 devices x 20 packets/s: 0.025 s a packet); one packet a batch by
+    default, as ingest takes them when it keeps up (attitudes are coalesced to one per device per batch)."""
     t0 = time.time()
     for i in range(0, len(msgs), batch):
         svc.handle([(k, p, i * 0.025) for k, p in msgs[i : i + batch]], now_wall_s=t0 + i * 0.025)

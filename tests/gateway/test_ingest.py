@@ -143,13 +143,14 @@ def test_inbox_drains_in_batches_in_order() -> None:
 
 def test_rejected_packets_are_published_at_most_20_a_second_but_all_counted(tmp_path: Path) -> None:
     """docs/protocol.md: gw/diag/rejected is rate-limited (REJECTED_PER_S per second of the gateway clock)."""
+    from gateway.app import compose
     from gateway.ingest.bus import MemoryBus
-    from gateway.ingest.runner import REJECTED_PER_S, GatewayService
+    from gateway.ingest.runner import REJECTED_PER_S
     from gateway.store import Store
 
     bus = MemoryBus()
     with Store(tmp_path / "gw.sqlite3") as store:
-        service = GatewayService(Settings(data_dir=tmp_path, zenoh_listen=[]), bus, store)
+        service = compose(Settings(data_dir=tmp_path, zenoh_listen=[]), bus, store, blocking_thread=False)
         bad = [("rig/rod/rod-1/imu", b"{not json", time.monotonic())] * 50
 
         def published() -> list[dict[str, object]]:

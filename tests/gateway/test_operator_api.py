@@ -38,7 +38,7 @@ def test_metrics_count_ingest_rejects_and_active_alarms(running: Callable[[], Ru
 
 def test_metrics_latency_histogram_and_alarm_gauge_after_a_bite(running: Callable[[], Running]) -> None:
     r = running()
-    r.feed(rod_messages(6.0, script=[{"type": "bite", "t_s": 3.0, "depth_deg": 25.0, "duration_s": 2.0}]))
+    r.feed(rod_messages(6.0, script=[{"type": "bite", "t_s": 3.0, "depth_deg": 25.0, "duration_s": 2.0}]), paced=True)
     m = _families(r.client.get("/metrics").text)
     counts = m["rig_sample_to_publish_seconds_count"]
     assert counts[(("kind", "rod"), ("topic", "attitude"))] > 10
@@ -132,7 +132,7 @@ def test_history_is_bounded_decimated_and_keeps_peaks() -> None:
 
 def test_history_route_fills_from_the_live_pipeline(running: Callable[[], Running]) -> None:
     r = running()
-    r.feed(rod_messages(3.0))
+    r.feed(rod_messages(3.0), paced=True)
     _wait(lambda: len(r.client.get("/api/history/rod-1").json()["series"]["t_s"]) >= 3)
     series = r.client.get("/api/history/rod-1?seconds=3600").json()["series"]
     assert {"pitch_deg", "roll_deg", "yaw_deg"} <= set(series)

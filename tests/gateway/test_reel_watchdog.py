@@ -7,6 +7,7 @@ The service tests run `GatewayService` on a `MemoryBus` (no zenoh) in real time;
 from __future__ import annotations
 
 import asyncio
+import json
 import math
 import time
 from pathlib import Path
@@ -18,6 +19,7 @@ from hypothesis import strategies as st
 
 from devices.rod_physics import RodSettings
 from gateway import schemas
+from gateway.app import compose
 from gateway.config import SENSITIVITY_STEPS, RodThresholds, Settings
 from gateway.control.fish_walking import FishWalkingSettings
 from gateway.ingest.bus import MemoryBus
@@ -55,11 +57,13 @@ class Recorder:
 
     def __init__(self) -> None:
         self.attitude_s: list[float] = []
+        self.attitude_seq = -1  # of the newest attitude
         self.cmds: list[tuple[float, schemas.ReelCommand]] = []
 
     def __call__(self, topic: str, model: Any) -> None:
         if topic == "attitude":
             self.attitude_s.append(time.monotonic())
+            self.attitude_seq = model.seq
         elif topic == "reel_cmd":
             self.cmds.append((time.monotonic(), model))
 
@@ -74,7 +78,7 @@ async def _until(cond: Any, timeout_s: float) -> None:
 def _service(tmp_path: Path) -> tuple[GatewayService, MemoryBus, Store, Recorder]:
     settings_ = Settings(data_dir=tmp_path / "data", zenoh_listen=[])
     bus, store = MemoryBus(), Store(settings_.db_path)
-    svc = GatewayService(settings_, bus, store, PipelineSettings(reel_watchdog_s=PERIOD_S))
+    svc = compose(settings_, bus, store, PipelineSettings(reel_watchdog_s=PERIOD_S), blocking_thread=False)
     rec = Recorder()
     svc.hub.listeners.append(rec)
     return svc, bus, store, rec
@@ -89,8 +93,9 @@ async def _feed(bus: MemoryBus, rec: Recorder, groups: list[list[tuple[str, byte
         if live:
             await _until(lambda n=n: len(rec.attitude_s) > n, 5.0)
             await asyncio.sleep(0.05)
-    n_att = sum(1 for g in groups for k, _ in g if k.endswith("/imu"))
-    await _until(lambda: len(rec.attitude_s) >= n_att, 30.0) if not live else None
+    last_seq = max(json.loads(p)["seq"] for g in groups for k, p in g if k.endswith("/imu"))
+    # attitudes are coalesced per device per batch: wait for the newest packet's, not for one per packet
+    await _until(lambda: rec.attitude_seq >= last_seq, 30.0) if not live else None
 
 
 def _reel_puts(bus: MemoryBus) -> list[tuple[dict[str, Any], bool]]:
@@ -261,7 +266,7 @@ def test_controller_gets_the_default_thresholds() -> None:
     p.set_auto_reel(ROD, True)
     for g in _GROUPS[:N_AUTO]:
         p.process(g, 0.0)
-    s = p.devices[ROD].auto_reel.settings
+    s = p.reel_control.controllers[ROD].settings
     th = RodThresholds()
     assert (math.degrees(s.theta2_rad), math.degrees(s.theta3_rad), s.line_breaking_n) == pytest.approx(
         (th.line_switch_deg, th.line_limit_deg, th.line_breaking_n))

@@ -12,6 +12,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from gateway import schemas
 from gateway.api.ws import ClientQueue, LiveSettings, LiveStream, raw_imu_summary
 from tests.gateway.conftest import Running, rod_messages
 
@@ -59,13 +60,18 @@ def test_get_waits_for_a_put() -> None:
     assert asyncio.run(run()) == "x"
 
 
+def _imu(acc: list[list[float]], rate_hz: float, **fields: Any) -> schemas.ImuPacket:
+    """A decoded IMU packet, as the hub hands it to the stream."""
+    return schemas.ImuPacket(v=1, device_id="rod-1", kind="rod", boot_id=1, seq=0, t0_us=0, rate_hz=rate_hz,
+                             gyr_rad_s=[(0.0, 0.0, 0.0)] * len(acc), acc_m_s2=[tuple(r) for r in acc], **fields)  # type: ignore[arg-type]
+
+
 def test_raw_imu_summary_reference_values() -> None:
     """One point per packet: per-axis mean, peak |a| (|(3, 4, 12)| = 13), at the last sample's time
-    wall_t0 + (n-1)/rate; a bad row is skipped, a bad packet too; link fields come from the packets."""
-    p1 = {"acc_m_s2": [[3.0, 4.0, 12.0], [0.0, 0.0, 9.81]], "rate_hz": 100.0, "wall_t0_us": 10_000_000,
-          "battery_v": 4.0, "rssi_dbm": -60.0}  # fmt: skip
-    p2 = {"acc_m_s2": [[1.0, 2.0, 2.0], [1.0, None, 2.0]], "rate_hz": 50.0, "wall_t0_us": 10_020_000}
-    out = raw_imu_summary([json.dumps(p1).encode(), b"{not json", json.dumps(p2).encode()], now_s=99.0)
+    wall_t0 + (n-1)/rate; link fields come from the newest packets."""
+    p1 = _imu([[3.0, 4.0, 12.0], [0.0, 0.0, 9.81]], 100.0, wall_t0_us=10_000_000, battery_v=4.0, rssi_dbm=-60.0)
+    p2 = _imu([[1.0, 2.0, 2.0], [1.0, 2.0, 2.0]], 50.0, wall_t0_us=10_020_000)
+    out = raw_imu_summary([p1, p2], now_s=99.0)
     acc = out["acc"]
     assert acc["norm"] == pytest.approx([13.0, 3.0], abs=1e-4)
     assert acc["ax"] == pytest.approx([1.5, 1.0]) and acc["az"] == pytest.approx([10.905, 2.0])
@@ -74,15 +80,13 @@ def test_raw_imu_summary_reference_values() -> None:
 
 
 def test_raw_imu_summary_without_wall_time_ends_at_now() -> None:
-    p = {"acc_m_s2": [[0.0, 0.0, 1.0]] * 4, "rate_hz": 4.0}
-    assert raw_imu_summary([json.dumps(p).encode()], now_s=100.0)["acc"]["t_s"] == pytest.approx([99.75])
+    assert raw_imu_summary([_imu([[0.0, 0.0, 1.0]] * 4, 4.0)], now_s=100.0)["acc"]["t_s"] == pytest.approx([99.75])
 
 
 @given(st.lists(st.tuples(st.floats(-50, 50), st.floats(-50, 50), st.floats(-50, 50)), min_size=1, max_size=20))
 def test_raw_imu_peak_bounds_the_mean(rows: list[tuple[float, float, float]]) -> None:
     """The plotted peak |a| is never below the norm of the plotted mean (triangle inequality)."""
-    p = {"acc_m_s2": [list(r) for r in rows], "rate_hz": 100.0, "wall_t0_us": 0}
-    acc = raw_imu_summary([json.dumps(p).encode()], now_s=0.0)["acc"]
+    acc = raw_imu_summary([_imu([list(r) for r in rows], 100.0, wall_t0_us=0)], now_s=0.0)["acc"]
     mean_norm = math.sqrt(acc["ax"][0] ** 2 + acc["ay"][0] ** 2 + acc["az"][0] ** 2)
     assert acc["norm"][0] >= mean_norm - 1e-3
 

@@ -3,16 +3,16 @@ that stayed active across a restart or a device-offline alarm of a device that w
 
 from __future__ import annotations
 
+import asyncio
 import time
 from dataclasses import replace
 from typing import Any
 
 from fastapi import APIRouter, HTTPException
 
-from gateway.alarm.engine import AlarmChange, AlarmStatus
+from gateway.alarm.engine import AlarmStatus
 from gateway.api.deps import AlarmIdPath, ServiceDep, WriterDep
 from gateway.api.routes.alarms import alarm_json
-from gateway.pipeline import AlarmOut, Output
 
 router = APIRouter(prefix="/alarms", tags=["alarms"])
 
@@ -21,17 +21,17 @@ router = APIRouter(prefix="/alarms", tags=["alarms"])
 async def clear_alarm(alarm_id: AlarmIdPath, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
     """Clear an active alarm by hand; it is published as `cleared` like any other clear. 404 if it is not active.
 
-    Async on purpose: it runs on the event loop, the thread that owns the alarm engine (ingest runs there too)."""
+    The engine is the authority: the ingest task clears it there (a command), publishes and stores the row."""
     now = time.time()
-    change = service.pipeline.engine.clear(alarm_id, who, now)
-    if change is None:
-        stored = service.store.get_alarm(alarm_id)
+    alarm = await service.call(lambda: service.clear_alarm(alarm_id, who, now))
+    if alarm is None:
+        stored = await asyncio.to_thread(service.store.get_alarm, alarm_id)
         if stored is None or not stored.active:
             raise HTTPException(404, f"no active alarm {alarm_id!r}")
         # active in the store only (the engine never resumed it): clear the row directly
-        change = AlarmChange("cleared", replace(stored, status=AlarmStatus.CLEARED, cleared_at=now, updated_at=now,
-                                                message=f"{stored.message}; cleared by hand ({who})"))  # fmt: skip
-    kind = service.pipeline.kinds.get(change.alarm.device_id, "rod")
-    service.hub.emit(Output(alarms=[AlarmOut(kind, change, int(now * 1e6), None)]))
-    # the engine's record is the authority: the store row follows from the writer thread a moment later
-    return alarm_json(change.alarm)
+        row = replace(stored, status=AlarmStatus.CLEARED, cleared_at=now, updated_at=now,
+                      message=f"{stored.message}; cleared by hand ({who})")  # fmt: skip
+        await service.call(lambda: service.publish_stored_alarm("cleared", row, now))
+        alarm = row
+    # the store row follows from the writer thread a moment later
+    return alarm_json(alarm)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from dataclasses import replace
 from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Query
@@ -46,14 +47,22 @@ def list_alarms(
 
 @router.post("/{alarm_id}/ack")
 async def ack_alarm(alarm_id: AlarmIdPath, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
-    """Acknowledge an alarm (it stays active until its condition clears).
+    """Acknowledge an alarm (it stays active until its condition clears); published on its alarm key with
+    `state: acknowledged`. An already acknowledged alarm is returned unchanged.
 
-    Async on purpose: the engine is changed on the event loop, the thread that owns it; the store in a thread."""
+    The alarm engine is the authority: the ingest task acknowledges it there (a command), publishes the event and
+    hands the row to the store writer. An alarm the engine no longer holds (cleared) is acknowledged from its
+    stored row the same way."""
     now = time.time()
-    # a pending upsert of this alarm must not overwrite the acknowledgement
-    await asyncio.to_thread(service.writer.flush, READ_WAIT_S)
-    service.pipeline.engine.acknowledge(alarm_id, who, now)
-    alarm = await asyncio.to_thread(service.store.acknowledge, alarm_id, who, now)
-    if alarm is None:
+    alarm = await service.call(lambda: service.acknowledge_alarm(alarm_id, who, now))
+    if alarm is not None:
+        return alarm_json(alarm)
+    await asyncio.to_thread(service.writer.flush, READ_WAIT_S)  # the newest row of it, if one is pending
+    stored = await asyncio.to_thread(service.store.get_alarm, alarm_id)
+    if stored is None:
         raise HTTPException(404, f"unknown alarm {alarm_id!r}")
-    return alarm_json(alarm)
+    if stored.acknowledged:
+        return alarm_json(stored)
+    acked = replace(stored, acknowledged=True, acknowledged_at=now, acknowledged_by=who, updated_at=now)
+    await service.call(lambda: service.publish_stored_alarm("acknowledged", acked, now))
+    return alarm_json(acked)

@@ -6,7 +6,6 @@ per problem in `detail`.
 
 from __future__ import annotations
 
-import asyncio
 import time
 from typing import Annotated, Any, Literal
 
@@ -14,7 +13,7 @@ from fastapi import APIRouter, Body, HTTPException
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from gateway.api.deps import DeviceIdPath, ServiceDep, WriterDep
-from gateway.config import THRESHOLD_MODELS, CalibrationJson, DeviceSettings
+from gateway.config import THRESHOLD_MODELS, CalibrationJson, DeviceSettings, ThresholdModel
 
 router = APIRouter(tags=["config"])
 Kind = Literal["rod", "hook", "ball"]
@@ -38,10 +37,10 @@ class DeviceSettingsIn(BaseModel):
     calibration: CalibrationJson = None
 
 
-# Handlers that read or change the pipeline are `async`: FastAPI runs them on the event loop, the one thread that
-# owns the gateway's live state (ingest runs there too); plain `def` handlers ran on worker threads beside ingest.
-# SQLite work goes to a thread (`asyncio.to_thread`) so the loop never waits on the disk; one lock per service
-# orders concurrent writes so the store and the live state end in the same order.
+# Handlers are `async` (on the event loop; a batch never yields, so their reads see no half-done batch). They change
+# the live state only through owner commands (`service.call`: the ingest task runs them between batches) and the
+# store only through its one writer thread (`service.store_write`), so the loop never waits on the disk; one lock
+# per service orders concurrent writes so the store and the live state end in the same order.
 
 
 @router.get("/thresholds/{kind}")
@@ -59,13 +58,20 @@ async def put_defaults(
         model = THRESHOLD_MODELS[kind].model_validate(body)
     except ValidationError as exc:
         raise HTTPException(422, _messages(exc)) from exc
+    pl = service.pipeline
+
+    def apply(new: ThresholdModel) -> ThresholdModel:
+        old = pl.defaults[kind]
+        pl.set_defaults(kind, new)  # BadSettings -> 422 (a device override would become invalid)
+        service.config_changed()
+        return old
+
     async with service.config_lock:
-        old = service.pipeline.defaults[kind]
-        service.pipeline.set_defaults(kind, model)  # BadSettings -> 422 (a device override would become invalid)
+        old = await service.call(lambda: apply(model))
         try:
-            await asyncio.to_thread(service.store.save_defaults, kind, model)
+            await service.store_write(lambda store: store.save_defaults(kind, model))
         except Exception:  # not stored (disk full: 503): not applied either
-            service.pipeline.set_defaults(kind, old)
+            await service.call(lambda: apply(old))
             raise
     service.writer.log_event(time.time(), "defaults_changed", None, {"kind": kind})
     return model.model_dump()
@@ -117,8 +123,8 @@ async def _put_settings(device_id: str, body: DeviceSettingsIn, service: Service
     ds = DeviceSettings(filter_name=body.filter_name, thresholds=body.thresholds, auto_reel=auto, calibration=cal)
     service.pipeline.validate_device_settings(kind, ds)  # BadSettings -> 422
     # not stored (disk full: 503): not applied either
-    await asyncio.to_thread(service.store.save_device_settings, device_id, kind, ds)
-    service.pipeline.set_device_settings(device_id, kind, ds)
+    await service.store_write(lambda store: store.save_device_settings(device_id, kind, ds))
+    await service.call(lambda: _apply_settings(service, device_id, kind, ds))
     service.writer.log_event(time.time(), "settings_changed", device_id, ds.model_dump())
     return _settings_view(device_id, service)
 
@@ -132,12 +138,19 @@ async def delete_settings(device_id: DeviceIdPath, service: ServiceDep, _: Write
         entry = service.pipeline.device_settings.get(device_id)
         kept = DeviceSettings(auto_reel=service.pipeline.auto_reel.get(device_id, False),
                               calibration=entry[1].calibration if entry else None)  # fmt: skip
-        if kept.auto_reel or kept.calibration is not None:
-            await asyncio.to_thread(service.store.save_device_settings, device_id, kind, kept)
-            service.pipeline.set_device_settings(device_id, kind, kept)
+        keep = kept.auto_reel or kept.calibration is not None
+        if keep:
+            await service.store_write(lambda store: store.save_device_settings(device_id, kind, kept))
         else:
-            await asyncio.to_thread(service.store.delete_device_settings, device_id)
-            service.pipeline.set_device_settings(device_id, kind, kept)
-            service.pipeline.device_settings.pop(device_id, None)
+            await service.store_write(lambda store: store.delete_device_settings(device_id))
+        await service.call(lambda: _apply_settings(service, device_id, kind, kept, forget=not keep))
         return _settings_view(device_id, service)
+
+
+def _apply_settings(service: ServiceDep, device_id: str, kind: str, ds: DeviceSettings, forget: bool = False) -> None:
+    """Owner command: put a device's settings in force (`forget`: it has no stored settings any more)."""
+    service.pipeline.set_device_settings(device_id, kind, ds)
+    if forget:
+        service.pipeline.device_settings.pop(device_id, None)
+    service.config_changed()
 

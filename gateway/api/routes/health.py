@@ -38,7 +38,8 @@ async def health(service: ServiceDep, request: Request) -> dict[str, Any]:
 
 @router.get("/stats")
 async def stats(service: ServiceDep) -> dict[str, Any]:
-    """Ingest counters (same as `gw/diag/ingest`) plus queue depth and batches processed."""
+    """Ingest counters (same as `gw/diag/ingest`) plus queue depth, batches processed, the blocking-put queue and the
+    owner's command queue. Reads on the event loop between batches (a batch never yields): never waits for ingest."""
     snap = service.counters.snapshot(int(time.time() * 1e6)).model_dump()
     if service.inbox is not None:
         snap["queue_drops"] = service.inbox.drops
@@ -52,5 +53,10 @@ async def stats(service: ServiceDep) -> dict[str, Any]:
             "max": 1e3 * delays[-1], "n": len(delays),
         }  # fmt: skip
     snap["published"] = service.hub.published
+    publisher = service.hub.publisher
+    if publisher is not None:  # BLOCK puts (alarms, swing, reel commands) waiting for a slow subscriber, and dropped
+        snap["blocking_puts"] = {"queued": len(publisher), "dropped": publisher.dropped, "failures": publisher.failures}
+    snap["commands"] = {"queued": len(service.commands), "ran": service.commands.ran}  # owner task's command queue
+    snap["batch_limit"] = service.batch_limit()  # packets the next batch may take (sized to `batch_budget_s`)
     snap["invalid_tokens"] = service.presence.invalid_tokens  # liveliness tokens with a bad key (ignored)
     return snap

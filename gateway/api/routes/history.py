@@ -26,6 +26,7 @@ from gateway import schemas
 from gateway.api.deps import DeviceIdPath
 from gateway.hub import HubSink
 from gateway.ingest.runner import GatewayService
+from gateway.views import plot_point
 
 router = APIRouter(prefix="/history", tags=["history"])
 Agg = Literal["mean", "max", "last"]
@@ -36,21 +37,6 @@ FIELDS: dict[str, Agg] = {
     "water_temp_c": "mean", "air_temp_c": "mean", "oxygen_mg_l": "mean",
 }  # fmt: skip
 """Every field a history can hold (units in the names) and how a bucket aggregates it."""
-
-
-def plot_point(model: schemas.WireModel) -> tuple[str, float, dict[str, float]] | None:
-    """(device id, wall time s, plotted values in degrees) of an Attitude or Swing output, else None: the one place
-    that turns hub outputs into the dashboard's series (history and the live stream)."""
-    if isinstance(model, schemas.Attitude):
-        values = {"roll_deg": math.degrees(model.roll_rad), "pitch_deg": math.degrees(model.pitch_rad),
-                  "yaw_deg": math.degrees(model.yaw_unwrapped_rad)}  # fmt: skip
-    elif isinstance(model, schemas.Swing):
-        values = {"swing_deg": math.degrees(model.swing_angle_rad),
-                  "direction_deg": math.degrees(model.swing_direction_rad),
-                  "torsion_deg": math.degrees(model.torsion_rad)}  # fmt: skip
-    else:
-        return None
-    return model.device_id, (model.wall_t_us or time.time() * 1e6) / 1e6, values
 
 
 @dataclass(frozen=True)

@@ -125,9 +125,10 @@ def start_metrics(app: Any, service: GatewayService) -> Metrics:
 
 
 @router.get("/metrics", response_class=Response, responses={200: {"content": {CONTENT_TYPE_LATEST: {}}}})
-def metrics(request: Request) -> Response:
+async def metrics(request: Request) -> Response:
     """Prometheus text exposition: ingest rates (rate() of the counters), loss, rejects by reason, latency
-    histogram, active alarms, filter restarts per device kind."""
+    histogram, active alarms, filter restarts per device kind. Async: the collectors read the ingest task's counters
+    and alarm engine on the event loop, between batches (a worker thread could read them mid-change)."""
     m: Metrics | None = getattr(request.app.state, "metrics", None)
     if m is None:
         return Response("# gateway starting\n", media_type=CONTENT_TYPE_LATEST, status_code=503)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 import time
 from typing import Annotated, Any, Literal
 
@@ -10,6 +9,7 @@ from fastapi import APIRouter, HTTPException
 from pydantic import BaseModel, ConfigDict, Field
 
 from gateway.api.deps import DeviceIdPath, ServiceDep, WriterDep
+from gateway.config import DeviceSettings
 
 router = APIRouter(prefix="/rods", tags=["reel"])
 
@@ -28,18 +28,25 @@ class ReelRequest(BaseModel):
 async def reel(device_id: DeviceIdPath, body: ReelRequest, service: ServiceDep, who: WriterDep) -> dict[str, Any]:
     """Send a ReelCommand to `rig/rod/{id}/reel/cmd` (CongestionControl.BLOCK), or switch auto mode on.
 
-    Async on purpose: the auto-reel state is the pipeline's, changed on the event loop that owns it."""
+    The auto-reel state is the pipeline's: switched by the ingest task (a command); the command is published by
+    the hub's blocking-put thread."""
     if service.pipeline.kinds.get(device_id) not in (None, "rod"):
         raise HTTPException(422, [f"device {device_id!r} is not a rod"])
     pl = service.pipeline
     on = body.action == "auto"
-    was = pl.auto_reel.get(device_id, False)
-    available = pl.set_auto_reel(device_id, on)
-    if was != on:  # the mode is stored in the rod's settings, so a restart keeps it
-        kind, ds = pl.device_settings[device_id]
-        await asyncio.to_thread(service.store.save_device_settings, device_id, kind, ds)
+
+    def switch() -> tuple[bool, bool, tuple[str, DeviceSettings] | None]:
+        was = pl.auto_reel.get(device_id, False)
+        available = pl.set_auto_reel(device_id, on)
+        return was, available, pl.device_settings.get(device_id)
+
+    was, available, entry = await service.call(switch)
+    if was != on and entry is not None:  # the mode is stored in the rod's settings, so a restart keeps it
+        kind, ds = entry
+        await service.store_write(lambda store: store.save_device_settings(device_id, kind, ds))
         service.writer.log_event(time.time(), "reel_auto", device_id, {"on": on, "by": who})
     if on:
         return {"device_id": device_id, "auto": True, "controller_available": available}
-    cmd = service.hub.send_reel(device_id, body.action, body.speed_m_s, body.drag_n, sender=who)
+    cmd = await service.call(lambda: service.hub.send_reel(device_id, body.action, body.speed_m_s, body.drag_n,
+                                                           sender=who))  # fmt: skip
     return {"device_id": device_id, "auto": False, "command": cmd.model_dump()}

@@ -1,0 +1,89 @@
+"""Blocking puts off the ingest task: a bounded queue and one thread that makes the BLOCK puts.
+
+zenoh's CongestionControl.BLOCK makes `put` wait while a subscriber is slow (alarms, swing, reel commands and
+attitude blocks must not be dropped by zenoh). Made on the event loop, that wait stalled ingest and REST. The hub
+hands those puts to `BlockingPublisher.put`, which only appends to a bounded deque; the thread puts them in order.
+When the queue is full (a subscriber stalled for long) the OLDEST put is dropped and counted in `dropped`: memory
+stays bounded and ingest keeps going; /api/stats shows the count.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import threading
+import time
+
+from gateway.ingest.bus import Bus
+
+log = logging.getLogger("gateway.publisher")
+
+
+class BlockingPublisher:
+    """In-order BLOCK puts on a thread of their own; `put` never waits."""
+
+    def __init__(self, bus: Bus, maxsize: int = 10_000) -> None:
+        self.bus = bus
+        self.maxsize = maxsize
+        self.dropped = 0
+        self.published = 0
+        self.failures = 0
+        self._items: collections.deque[tuple[str, bytes, str]] = collections.deque()
+        self._cond = threading.Condition()
+        self._busy = False
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, name="block-publisher", daemon=True)
+        self._thread.start()
+
+    def put(self, key: str, payload: bytes, encoding: str) -> None:
+        """Queue one BLOCK put (any thread); drops the oldest queued put when full."""
+        with self._cond:
+            if self._stop:
+                return
+            if len(self._items) >= self.maxsize:
+                self._items.popleft()
+                self.dropped += 1
+            self._items.append((key, payload, encoding))
+            self._cond.notify_all()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._items and not self._stop:
+                    self._cond.wait()
+                if not self._items:
+                    return
+                key, payload, encoding = self._items.popleft()
+                self._busy = True
+            try:
+                self.bus.put(key, payload, encoding=encoding, block=True)
+                self.published += 1
+            except Exception:
+                self.failures += 1
+                log.exception("blocking put on %s failed", key)
+            with self._cond:
+                self._busy = False
+                self._cond.notify_all()
+
+    def flush(self, timeout_s: float = 2.0) -> bool:
+        """Wait until every queued put is made; False on timeout."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while self._items or self._busy:
+                left = deadline - time.monotonic()
+                if left <= 0 or not self._thread.is_alive():
+                    return False
+                self._cond.wait(left)
+        return True
+
+    def close(self, timeout_s: float = 2.0) -> None:
+        """Make what is queued (up to `timeout_s`), then stop the thread; later puts are ignored."""
+        self.flush(timeout_s)
+        with self._cond:
+            self._stop = True
+            self._items.clear()
+            self._cond.notify_all()
+        self._thread.join(timeout_s)
+
+    def __len__(self) -> int:
+        return len(self._items)

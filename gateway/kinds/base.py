@@ -1,0 +1,377 @@
+"""What every device kind shares: the `DeviceKind` protocol, the fused device record, a batch of one kind's fused
+blocks as concatenated arrays, and the pipeline's output types.
+
+A kind handler (gateway/kinds/rod.py, hook.py, ball.py) holds only what is special to its kind: its device state
+(rules, angles), its post-processing of a batch and its outputs. Fusion (warm-up, filters, restarts) is the
+`gateway.fusion.bank.FusionBank`'s; the common attitude post-processing (Euler, yaw unwrap, Attitude messages) is
+done once per batch over all devices of a kind here (`KindBatch`, `attitudes`), not per device.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple, Protocol, runtime_checkable
+
+import numpy as np
+
+from gateway import schemas
+from gateway.alarm.engine import AlarmChange, Condition
+from gateway.fusion.base import AttitudeFilter, FloatArray
+from gateway.fusion.quaternion import to_euler
+
+if TYPE_CHECKING:
+    from pydantic import BaseModel
+
+    from gateway.config import ThresholdModel
+    from gateway.pipeline import PipelineSettings
+
+G_M_S2 = 9.80665
+
+class AlarmOut(NamedTuple):
+    """One engine change for the hub: `t_us` is the device time of the sample behind it, `source_wall_us` that
+    sample on the device's realtime clock (None when the device sends no `wall_t0_us`)."""
+
+    kind: str  # wire device kind
+    change: AlarmChange
+    t_us: int
+    source_wall_us: int | None
+
+
+class FilterFailure(NamedTuple):
+    """A device's filter raised or returned a non-finite quaternion; its fusion restarts from a fresh warm-up."""
+
+    kind: str
+    device_id: str
+    reason: str  # the exception's class name (e.g. `LinAlgError`), or `non_finite`
+    detail: str
+
+
+class ReelEvent(NamedTuple):
+    """A reel safety action for the event log: `reel_data_lost` (auto mode, no fresh attitude within the
+    controller's timeout, stop sent) or `reel_offline` (the rod's liveliness token vanished, stop sent)."""
+
+    device_id: str
+    kind: str
+    t_s: float  # gateway wall time
+    details: dict[str, Any]
+
+
+Timed = tuple[str, int, int | None, Condition]  # (kind, device t_us, device wall µs or None, wall-time condition)
+
+
+class Published(NamedTuple):
+    """One message of a kind's own topic: published on `topic.key(kind, device_id)` with the row's QoS."""
+
+    topic: schemas.Topic
+    kind: str
+    device_id: str
+    model: schemas.WireModel
+
+
+@dataclass
+class Output:
+    """What one batch produced; the hub publishes and persists it."""
+
+    attitudes: list[schemas.Attitude] = field(default_factory=list)
+    attitude_blocks: list[schemas.AttitudeBlock] = field(default_factory=list)
+    swings: list[schemas.Swing] = field(default_factory=list)
+    heights: list[schemas.Height] = field(default_factory=list)
+    alarms: list[AlarmOut] = field(default_factory=list)
+    spots: schemas.SpotRanking | None = None
+    reel_commands: list[tuple[str, dict[str, Any]]] = field(default_factory=list)  # (device id, ReelCommand fields)
+    reel_events: list[ReelEvent] = field(default_factory=list)  # reel safety stops (watchdog, offline) to log
+    filter_failures: list[FilterFailure] = field(default_factory=list)
+    # Outputs of kinds without a field above (a kind added later): each message with its Topic row; the hub
+    # publishes them with that row's key and QoS, like the built-in outputs.
+    extra: list[Published] = field(default_factory=list)
+
+
+@dataclass
+class FusedDevice:
+    """Fusion state of one IMU device (any kind) plus its kind's own state in `state` (e.g. `RodState`)."""
+
+    kind: str
+    device_id: str
+    filter_name: str
+    dt_s: float
+    use_mag: bool
+    filt: AttitudeFilter | None  # None: a row of the bank's default-filter batch
+    state: Any = None  # the kind handler's per-device state
+    yaw_last: float = math.nan
+    yaw_turns: int = 0
+    quat: FloatArray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0, 0.0]))
+    euler: FloatArray = field(default_factory=lambda: np.zeros(3))
+    yaw_unwrapped: float = 0.0
+    t_us: int = 0
+    seq: int = 0
+    wall_offset_us: int = 0  # wall clock minus device clock
+    wall_from_device: bool = False  # wall_offset_us from the device's own wall_t0_us (else from arrival time)
+    last_attitude_t_s: float = -math.inf
+    heave: Any = None  # gateway.fusion.heave.HeaveEstimator, made on the first fused block
+    height: schemas.Height | None = None  # the last one published
+    last_height_t_s: float = -math.inf
+
+    # Read views of the kind state, for REST and tests (None when the kind has no such thing).
+    @property
+    def rod(self) -> Any:
+        return getattr(self.state, "rules", None) if self.kind == "rod" else None
+
+    @property
+    def hook(self) -> Any:
+        return getattr(self.state, "rules", None) if self.kind == "hook" else None
+
+    @property
+    def swing(self) -> schemas.Swing | None:
+        return getattr(self.state, "swing", None)
+
+    @property
+    def rest_heading_set_rad(self) -> float | None:
+        return getattr(self.state, "rest_heading_set_rad", None)
+
+
+Ends = list[tuple[int, int, int]]  # per packet of a device's block: (last sample index, seq, t_us of that sample)
+
+
+@dataclass
+class Fused:
+    """One device's fused block in a batch: its packets' samples, the filter's quaternions and packet ends."""
+
+    dev: FusedDevice
+    q: FloatArray  # (n, 4)
+    gyr: FloatArray  # (n, 3) rad/s
+    acc: FloatArray  # (n, 3) m/s², calibrated
+    t_s: FloatArray  # (n,) device time
+    ends: Ends
+    packets: list[schemas.ImuPacket]
+
+
+class KindBatch:
+    """The fused blocks of every device of one kind in a batch, concatenated: row `start[i]:stop[i]` is device
+    i's. Euler angles and unwrapped yaw are computed here once for all of them (the per-device cost they had was
+    most of the gateway's CPU at 100 rods)."""
+
+    def __init__(self, items: Sequence[Fused]) -> None:
+        self.items = list(items)
+        sizes = np.array([f.q.shape[0] for f in self.items], dtype=np.int64)
+        self.stop = np.cumsum(sizes)
+        self.start = self.stop - sizes
+        self.q = np.concatenate([f.q for f in self.items])
+        self.acc = np.concatenate([f.acc for f in self.items])
+        self.t_s = np.concatenate([f.t_s for f in self.items])
+        self.euler = to_euler(self.q)
+        prev = np.array([f.dev.yaw_last for f in self.items])
+        turns = np.array([f.dev.yaw_turns for f in self.items], dtype=np.int64)
+        self.yaw_u, new_turns = unwrap_segments(self.euler[:, 2], self.start, prev, turns)
+        last = self.stop - 1
+        for i, f in enumerate(self.items):
+            d, j = f.dev, int(last[i])
+            d.yaw_turns, d.yaw_last = int(new_turns[i]), float(self.euler[j, 2])
+            d.quat, d.euler, d.yaw_unwrapped = self.q[j].copy(), self.euler[j].copy(), float(self.yaw_u[j])
+
+    def rows(self, i: int) -> slice:
+        """Rows of device i."""
+        return slice(int(self.start[i]), int(self.stop[i]))
+
+
+def unwrap_segments(
+    yaw_rad: FloatArray, start: np.ndarray, prev_wrapped_rad: FloatArray, turns: np.ndarray
+) -> tuple[FloatArray, np.ndarray]:
+    """Continuous yaw of concatenated blocks, each continuing from its device's previous wrapped sample
+    (`prev_wrapped_rad`, nan: none yet) and turn count; returns (unwrapped yaw, new turn counts).
+
+    The same steps as `np.unwrap` on `[prev, *block]` (a jump beyond π is taken as the short way round), but the
+    2π corrections are summed as integers per segment, so devices do not leak into each other."""
+    n = yaw_rad.shape[0]
+    seg = np.zeros(n, dtype=np.int64)
+    seg[start[1:]] = 1
+    seg = np.cumsum(seg)
+    before = np.empty(n)
+    before[1:] = yaw_rad[:-1]
+    prev = np.where(np.isnan(prev_wrapped_rad), yaw_rad[start], prev_wrapped_rad)
+    before[start] = prev
+    dd = yaw_rad - before
+    ddmod = np.mod(dd + np.pi, 2.0 * np.pi) - np.pi
+    ddmod[(ddmod == -np.pi) & (dd > 0)] = np.pi
+    k = np.rint((ddmod - dd) / (2.0 * np.pi)).astype(np.int64)
+    k[np.abs(dd) < np.pi] = 0
+    ck = np.cumsum(k)
+    base = ck[start] - k[start]  # the sum up to (not including) each segment's first row
+    total = ck - base[seg] + turns[seg]
+    u: FloatArray = yaw_rad + 2.0 * np.pi * total
+    return u, total[np.append(start[1:], n) - 1]
+
+
+def attitudes(kb: KindBatch, interval_s: float) -> list[schemas.Attitude]:
+    """Attitude messages at packet ends, at most every `interval_s` of device time per device; the floats of all
+    devices are converted in one `tolist` each."""
+    picks: list[tuple[FusedDevice, int, int, int]] = []
+    for i, f in enumerate(kb.items):
+        dev, base, t_s = f.dev, int(kb.start[i]), f.t_s
+        for j, seq, t_us in f.ends:
+            if t_s[j] - dev.last_attitude_t_s < interval_s - 1e-9:
+                continue
+            dev.last_attitude_t_s = float(t_s[j])
+            picks.append((dev, base + j, seq, t_us))
+    if not picks:
+        return []
+    rows = np.fromiter((r for _, r, _, _ in picks), dtype=np.int64, count=len(picks))
+    quats, eul, yaw_u = kb.q[rows].tolist(), kb.euler[rows].tolist(), kb.yaw_u[rows].tolist()
+    return [
+        schemas.Attitude(
+            device_id=dev.device_id, kind=dev.kind, seq=seq, t_us=t_us,  # type: ignore[arg-type]
+            wall_t_us=t_us + dev.wall_offset_us, quat_wxyz=tuple(q), roll_rad=e[0],
+            pitch_rad=e[1], yaw_rad=e[2], yaw_unwrapped_rad=yu, filter=dev.filter_name,
+        )
+        for (dev, _, seq, t_us), q, e, yu in zip(picks, quats, eul, yaw_u, strict=True)
+    ]  # fmt: skip
+
+
+def timed(dev: FusedDevice, conds: Iterable[Condition]) -> list[Timed]:
+    """Rule conditions with wall times (the engine and store work in wall time); device times go along."""
+    from dataclasses import replace
+
+    offset_s = dev.wall_offset_us * 1e-6
+    out: list[Timed] = []
+    for cond in conds:
+        t_us = int(round(cond.t_s * 1e6))
+        src = t_us + dev.wall_offset_us if dev.wall_from_device else None
+        out.append((dev.kind, t_us, src, replace(cond, t_s=cond.t_s + offset_s)))
+    return out
+
+
+@dataclass
+class KindContext:
+    """What the pipeline lends a handler: its settings, the current thresholds of a device, and a way to report
+    that one device's post-processing failed (it restarts alone)."""
+
+    settings: PipelineSettings
+    thresholds: Callable[[str, str | None], ThresholdModel]  # (kind, device id or None) -> merged thresholds
+    fail: Callable[[FusedDevice, Exception, Output], None]
+
+
+@runtime_checkable
+class DeviceKind(Protocol):
+    """One device kind. `fused` kinds send IMU packets through the fusion bank and get `new_state` /
+    `post` / `apply`; every kind may consume other packet types (`packet_types`, `on_packet`) and add outputs at
+    the end of a batch (`end_batch`)."""
+
+    name: ClassVar[str]  # the wire kind (`rig/{name}/{id}/...`)
+    fused: ClassVar[bool]
+    # The common IMU outputs (Attitude, Height, AttitudeBlock) for this kind: their wire models list the kinds they
+    # accept (the protocol's Topic table), so a kind gets them once it is listed there.
+    imu_outputs: ClassVar[bool]
+    packet_types: ClassVar[tuple[type[Any], ...]]
+
+    def thresholds_model(self) -> type[BaseModel]:
+        """The pydantic model of this kind's configuration (defaults + per-device overrides)."""
+        ...
+
+    def default_filter(self, settings: PipelineSettings) -> str:
+        """The attitude filter a device of this kind gets when its settings name none."""
+        ...
+
+    def filter_options(self, th: Any) -> dict[str, Any]:
+        """Extra arguments of the filter factory from the device's thresholds (e.g. the hook's rope length)."""
+        ...
+
+    def new_state(self, ctx: KindContext, dev: FusedDevice, th: Any) -> Any:
+        """The per-device state of a device that just finished its warm-up."""
+        ...
+
+    def apply(self, ctx: KindContext, dev: FusedDevice, th: Any) -> bool:
+        """New thresholds for a live device; False: its fusion must restart (e.g. a filter model parameter)."""
+        ...
+
+    def on_packet(self, ctx: KindContext, packet: Any, now_s: float) -> None:
+        """A non-IMU packet of this kind (e.g. reel status, environment readings)."""
+        ...
+
+    def post(self, ctx: KindContext, kb: KindBatch, now_s: float, out: Output) -> list[Timed]:
+        """Kind logic on a batch's fused blocks (Euler etc. already in `kb`): outputs and rule conditions."""
+        ...
+
+    def end_batch(self, ctx: KindContext, now_s: float, out: Output) -> None:
+        """After every packet of the batch (e.g. the ball's spot ranking)."""
+        ...
+
+
+class KindBase:
+    """No-op defaults for `DeviceKind`: a handler overrides what its kind does."""
+
+    name: ClassVar[str] = ""
+    fused: ClassVar[bool] = True
+    imu_outputs: ClassVar[bool] = True
+    packet_types: ClassVar[tuple[type[Any], ...]] = ()
+
+    def thresholds_model(self) -> type[BaseModel]:
+        raise NotImplementedError
+
+    def default_filter(self, settings: PipelineSettings) -> str:
+        return settings.default_filter
+
+    def filter_options(self, th: Any) -> dict[str, Any]:
+        return {}
+
+    def new_state(self, ctx: KindContext, dev: FusedDevice, th: Any) -> Any:
+        return None
+
+    def apply(self, ctx: KindContext, dev: FusedDevice, th: Any) -> bool:
+        return True
+
+    def on_packet(self, ctx: KindContext, packet: Any, now_s: float) -> None:
+        return None
+
+    def post(self, ctx: KindContext, kb: KindBatch, now_s: float, out: Output) -> list[Timed]:
+        return []
+
+    def end_batch(self, ctx: KindContext, now_s: float, out: Output) -> None:
+        return None
+
+
+def heights(f: Fused, bias_rad_s: FloatArray | None, interval_s: float, rest_acc_tol_m_s2: float
+            ) -> list[schemas.Height]:  # fmt: skip
+    """Height / heave of a fused block (gateway.fusion.heave) at packet ends, at most every `interval_s`."""
+    from gateway.fusion.heave import AIDED_NAMES, HeaveEstimator
+
+    dev, q, gyr, acc, t_s = f.dev, f.q, f.gyr, f.acc, f.t_s
+    if dev.heave is None:
+        g0 = float(np.linalg.norm(acc[: min(acc.shape[0], 50)].mean(axis=0)))
+        level = abs(g0 - G_M_S2) < rest_acc_tol_m_s2
+        dev.heave = HeaveEstimator(gravity_m_s2=g0 if level else G_M_S2)
+    depth = None
+    if any(p.depth_m is not None for p in f.packets):
+        depth = np.full(t_s.shape[0], np.nan)
+        for (i, _, _), p in zip(f.ends, f.packets, strict=True):
+            if p.depth_m is not None:
+                depth[i - p.n + 1] = p.depth_m
+    # the rest detector sees the rate without the filter's bias estimate
+    rows = dev.heave.update(q, gyr if bias_rad_s is None else gyr - bias_rad_s, acc, dev.dt_s, depth)
+    out = []
+    for i, seq, t_us in f.ends:
+        if t_s[i] - dev.last_height_t_s < interval_s - 1e-9:
+            continue
+        dev.last_height_t_s = float(t_s[i])
+        h, v, rest, aided = rows[i]
+        out.append(schemas.Height(
+            device_id=dev.device_id, kind=dev.kind, seq=seq, t_us=t_us,  # type: ignore[arg-type]
+            wall_t_us=t_us + dev.wall_offset_us, vz_m_s=float(v), height_m=float(h), at_rest=bool(rest),
+            aided=AIDED_NAMES[int(aided)],  # type: ignore[arg-type]
+        ))  # fmt: skip
+    dev.height = out[-1] if out else dev.height
+    return out
+
+
+def attitude_blocks(f: Fused) -> list[schemas.AttitudeBlock]:
+    """Every sample's attitude, one AttitudeBlock per packet (`f.q` holds the packets' samples in order)."""
+    dev, out, start = f.dev, [], 0
+    for p in f.packets:
+        rows = f.q[start : start + p.n].tolist()
+        start += p.n
+        out.append(schemas.AttitudeBlock(
+            device_id=dev.device_id, kind=dev.kind, boot_id=p.boot_id, seq=p.seq,  # type: ignore[arg-type]
+            t0_us=p.t0_us, rate_hz=p.rate_hz, wall_t0_us=p.t0_us + dev.wall_offset_us,
+            quat_wxyz=[tuple(r) for r in rows], filter=dev.filter_name,
+        ))  # fmt: skip
+    return out

@@ -1,0 +1,103 @@
+"""The crane hook: swing angle Θ, displacement bearing and torsion φ (`gateway.fusion.hook`), the hook rules, and
+`Swing` messages at packet ends (decimated to `swing_interval_s`).
+
+Θ and φ of every hook in a batch are computed in one call each over the concatenated blocks (φ against each
+hook's own rest heading, repeated over its rows); rules and messages are per hook.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+from gateway import schemas
+from gateway.alarm.hook import HookAlarms
+from gateway.config import HookThresholds
+from gateway.fusion import hook as hook_geo
+from gateway.kinds.base import FusedDevice, KindBase, KindBatch, KindContext, Output, Timed, timed
+
+if TYPE_CHECKING:
+    from pydantic import BaseModel
+
+    from gateway.pipeline import PipelineSettings
+
+
+@dataclass
+class HookState:
+    """A hook's rules, torsion reference and last Swing."""
+
+    rules: HookAlarms
+    rest_heading_rad: float | None = None  # heading at the first fused sample (torsion reference)
+    rest_heading_set_rad: float | None = None  # configured rest heading (HookThresholds), wins when set
+    last_swing_t_s: float = -math.inf  # device time of the last Swing published
+    swing: schemas.Swing | None = None
+
+
+class HookKind(KindBase):
+    """Hook handler."""
+
+    name: ClassVar[str] = "hook"
+    fused: ClassVar[bool] = True
+
+    def thresholds_model(self) -> type[BaseModel]:
+        return HookThresholds
+
+    def default_filter(self, settings: PipelineSettings) -> str:
+        return settings.hook_filter  # the rope-aware EKF unless configured otherwise
+
+    def filter_options(self, th: Any) -> dict[str, Any]:
+        return {"rope_length_m": th.rope_length_m} if isinstance(th, HookThresholds) else {}
+
+    def new_state(self, ctx: KindContext, dev: FusedDevice, th: Any) -> HookState:
+        st = HookState(HookAlarms(dev.device_id, th if isinstance(th, HookThresholds) else None))
+        if isinstance(th, HookThresholds) and th.rest_heading_deg is not None:
+            st.rest_heading_set_rad = math.radians(th.rest_heading_deg)
+        return st
+
+    def apply(self, ctx: KindContext, dev: FusedDevice, th: Any) -> bool:
+        if not isinstance(th, HookThresholds):
+            return True
+        rope = getattr(getattr(dev.filt, "settings", None), "rope_length_m", None)
+        if rope is not None and rope != th.rope_length_m:  # the pendulum model changed: restart fusion
+            return False
+        st: HookState = dev.state
+        st.rules.set_thresholds(th)
+        st.rest_heading_set_rad = None if th.rest_heading_deg is None else math.radians(th.rest_heading_deg)
+        return True
+
+    def post(self, ctx: KindContext, kb: KindBatch, now_s: float, out: Output) -> list[Timed]:
+        refs = np.empty(len(kb.items))
+        for i, f in enumerate(kb.items):
+            st: HookState = f.dev.state
+            if st.rest_heading_rad is None:
+                st.rest_heading_rad = float(hook_geo.twist_heading(f.q[0]))
+            refs[i] = st.rest_heading_rad if st.rest_heading_set_rad is None else st.rest_heading_set_rad
+        swing = hook_geo.swing_angle(kb.q)
+        tors = hook_geo.torsion(kb.q, np.repeat(refs, kb.stop - kb.start))
+        interval_s, conds = ctx.settings.swing_interval_s, []
+        for i, f in enumerate(kb.items):
+            dev, rows, st = f.dev, kb.rows(i), f.dev.state
+            try:
+                new = st.rules.update(f.t_s, swing[rows], tors[rows])
+                rope = getattr(dev.filt, "rope_length_m", None)  # the hook filter's estimate at the batch's end
+                ref = float(refs[i])
+                for j, seq, t_us in f.ends:
+                    if f.t_s[j] - st.last_swing_t_s < interval_s - 1e-9:
+                        continue
+                    st.last_swing_t_s = float(f.t_s[j])
+                    k, qj = rows.start + j, f.q[j]
+                    st.swing = schemas.Swing(
+                        device_id=dev.device_id, seq=seq, t_us=t_us, wall_t_us=t_us + dev.wall_offset_us,
+                        swing_angle_rad=float(swing[k]), swing_direction_rad=float(hook_geo.displacement_bearing(qj)),
+                        torsion_rad=float(tors[k]), swing_phi_rad=float(hook_geo.swing_direction_paper(qj, ref)),
+                        rest_heading_rad=math.remainder(ref, 2.0 * math.pi),
+                        rope_length_m=None if rope is None else float(rope),
+                    )  # fmt: skip
+                    out.swings.append(st.swing)
+                conds += timed(dev, new)
+            except Exception as exc:  # only this hook restarts
+                ctx.fail(dev, exc, out)
+        return conds

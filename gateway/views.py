@@ -1,0 +1,70 @@
+"""Read views of the live state shared by REST and the dashboard stream: a device's card (`device_view`) and the
+plotted values of an output (`plot_point`). Called on the event loop between batches (a batch never yields), so
+they see whole batches; they never change anything.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+from gateway import schemas
+from gateway.ingest.runner import GatewayService
+
+
+def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dict[str, Any]:
+    """Live state of one device: presence, last packet age, stream counters, attitude / readings."""
+    pl = service.pipeline
+    kind = pl.kinds[device_id]
+    stream = service.counters.devices.get(device_id)
+    mono = time.monotonic()
+    out: dict[str, Any] = {
+        "device_id": device_id,
+        "kind": kind,
+        "online": service.presence.online(device_id),
+        "last_packet_age_s": None if stream is None or stream.last_arrival_s is None else mono - stream.last_arrival_s,
+        "loss_fraction": 0.0 if stream is None else stream.loss_fraction(),
+        "filter": pl.effective(kind, device_id)[0] if kind != "ball" else None,
+        "active_alarms": [a.type for a in pl.engine.active(device_id)],
+    }
+    dev = pl.devices.get(device_id)
+    if dev is not None:
+        out["attitude"] = {
+            "quat_wxyz": [float(x) for x in dev.quat], "roll_rad": float(dev.euler[0]),
+            "pitch_rad": float(dev.euler[1]), "yaw_rad": float(dev.euler[2]), "yaw_unwrapped_rad": dev.yaw_unwrapped,
+            "t_us": dev.t_us, "seq": dev.seq,
+        }  # fmt: skip
+        if dev.swing is not None:
+            out["swing"] = dev.swing.model_dump()
+        if dev.height is not None:
+            out["height"] = dev.height.model_dump()
+        if kind == "rod":
+            out["auto_reel"] = pl.auto_reel.get(device_id, False)
+    if device_id in pl.env:
+        out["readings"] = pl.env[device_id].model_dump(exclude={"profile"} if not detail else set())
+    if device_id in pl.reel:
+        out["reel"] = pl.reel[device_id][0].model_dump()
+    if detail:
+        out["gyro_bias_rad_s"] = pl.bias_rad_s(device_id)
+        if stream is not None:
+            t = stream.main()
+            out["stream"] = {"ok": t.ok, "lost": t.lost, "duplicates": t.duplicates, "reordered": t.reordered,
+                             "reboots": t.reboots, "rejected": dict(stream.rejected),
+                             "filter_restarts": dict(stream.filter_restarts)}  # fmt: skip
+    return out
+
+
+def plot_point(model: schemas.WireModel) -> tuple[str, float, dict[str, float]] | None:
+    """(device id, wall time s, plotted values in degrees) of an Attitude or Swing output, else None: the one place
+    that turns hub outputs into the dashboard's series (history and the live stream)."""
+    if isinstance(model, schemas.Attitude):
+        values = {"roll_deg": math.degrees(model.roll_rad), "pitch_deg": math.degrees(model.pitch_rad),
+                  "yaw_deg": math.degrees(model.yaw_unwrapped_rad)}  # fmt: skip
+    elif isinstance(model, schemas.Swing):
+        values = {"swing_deg": math.degrees(model.swing_angle_rad),
+                  "direction_deg": math.degrees(model.swing_direction_rad),
+                  "torsion_deg": math.degrees(model.torsion_rad)}  # fmt: skip
+    else:
+        return None
+    return model.device_id, (model.wall_t_us or time.time() * 1e6) / 1e6, values
