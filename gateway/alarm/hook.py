@@ -1,9 +1,10 @@
 """Crane-hook rules: swing angle Theta (seed 001 eq. 6, cos Theta = cos(theta_x) cos(theta_y)) and torsion phi
 about the rope (seed 001 eq. 1-3), each with a warning and a critical threshold, clearing hysteresis and a hold-off.
 
-A hook swings and twists back and forth: block peaks cross a limit every half period, so hysteresis alone lets an
+A hook swings and twists back and forth: the value crosses a limit every half period, so hysteresis alone lets an
 alarm flap (issue 17: 38 of 95 rows in 20 min were torsion warnings around 30 deg). A level therefore rises at once
-but falls only after the value has stayed below `threshold - hysteresis` for `clear_hold_s` seconds.
+but falls only after the value has stayed below `threshold - hysteresis` for `clear_hold_s` seconds. Both are
+decided sample by sample in device time (issue 11): the alarms do not depend on how samples were packetized.
 """
 
 from __future__ import annotations
@@ -32,8 +33,10 @@ def wrap_abs_deg(angle_rad: FloatArray) -> FloatArray:
 class HeldLevel:
     """One metric (deg, >= 0) against ascending limits: rises at once, falls after `hold_s` below the band.
 
-    Emits a Condition only when the level changes; `value` is the block peak on a rise and the episode peak on
-    a fall, `threshold` the limit the message names, so the message never contradicts the numbers.
+    Judged sample by sample in device time, so the same samples give the same conditions however they were cut
+    into packets and blocks. Emits a Condition only when the level changes: on a rise `value` is the sample that
+    crossed the limit, on a fall the episode's peak; `threshold` is the limit the message names, so the message
+    never contradicts the numbers.
     """
 
     def __init__(self, alarm_type: str, label: str, names: Sequence[str]) -> None:
@@ -44,45 +47,60 @@ class HeldLevel:
         self.hysteresis = 0.0
         self.hold_s = CLEAR_HOLD_S
         self.level = 0
-        self.below_since: float | None = None  # when the value first stayed under the current level's band
+        self.below_since: float | None = None  # device time of the first sample under the current level's band
         self.episode_peak = 0.0
 
-    def update(self, device_id: str, t_s: FloatArray, values: FloatArray) -> Condition | None:
-        if values.size == 0:
-            return None
+    def update(self, device_id: str, t_s: FloatArray, values: FloatArray) -> list[Condition]:
+        """The level changes over one block of samples (t_s, values), in order."""
+        if values.size == 0 or not self.limits:
+            return []
         peak = float(values.max())
-        raised = sum(peak >= thr for thr in self.limits)
+        if self.level == 0 and peak < self.limits[0]:
+            return []  # fast path: calm
+        if self.level and peak < (self.limits[self.level] if self.level < len(self.limits) else math.inf):
+            band = self.limits[self.level - 1] - self.hysteresis
+            if float(values.min()) >= band:  # fast path: holding the level
+                self.episode_peak = max(self.episode_peak, peak)
+                self.below_since = None
+                return []
+        out: list[Condition] = []
+        for t, v in zip(t_s.tolist(), values.tolist(), strict=True):
+            c = self._sample(device_id, t, v)
+            if c is not None:
+                out.append(c)
+        return out
+
+    def _sample(self, device_id: str, t: float, v: float) -> Condition | None:
+        raised = sum(v >= thr for thr in self.limits)
         if raised > self.level:
             self.level, self.below_since = raised, None
-            self.episode_peak = max(self.episode_peak, peak)
+            self.episode_peak = max(self.episode_peak, v)
             thr = self.limits[raised - 1]
-            t = float(t_s[int(np.argmax(values >= thr))])
-            msg = f"{self.label} peak {peak:.1f}° ≥ {self.names[raised - 1]} limit {thr:.1f}°"
-            return self._condition(device_id, t, peak, thr, msg)
-        self.episode_peak = max(self.episode_peak, peak) if self.level else 0.0
-        kept = sum(peak >= thr - self.hysteresis for thr in self.limits)
-        if kept >= self.level or self.level == 0:
+            msg = f"{self.label} {v:.1f}° ≥ {self.names[raised - 1]} limit {thr:.1f}°"
+            return self._condition(device_id, t, v, thr, msg)
+        if self.level == 0:
+            return None
+        self.episode_peak = max(self.episode_peak, v)
+        kept = sum(v >= thr - self.hysteresis for thr in self.limits)
+        if kept >= self.level:
             self.below_since = None
             return None
-        if self.below_since is None:  # the first sample of this block below the band starts the hold-off
-            band = self.limits[self.level - 1] - self.hysteresis
-            self.below_since = (
-                float(t_s[int(np.argmax(values < band))]) if bool((values < band).any()) else float(t_s[0])
-            )
-        if float(t_s[-1]) - self.below_since < self.hold_s:
+        if self.below_since is None:
+            self.below_since = t
+        if t - self.below_since < self.hold_s:
             return None
         old = self.level
-        self.level, self.below_since = max(raised, kept), None
+        self.level, self.below_since = kept, None
         band = self.limits[old - 1] - self.hysteresis
         held = f"below {band:.1f}° for {self.hold_s:g} s, peak {self.episode_peak:.1f}°"
         if self.level == 0:
-            msg = f"{self.label} back to {peak:.1f}° ({held}); {self.names[0]} limit {self.limits[0]:.1f}°"
-            c = Condition(device_id, self.spec.type, None, float(t_s[-1]), self.episode_peak, self.limits[0], msg)
+            msg = f"{self.label} back to {v:.1f}° ({held}); {self.names[0]} limit {self.limits[0]:.1f}°"
+            c = Condition(device_id, self.spec.type, None, t, self.episode_peak, self.limits[0], msg)
             self.episode_peak = 0.0
             return c
         thr = self.limits[self.level - 1]
-        msg = f"{self.label} {peak:.1f}° ({held}): {self.names[self.level - 1]}, limit {thr:.1f}°"
-        return self._condition(device_id, float(t_s[-1]), self.episode_peak, thr, msg)
+        msg = f"{self.label} {v:.1f}° ({held}): {self.names[self.level - 1]}, limit {thr:.1f}°"
+        return self._condition(device_id, t, self.episode_peak, thr, msg)
 
     def _condition(self, device_id: str, t: float, value: float, thr: float, msg: str) -> Condition:
         severity = self.spec.severities[min(self.level, len(self.spec.severities)) - 1]
@@ -108,11 +126,6 @@ class HookAlarms:
 
     def update(self, t_s: FloatArray, swing_rad: FloatArray, torsion_rad: FloatArray) -> list[Condition]:
         """One block, shapes (n,): swing angle Theta >= 0 and torsion phi, both in radians."""
-        out = []
-        c = self.swing.update(self.device_id, t_s, np.abs(swing_rad) * (180.0 / math.pi))
-        if c is not None:
-            out.append(c)
-        c = self.torsion.update(self.device_id, t_s, wrap_abs_deg(torsion_rad))
-        if c is not None:
-            out.append(c)
-        return out
+        out = self.swing.update(self.device_id, t_s, np.abs(swing_rad) * (180.0 / math.pi))
+        out += self.torsion.update(self.device_id, t_s, wrap_abs_deg(torsion_rad))
+        return sorted(out, key=lambda c: c.t_s)  # in device-time order, as they happened, whatever the block

@@ -61,7 +61,8 @@ _LEVER = slice(19, 21)  # the IMU's x/y offset from the rope axis (its z offset 
 N_INPUT = 8  # per-sample process input: accelerometer x/y, gyroscope (3), its backward difference (3)
 # params layout (numba kernels take one float array)
 (_G, _RX, _RY, _RZ, _MX, _MY, _MZ, _USE_MAG, _GATE, _TIP_PSD, _FORCE_STD, _HOIST_TAU, _L_MIN, _TIP_TAU,
- _FORCE_ON, _L_MAX, _NIS_TAU, _NIS_GATE, _TIP_MOVE) = range(19)
+ _FORCE_ON, _L_MAX, _NIS_TAU, _NIS_GATE, _TIP_MOVE, _TIP_STD, _TIP_GATE, _MOVE_FREEZE, _MOVE_HOLD,
+ _TIP_GATE_STD) = range(24)
 
 
 @dataclass(frozen=True)
@@ -80,7 +81,8 @@ class HookFilterSettings:
     gyro_noise_rad_s: float = 0.0015  # MPU-6050: 0.05 °/s rms at 100 Hz, plus quantisation and scale errors
     acc_noise_m_s2: float = 0.15  # tension channel: white noise plus unmodelled lever-arm and scale terms
     force_noise_m_s2: float = 0.06  # accelerometer x/y as the force input: noise + lever-arm derivative noise
-    mag_noise_uT: float = 30.0  # weak on purpose: hard-iron-biased heading fixes would jolt the swing estimate
+    mag_noise_uT: float = 3.0  # a calibrated compass (hard iron ~0.5 µT): 30 µT left the z bias of a hook twisting at
+    # start unlearnt (torsion drifted ~1 °/s, bench.hook_suite seed 5); 1 µT couples its errors into the swing
     tip_accel_std_m_s2: float = 0.06  # boom-tip acceleration (trolley, slewing): stationary std of its state
     tip_accel_tau_s: float = 5.0  # ... and its correlation time (moves start and stop)
     tip_accel_psd: float = 0.001  # (m/s²)²/Hz: white part of the unmeasured horizontal accelerations
@@ -97,7 +99,15 @@ class HookFilterSettings:
     hoist_tau_s: float = 1.0  # its correlation time
     move_nis_tau_s: float = 0.3  # running mean of the swing-rate innovation's normalised square (2 when all is well)
     move_nis_gate: float = 4.0  # above it a move is going on: the boom-tip acceleration state is widened
-    tip_accel_move_std_m_s2: float = 0.5  # the boom-tip acceleration's std during a detected move
+    tip_accel_move_std_m_s2: float = 0.5  # the boom-tip acceleration's std during a move the NIS test detected
+    tip_move_gate: float = 0.0  # a move is also detected when |tip estimate|² > gate × tip_accel_std² (0: off). Tried
+    # 6 (the NIS test misses slow slewing onsets): tuning seeds 0.268 -> 0.264°, but after the old bench's violent
+    # 1.6 m/s² kick the thrown-off tip state kept the gate open (0.61 -> 1.35°), so it is off
+    tip_gate_move_std_m_s2: float = 0.12  # ... and the tip state's std then (0.3 let the tip state and the gyro bias
+    # wander together so that a move never ended: 0.27 -> 0.50° on the tuning seeds)
+    move_freeze: float = 0.0  # 1: during a detected move the rope length and gyro bias take no corrections, 2: rope
+    # only (tried: no gain on the tuning seeds)
+    move_hold_s: float = 0.0  # a detected move lasts at least this long (s)
     surprise_gate: float = 16.0  # χ² (2 dof) gate on the swing-rate innovation for adaptive process noise
     init_swing_std: float = 0.02  # rad, per horizontal axis: hanging still at initialisation
     init_rate_std_rad_s: float = 0.02
@@ -344,10 +354,11 @@ def ekf_step(
 ) -> tuple[FloatArray, FloatArray]:
     """One predict + update in filterpy's operation order (Joseph form); `z` and `r_diag` are (4,) or (7,).
 
-    `monitor` (1,) is updated in place: a running mean (time constant `params[_NIS_TAU]`) of the swing-rate
-    innovation's normalised square (2 on average when the model holds). Above `params[_NIS_GATE]` an unmodelled
-    push is going on (a trolley or slewing move): the boom-tip acceleration state's variance is raised to
-    `params[_TIP_MOVE]`²."""
+    `monitor` (2,) is updated in place: [0] a running mean (time constant `params[_NIS_TAU]`) of the swing-rate
+    innovation's normalised square (2 on average when the model holds), [1] the seconds a detected move still
+    lasts. Above `params[_NIS_GATE]`, or while the predicted boom-tip acceleration exceeds `params[_TIP_GATE]`
+    times its stationary variance, an unmodelled push is going on (a trolley or slewing move): the boom-tip
+    acceleration state's variance is raised to `params[_TIP_MOVE]`² (NIS) or `params[_TIP_GATE_STD]`² (tip)."""
     m = z.shape[0]
     f_jac = process_jacobian(x, dt_s, u, params)
     x_pred = process(x, dt_s, u, params)
@@ -358,9 +369,17 @@ def ekf_step(
     s2 = h_jac[:2] @ p_pred @ h_jac[:2].T + np.diag(r_diag[:2])
     monitor[0] += (y @ np.linalg.solve(s2, y) - monitor[0]) * min(1.0, dt_s / params[_NIS_TAU])
     moving = monitor[0] > params[_NIS_GATE]
+    move_std = params[_TIP_MOVE] if moving else params[_TIP_GATE_STD]
+    if params[_TIP_GATE] > 0.0:
+        tip2 = (x_pred[17] * x_pred[17] + x_pred[18] * x_pred[18]) / (params[_TIP_STD] * params[_TIP_STD])
+        if tip2 > params[_TIP_GATE]:
+            monitor[1] = max(params[_MOVE_HOLD], 0.5 * dt_s)
+    if monitor[1] > 0.0:
+        moving = True
+        monitor[1] -= dt_s
     if moving:
         for i in (17, 18):
-            p_pred[i, i] = max(p_pred[i, i], params[_TIP_MOVE] ** 2)
+            p_pred[i, i] = max(p_pred[i, i], move_std**2)
     p_inflated = inflate_on_surprise(p_pred, h_jac, hx, z, params, r_diag)
     surprised = p_inflated[2, 2] > p_pred[2, 2]
     p_pred = p_inflated
@@ -368,6 +387,13 @@ def ekf_step(
     pht = p_pred @ h_jac.T
     k = pht @ np.linalg.inv(h_jac @ pht + rmat)
     _restrict_gain(k, surprised)
+    if moving and params[_MOVE_FREEZE] > 0.0:
+        for j in range(k.shape[1]):
+            for i in (14, 15, 16):
+                k[i, j] = 0.0
+            if params[_MOVE_FREEZE] < 1.5:
+                for i in (6, 7):
+                    k[i, j] = 0.0
     x_new = x_pred + k @ (z - hx)
     i_kh = np.eye(N_STATE) - k @ h_jac
     p_new = i_kh @ p_pred @ i_kh.T + k @ rmat @ k.T
@@ -414,7 +440,7 @@ class HookFilter(AttitudeFilter):
         self.acc_z_offset_m_s2 = 0.0
         self.mag_ref_uT: FloatArray | None = None
         self._gyr_prev: FloatArray | None = None  # last gyro sample: its difference gives ω' for the lever arm
-        self._monitor = np.array([2.0])  # running mean of the swing-rate NIS (see `ekf_step`)
+        self._monitor = np.array([2.0, 0.0])  # running mean of the swing-rate NIS (see `ekf_step`)
         self._q_psd = np.array(
             [0.0, 0.0, 0.0, 0.0, 0.0, s.torsion_accel_psd]
             + [s.gyro_bias_psd] * 3
@@ -435,7 +461,8 @@ class HookFilter(AttitudeFilter):
         return np.array([s.gravity_m_s2, *s.lever_arm_m, *m, flag, s.surprise_gate, s.tip_accel_psd,
                          s.force_noise_m_s2, s.hoist_tau_s, s.min_rope_length_m, s.tip_accel_tau_s,
                          1.0 if s.use_force_input else 0.0, s.max_rope_length_m, s.move_nis_tau_s, s.move_nis_gate,
-                         s.tip_accel_move_std_m_s2])  # fmt: skip
+                         s.tip_accel_move_std_m_s2, s.tip_accel_std_m_s2, s.tip_move_gate, s.move_freeze,
+                         s.move_hold_s, s.tip_gate_move_std_m_s2])  # fmt: skip
 
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings
@@ -506,11 +533,45 @@ class HookFilter(AttitudeFilter):
         s = self.settings
         quiet = gyr.std(axis=0) < s.rest_gyr_std_rad_s if gyr.shape[0] > 1 else np.zeros(3, dtype=bool)
         level = abs(float(np.linalg.norm(acc.mean(axis=0))) - s.gravity_m_s2) < s.rest_acc_tol_m_s2
-        if level and quiet[0] and quiet[1]:
+        swing = self.swing_from_window(gyr, dt_s)
+        if level and quiet[0] and quiet[1] and swing is None:
             if seed_bias:
                 self.seed_gyro_bias(gyr.mean(axis=0), axes=(0, 1, 2) if quiet[2] else (0, 1))
         else:
             self.assume_moving()
+            if swing is not None and s.rope_length_known:  # p scales with l: an unknown rope starts at plumb
+                p, v, std = swing
+                self.x[_P], self.x[_V] = p, v
+                for i in (0, 1):
+                    self.P[i, i] = std**2
+
+    def swing_from_window(self, gyr_rad_s: FloatArray, dt_s: float) -> tuple[FloatArray, FloatArray, float] | None:
+        """A hook already swinging at start: the rope's horizontal direction `p` and rate `p'` at the window's
+        first sample (the gateway then runs the filter over the window) and the std of `p`; None if the window shows
+        no swing above 3σ (or is shorter than 0.2 s).
+
+        Pendulum law `p = -(l/g) p''` (small angles, no force), with `p'` the gyroscope's x/y turned by the start
+        heading and `p''` the slope of a line fitted to it (bias-free: a constant bias has no slope), at the window's
+        middle and carried back to its start. A long rope's slow swing looks "quiet" over 0.5 s: started at plumb
+        with the swing rate taken for gyro bias, a 7° swing on 20 m read 4.4° off at first (bench.hook_suite 108)."""
+        gyr = np.asarray(gyr_rad_s, dtype=np.float64)
+        n = gyr.shape[0]
+        if n * dt_s < 0.2:
+            return None
+        ca, sa = math.cos(self.x[_ALPHA]), math.sin(self.x[_ALPHA])
+        rate = np.stack([sa * gyr[:, 0] + ca * gyr[:, 1], -(ca * gyr[:, 0] - sa * gyr[:, 1])], axis=1)  # ≈ p'
+        t = (np.arange(n) - 0.5 * (n - 1)) * dt_s  # 0 at the window's middle
+        slope = t @ (rate - rate.mean(axis=0)) / float(t @ t)
+        scale = self.rope_length_m / self.settings.gravity_m_s2
+        p_mid = -scale * slope
+        sigma = scale * self.settings.gyro_noise_rad_s * math.sqrt(12.0 / (n * (n * dt_s) ** 2))
+        slope_z = float(t @ (gyr[:, 2] - gyr[:, 2].mean())) / float(t @ t)
+        sigma = math.hypot(sigma, scale * self.settings.init_cross_axis_std * abs(slope_z))  # twisting: x/y see z
+        norm = float(np.hypot(*p_mid))
+        if norm < max(3.0 * sigma, 0.005) or norm > 0.5:  # no swing to see, or not a pendulum's (a knock, a jerk)
+            return None
+        p_start = p_mid + rate.mean(axis=0) * t[0]
+        return p_start, rate[:5].mean(axis=0), math.hypot(2.0 * sigma, 0.1 * norm)
 
     def _inputs(self, gyr: FloatArray, acc: FloatArray, dt_s: float) -> FloatArray:
         """Process inputs (N, N_INPUT) for the samples, continuing the gyro difference across calls."""

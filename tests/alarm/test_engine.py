@@ -121,7 +121,8 @@ def test_hook_swing_hysteresis_and_torsion_wrap():
 def test_hook_torsion_raises_at_sample_time():
     hook = HookAlarms("hook-1")
     t = np.arange(5) * 0.1
-    [c] = hook.update(t, np.zeros(5), np.radians([0.0, 10.0, 31.0, 65.0, 20.0]))
+    w, c = hook.update(t, np.zeros(5), np.radians([0.0, 10.0, 31.0, 65.0, 20.0]))  # per sample: warning, critical
+    assert (w.type, w.severity, w.t_s, w.threshold) == ("hook_torsion", Severity.WARNING, pytest.approx(0.2), 30.0)
     assert (c.type, c.severity, c.t_s, c.threshold) == ("hook_torsion", Severity.CRITICAL, pytest.approx(0.3), 60.0)
 
 
