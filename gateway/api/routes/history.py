@@ -124,7 +124,8 @@ class History(HubSink):
     def on_hub(self, topic: str, model: schemas.WireModel) -> None:
         """Hub listener (ingest task): fold attitude and swing in."""
         point = plot_point(model)
-        if point is not None:
+        accept = self.service.accept
+        if point is not None and (accept is None or accept(point[0])):  # other shards keep their devices' own
             self.device(point[0]).add(point[1], **point[2])
 
     def poll(self, now_s: float) -> None:
