@@ -16,9 +16,13 @@ A `ShardNode` is attached to a `GatewayService` (gateway/app.py) and, over the s
   change, applies (and persists) the others', and answers the same snapshot as a queryable: a starting shard
   adopts the configuration of the longest-running live shard that started before it.
 - hands the other shards' alarm events, and their attitude and swing messages at most `shard_mirror_hz` per device,
-  to this shard's hub listeners, so the dashboard's live stream and plots on any endpoint show every device.
-- answers `gw/shard/{id}/devices`, `gw/shard/{id}/device/{device_id}` and `gw/shard/{id}/stats` for the REST
-  front (gateway/shard/routes.py).
+  to this shard's hub listeners (the dashboard's alarm frames, the 3-D view); the live stream and the history keep
+  only this shard's devices and get the others' from their owners (`LivePeers`, gateway/shard/live.py; history
+  queries).
+- answers `gw/shard/{id}/devices`, `gw/shard/{id}/device/{device_id}`, `gw/shard/{id}/stats`,
+  `gw/shard/{id}/history/{device_id}/{s}/{n}`, `gw/shard/{id}/history_all/{s}/{n}` for the REST front
+  (gateway/shard/routes.py), and runs the writes other endpoints forward for its devices
+  (`gw/shard/{id}/call/{hex JSON}`: reel, ack, clear; `run_call`).
 
 Callbacks only hand off to the event loop (NOTES-zenoh-viser §1), except the read-only queryables, which wait for
 the loop to build their answer (bounded by `ANSWER_TIMEOUT_S`).

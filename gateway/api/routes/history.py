@@ -8,7 +8,8 @@ such as |a| and line tension (the bucket maximum, so a short spike stays visible
 
 Owner: the event loop. Attitude and swing arrive through the hub listener (ingest task); reel tension and water
 readings are sampled from the pipeline once per `poll_s` by a task on the same loop; the routes are `async def`,
-so they read on that loop too and never see a half-written bucket.
+so they read on that loop too and never see a half-written bucket. With several shards each keeps the history of
+the devices it serves (`GatewayService.accept`); the REST front asks the owner for the others' (gateway/shard).
 """
 
 from __future__ import annotations
