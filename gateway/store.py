@@ -34,6 +34,7 @@ from typing import Any, TypeVar
 from gateway.alarm.engine import Alarm, AlarmStatus, Severity
 from gateway.alarm.rules import SPECS
 from gateway.config import THRESHOLD_MODELS, DeviceSettings, ThresholdModel
+from gateway.worker_thread import wait_until_idle
 
 MIGRATIONS: tuple[str, ...] = (
     """
@@ -512,14 +513,8 @@ class StoreWriter:
 
     def flush(self, timeout_s: float = 2.0) -> bool:
         """Wait until every pending write is stored; False on timeout (the store is failing)."""
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            while self._ops or self._calls or self._busy:
-                left = deadline - time.monotonic()
-                if left <= 0 or not self._thread.is_alive():
-                    return False
-                self._cond.wait(left)
-        return True
+        return wait_until_idle(self._cond, lambda: bool(self._ops or self._calls) or self._busy, self._thread,
+                               timeout_s)  # fmt: skip
 
     def close(self, timeout_s: float = 2.0) -> None:
         """Store what is pending (up to `timeout_s`), then stop the thread."""

@@ -12,9 +12,9 @@ from __future__ import annotations
 import collections
 import logging
 import threading
-import time
 
 from gateway.ingest.bus import Bus
+from gateway.worker_thread import wait_until_idle
 
 log = logging.getLogger("gateway.publisher")
 
@@ -67,14 +67,7 @@ class BlockingPublisher:
 
     def flush(self, timeout_s: float = 2.0) -> bool:
         """Wait until every queued put is made; False on timeout."""
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            while self._items or self._busy:
-                left = deadline - time.monotonic()
-                if left <= 0 or not self._thread.is_alive():
-                    return False
-                self._cond.wait(left)
-        return True
+        return wait_until_idle(self._cond, lambda: bool(self._items) or self._busy, self._thread, timeout_s)
 
     def close(self, timeout_s: float = 2.0) -> None:
         """Make what is queued (up to `timeout_s`), then stop the thread; later puts are ignored."""
