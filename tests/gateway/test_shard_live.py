@@ -110,3 +110,24 @@ def test_spot_rankings_of_the_shards_merge_into_one() -> None:
     b = [{"spot": "reef", "score": 0.9, "rank": 1}, {"spot": "bay", "score": 0.6, "rank": 2}]
     got = merge_spots([a, b])
     assert [(s["spot"], s["score"], s["rank"]) for s in got] == [("reef", 0.9, 1), ("bay", 0.6, 2)]
+
+
+def test_a_shards_stream_carries_only_the_devices_it_serves() -> None:
+    """The mirrored attitude of another shard's device (for the 3-D view) must not start a series here: that
+    device's samples come with its owner's frames, and a second copy would plot every point twice."""
+    from types import SimpleNamespace
+
+    from gateway import schemas
+    from gateway.api.ws import LiveStream
+
+    kinds = {"rod-a": "rod", "rod-b": "rod"}
+    svc = SimpleNamespace(pipeline=SimpleNamespace(kinds=kinds), accept=lambda d: d == "rod-a")
+    live = LiveStream(svc)  # type: ignore[arg-type]
+    for d in kinds:
+        live.on_hub("attitude", schemas.Attitude(v=1, device_id=d, kind="rod", seq=1, t_us=1, wall_t_us=10**15,
+                                                 quat_wxyz=(1.0, 0.0, 0.0, 0.0), roll_rad=0.0, pitch_rad=0.1,
+                                                 yaw_rad=0.0, yaw_unwrapped_rad=0.0))  # fmt: skip
+    frame = live.tick_frame(1.0, full=False)
+    assert [e["device_id"] for e in frame["devices"]] == ["rod-a"]
+    assert len(frame["devices"][0]["series"]["t_s"]) == 1
+    assert set(live._series) == {"rod-a"}
