@@ -4,9 +4,9 @@ A router (`python -m gateway.shard.router`), gateways A and B connected to it as
 connected to it too. Checked: every rod is served by exactly one shard (the one rendezvous hashing names), a bite
 and a lost liveliness token raise one alarm per rod (not one per gateway) and both REST endpoints list them all,
 a threshold set through A's endpoint is in force on B, an acknowledgement through A of a bite on B's rod is
-applied by B's engine, and after SIGKILL of B its rods are taken over by A within
-2 s (bound: the issue's 2 s, measured from the kill to A's takeover time stamp; on loopback the killed process's
-TCP links close at once, so zenoh reports its token gone in well under that).
+applied by B's engine, auto reel switched on through A runs on B, and after SIGKILL of B its rods are taken over
+by A within 2 s (bound: the issue's 2 s, measured from the kill to A's takeover time stamp; on loopback the killed
+process's TCP links close at once, so zenoh reports its token gone in well under that).
 """
 
 from __future__ import annotations
@@ -157,6 +157,16 @@ def test_two_shards_split_the_devices_share_alarms_and_config_and_fail_over(clus
         _until(lambda: all(row(sid)["status"] == "cleared" for sid in ("A", "B")), 30.0, "the bite to clear")
         for sid in ("A", "B"):
             assert row(sid)["acknowledged"] and row(sid)["acknowledged_by"] == "api", (sid, row(sid))
+
+        # auto reel switched on through A for one of B's rods: B's pipeline runs it, and A's configuration (which
+        # lacked the change) does not switch it off again
+        rod_b = sorted(expected["B"])[0]
+        r = httpx.post(c.url("A", f"/api/rods/{rod_b}/reel"), json={"action": "auto"}, headers=auth, timeout=10)
+        assert r.status_code == 200 and r.json()["auto"], r.text
+        _until(lambda: c.get("B", f"/api/devices/{rod_b}")["auto_reel"], 5.0, "B to run the rod's auto reel")
+        _until(lambda: c.get("A", f"/api/devices/{rod_b}/settings")["settings"]["auto_reel"], 5.0, "A's config")
+        time.sleep(1.0)
+        assert c.get("B", f"/api/devices/{rod_b}")["auto_reel"]
         rods.wait(timeout=60)
     finally:
         _stop(rods)

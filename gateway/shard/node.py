@@ -414,6 +414,8 @@ class ShardNode:
         try:
             if op == "reel":
                 body = await reel.reel(str(req["device_id"]), reel.ReelRequest.model_validate(req["body"]), sv, who)
+                async with sv.config_lock:  # the reel mode is configuration: this shard's goes to the others
+                    self.publish_config()
             elif op == "ack":
                 body = await alarms.ack_alarm(str(req["alarm_id"]), sv, who)
             elif op == "clear":

@@ -155,6 +155,13 @@ async def history_from_its_shard(device_id: DeviceIdPath, request: Request, seco
     return await history.device_history(device_id, request, seconds, max_points)
 
 
+def _forwarded(node: ShardNode, path: str) -> bool:
+    """A reel request another shard ran (`reel_on_its_shard`): that shard publishes its configuration, this one's
+    would undo the mode change."""
+    parts = path.split("/")  # "", "api", "rods", id, "reel"
+    return path.startswith("/api/rods/") and len(parts) > 3 and _other_owner(node, parts[3]) is not None
+
+
 def install(app: FastAPI) -> None:
     """Routes (before gateway.api's, which they override) and the config fan-out middleware; the lifespan sets
     `app.state.shard`."""
@@ -165,7 +172,8 @@ def install(app: FastAPI) -> None:
         response = await call_next(request)
         node: ShardNode | None = getattr(request.app.state, "shard", None)
         if (node is not None and request.method in ("PUT", "POST", "DELETE") and response.status_code < 300
-                and request.url.path.startswith(CONFIG_PATHS) and node.service is not None):  # fmt: skip
+                and request.url.path.startswith(CONFIG_PATHS) and node.service is not None
+                and not _forwarded(node, request.url.path)):  # fmt: skip
             try:
                 async with node.service.config_lock:
                     node.publish_config()
