@@ -90,8 +90,9 @@ def create_app(
         # with `warm_up` the ingest task first loads the fusion kernels in a thread (compiled once after install,
         # cached in __pycache__; scripts/env.sh does it) and packets wait in the bounded inbox meanwhile.
         await service.start(warm_up=warm_up)
-        ws.start_live(app, service)
-        history.start_history(app, service)
+        shard: ShardNode = app.state.shard  # other shards' devices on this endpoint's stream and history routes
+        ws.start_live(app, service).peers = shard.peers
+        shard.history = history.start_history(app, service)
         while service.warming_since_s is not None:
             await asyncio.sleep(0.1)
         if view_task is not None:

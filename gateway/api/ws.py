@@ -22,7 +22,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect
@@ -136,6 +136,19 @@ def raw_imu_summary(packets: list[schemas.ImuPacket], now_s: float) -> dict[str,
     return {"acc": {"t_s": t, "ax": ax, "ay": ay, "az": az, "norm": peak}, "link": link}
 
 
+class Peers(Protocol):
+    """The other shards' side of the stream (gateway/shard/live.py): they get this shard's tick frames while some
+    other endpoint has clients (`wanted`), and this shard's clients get theirs (`merge`)."""
+
+    def wanted(self) -> bool: ...
+
+    def publish(self, frame: dict[str, Any]) -> None: ...
+
+    def listening(self, has_clients: bool) -> None: ...
+
+    def merge(self, frame: dict[str, Any]) -> None: ...
+
+
 class LiveStream(HubSink):
     """Fans pipeline results and sampled device state out to dashboard clients (see module docstring)."""
 
@@ -152,6 +165,11 @@ class LiveStream(HubSink):
         self._env: dict[str, schemas.EnvPacket] = {}
         self.entry_failures = 0
         self._entry_fail_logged_s = -math.inf
+        self.peers: Peers | None = None  # set by a shard (gateway/shard): devices served by other shards
+
+    def _served(self, device_id: str) -> bool:
+        accept = self.service.accept
+        return accept is None or accept(device_id)
 
     # -- producers --------------------------------------------------------------------------------------------
 
@@ -159,7 +177,8 @@ class LiveStream(HubSink):
         """Hub listener (ingest task): buffer attitude/swing; broadcast alarms and reel commands at once."""
         point = plot_point(model)
         if point is not None:
-            self._buf(point[0]).add(point[1], **point[2])
+            if self._served(point[0]):  # other shards' devices come with their tick frames (`peers`)
+                self._buf(point[0]).add(point[1], **point[2])
         elif topic == "alarm":
             self.alarm_seq += 1
             self.broadcast({"type": "alarm", "alarm_seq": self.alarm_seq, "event": model.model_dump()})
@@ -189,8 +208,8 @@ class LiveStream(HubSink):
     def prune_raw(self) -> None:
         """Drop the raw buffers of devices the pipeline no longer knows (event loop, every tick)."""
         kinds = self.service.pipeline.kinds
-        for buffers in (self._imu, self._env):
-            for device_id in [d for d in buffers if d not in kinds]:
+        for buffers in (self._imu, self._env, self._series):
+            for device_id in [d for d in buffers if d not in kinds or not self._served(d)]:
                 del buffers[device_id]
 
     def _take_imu(self, device_id: str) -> list[schemas.ImuPacket]:
@@ -212,11 +231,13 @@ class LiveStream(HubSink):
             c.put(text)
 
     def tick_frame(self, now_s: float, full: bool = True) -> dict[str, Any]:
-        """New samples of every device since the last tick; with `full`, also the device cards (presence, age,
-        loss, attitude, readings, reel, alarms: `device_view`) and the spot ranking."""
+        """New samples of every device this shard serves since the last tick; with `full`, also the device cards
+        (presence, age, loss, attitude, readings, reel, alarms: `device_view`) and the spot ranking."""
         svc = self.service
         devices = []
         for device_id, kind in sorted(svc.pipeline.kinds.items()):
+            if not self._served(device_id):
+                continue
             try:  # one device's card must never stop the stream for all
                 devices.append(self._device_entry(device_id, kind, now_s, full))
             except Exception:
@@ -253,15 +274,28 @@ class LiveStream(HubSink):
         return entry
 
     async def run(self) -> None:
-        """Tick loop; work is skipped while nobody listens (buffers are still bounded)."""
+        """Tick loop; work is skipped while nobody listens, here or on another shard's endpoint (buffers are still
+        bounded). With `peers`, the frame of this shard's devices also goes to the other shards, and this shard's
+        clients get the other shards' devices merged in."""
         while True:
             await asyncio.sleep(self.settings.tick_s)
             self.prune_raw()
-            if not self.clients:
+            peers = self.peers
+            remote = peers is not None and peers.wanted()
+            if peers is not None:
+                peers.listening(bool(self.clients))  # asks the others for their frames while clients are here
+            if not self.clients and not remote:
                 continue
             try:
                 frame = self.tick_frame(time.time(), full=self.ticks % self.settings.cards_every == 0)
                 self.ticks += 1
+                if remote:
+                    assert peers is not None
+                    peers.publish(frame)
+                if not self.clients:
+                    continue
+                if peers is not None:
+                    peers.merge(frame)
                 text = json.dumps(frame, separators=(",", ":"), default=str)
                 for c in self.clients:
                     c.put(text)

@@ -16,9 +16,13 @@ A `ShardNode` is attached to a `GatewayService` (gateway/app.py) and, over the s
   change, applies (and persists) the others', and answers the same snapshot as a queryable: a starting shard
   adopts the configuration of the longest-running live shard that started before it.
 - hands the other shards' alarm events, and their attitude and swing messages at most `shard_mirror_hz` per device,
-  to this shard's hub listeners, so the dashboard's live stream and plots on any endpoint show every device.
-- answers `gw/shard/{id}/devices`, `gw/shard/{id}/device/{device_id}` and `gw/shard/{id}/stats` for the REST
-  front (gateway/shard/routes.py).
+  to this shard's hub listeners (the dashboard's alarm frames, the 3-D view); the live stream and the history keep
+  only this shard's devices and get the others' from their owners (`LivePeers`, gateway/shard/live.py; history
+  queries).
+- answers `gw/shard/{id}/devices`, `gw/shard/{id}/device/{device_id}`, `gw/shard/{id}/stats`,
+  `gw/shard/{id}/history/{device_id}/{s}/{n}`, `gw/shard/{id}/history_all/{s}/{n}` for the REST front
+  (gateway/shard/routes.py), and runs the writes other endpoints forward for its devices
+  (`gw/shard/{id}/call/{hex JSON}`: reel, ack, clear; `run_call`).
 
 Callbacks only hand off to the event loop (NOTES-zenoh-viser §1), except the read-only queryables, which wait for
 the loop to build their answer (bounded by `ANSWER_TIMEOUT_S`).
@@ -40,11 +44,13 @@ import zenoh
 
 from gateway import schemas
 from gateway.alarm.engine import Alarm, AlarmStatus, Severity
+from gateway.api.routes.history import History
 from gateway.config import THRESHOLD_MODELS, DeviceSettings, Settings
 from gateway.errors import BadSettings
 from gateway.ingest.bus import Bus, MemoryBus, ZenohBus
 from gateway.ingest.runner import GatewayService
 from gateway.shard import STARTED_S
+from gateway.shard.live import LivePeers
 from gateway.shard.ownership import SEL_SHARD_TOKENS, Ownership, ShardInfo, glob_to_key_chunk, owner_of
 from gateway.store import Store, StoreWriter
 
@@ -54,6 +60,7 @@ MIRROR_MODELS: dict[str, type[schemas.WireModel]] = {"alarm": schemas.AlarmEvent
                                                      "swing": schemas.Swing}  # fmt: skip
 
 ANSWER_TIMEOUT_S = 2.0
+CALL_TIMEOUT_S = 3.0  # a forwarded write waits for the owner task (between two batches) and a store write
 QUERY_TIMEOUT_S = 1.0
 ADOPT_WAIT_S = 10.0  # a local shard waits this long for its parent's configuration
 
@@ -117,6 +124,8 @@ class ShardNode:
         self._mirror_wake = False
         self._mirror_last: dict[str, float] = {}
         self.takeovers: list[tuple[float, str]] = []  # (wall s, device) of devices moved here, newest last (≤ 1000)
+        self.history: History | None = None  # this endpoint's dashboard history (set when it starts)
+        self.peers: LivePeers | None = None  # the other shards' side of the dashboard stream (set in `start`)
 
     @property
     def shard_id(self) -> str:
@@ -153,6 +162,8 @@ class ShardNode:
         for sel in MIRRORED:
             self.bus.subscribe(sel, self._on_output)
         self.bus.declare_queryable(self.key("**"), self._answer, encoding=schemas.ENCODING_GW)
+        self.peers = LivePeers(self.bus, self.ownership, self.shard_id, loop.call_soon_threadsafe)
+        self.peers.subscribe()
         await self._adopt_config(wait_s=ADOPT_WAIT_S if adopt_config else 0.0)
 
         def on_token(key: str, alive: bool) -> None:  # bus thread: swap the ownership view at once, then hand off
@@ -341,6 +352,14 @@ class ShardNode:
             return [(self.key("stats"), json.dumps(self.stats()).encode())]
         elif leaf == ["config"]:
             coro = self._config()
+        elif len(leaf) == 4 and leaf[0] == "history":
+            coro = self._history(leaf[1], float(leaf[2]), int(leaf[3]))
+        elif len(leaf) == 3 and leaf[0] == "history_all":
+            coro = self._history_all(float(leaf[1]), int(leaf[2]))
+        elif len(leaf) == 2 and leaf[0] == "call" and parts[2] == self.shard_id:  # never on a wildcard
+            coro = self.run_call(json.loads(bytes.fromhex(leaf[1])))
+            return [(self.key("/".join(leaf)), json.dumps(asyncio.run_coroutine_threadsafe(coro, self._loop)
+                                                  .result(CALL_TIMEOUT_S)).encode())]  # fmt: skip
         else:
             return []
         result = asyncio.run_coroutine_threadsafe(coro, self._loop).result(ANSWER_TIMEOUT_S)
@@ -366,6 +385,48 @@ class ShardNode:
         if device_id not in sv.pipeline.kinds or not self.ownership.owns(device_id):
             return None
         return {**device_view(sv, device_id, detail=True), "shard": self.shard_id}
+
+    async def _history(self, device_id: str, seconds: float, max_points: int) -> dict[str, Any] | None:
+        hist = self.history.devices.get(device_id) if self.history is not None else None
+        if hist is None or not self.ownership.owns(device_id):
+            return None
+        return {"device_id": device_id, "bucket_s": hist.bucket_s,
+                "series": hist.columns(time.time() - seconds, max_points)}  # fmt: skip
+
+    async def _history_all(self, seconds: float, max_points: int) -> dict[str, Any] | None:
+        if self.history is None:
+            return None
+        since = time.time() - seconds
+        return {"devices": {d: h.columns(since, max_points) for d, h in self.history.devices.items()
+                            if self.ownership.owns(d)}}  # fmt: skip
+
+    async def run_call(self, req: dict[str, Any]) -> dict[str, Any]:
+        """A write another endpoint forwards to the shard that serves the device (gateway/shard/routes.py): a reel
+        command, an acknowledgement or a manual clear, run as that endpoint's REST route would run it here, by
+        the owner task (`service.call`). The caller checked the token; `who` is its caller's name."""
+        from fastapi import HTTPException
+
+        from gateway.api.routes import alarm_clear, alarms, reel
+
+        sv = self.service
+        assert sv is not None
+        op, who = req.get("op"), str(req.get("who", "api"))[:64]
+        try:
+            if op == "reel":
+                body = await reel.reel(str(req["device_id"]), reel.ReelRequest.model_validate(req["body"]), sv, who)
+                async with sv.config_lock:  # the reel mode is configuration: this shard's goes to the others
+                    self.publish_config()
+            elif op == "ack":
+                body = await alarms.ack_alarm(str(req["alarm_id"]), sv, who)
+            elif op == "clear":
+                body = await alarm_clear.clear_alarm(str(req["alarm_id"]), sv, who)
+            else:
+                return {"status": 400, "detail": f"unknown call {op!r}"[:200]}
+        except HTTPException as exc:
+            return {"status": exc.status_code, "detail": exc.detail}
+        except (KeyError, ValueError) as exc:
+            return {"status": 422, "detail": f"bad forwarded call: {exc}"[:300]}
+        return {"status": 200, "body": body}
 
     async def _config(self) -> dict[str, Any]:
         return json.loads(self._config_message())  # type: ignore[no-any-return]

@@ -17,8 +17,10 @@ from typing import Any
 
 from fastapi import APIRouter, FastAPI, HTTPException, Request, Response
 
-from gateway.api.deps import DeviceIdPath
-from gateway.shard.node import QUERY_TIMEOUT_S, ShardNode, query
+from gateway.api.deps import AlarmIdPath, DeviceIdPath, ServiceDep, WriterDep
+from gateway.api.routes import alarm_clear, alarms, history, reel
+from gateway.ingest.runner import GatewayService
+from gateway.shard.node import CALL_TIMEOUT_S, QUERY_TIMEOUT_S, ShardNode, query
 
 log = logging.getLogger("gateway.shard")
 STATS_TIMEOUT_S = 5.0  # an overloaded shard still answers (from its zenoh thread), but may be slow to
@@ -75,6 +77,91 @@ async def list_shards(request: Request) -> dict[str, Any]:
     return {"me": node.shard_id, "live": sorted(node.ownership.live), "shards": shards}
 
 
+async def _forward(node: ShardNode, owner: str, call: dict[str, Any]) -> dict[str, Any]:
+    """Run a write on the shard that serves its device (`ShardNode.run_call` there) and answer as it did."""
+    selector = f"gw/shard/{owner}/call/{json.dumps(call, separators=(',', ':')).encode().hex()}"
+    replies = await asyncio.to_thread(query, node.bus, selector, CALL_TIMEOUT_S + 1.0)
+    if not replies:
+        raise HTTPException(503, f"shard {owner} (which serves the device) did not answer")
+    answer = json.loads(replies[0][1])
+    if answer["status"] != 200:
+        raise HTTPException(answer["status"], answer.get("detail"))
+    return answer["body"]  # type: ignore[no-any-return]
+
+
+def _other_owner(node: ShardNode, device_id: str) -> str | None:
+    """The live shard that serves `device_id` when it is not this one (None: this one, or none at all)."""
+    owner = node.ownership.owner(device_id)
+    return None if owner in (None, node.shard_id) else owner
+
+
+# Writes that change a device's live state run on the shard that serves it (its owner task and engine).
+@router.post("/rods/{device_id}/reel", include_in_schema=False)
+async def reel_on_its_shard(device_id: DeviceIdPath, body: reel.ReelRequest, request: Request, service: ServiceDep,
+                            who: WriterDep) -> dict[str, Any]:  # fmt: skip
+    owner = _other_owner(_node(request), device_id)
+    if owner is None:
+        return await reel.reel(device_id, body, service, who)
+    call = {"op": "reel", "device_id": device_id, "body": body.model_dump(exclude_none=True), "who": who}
+    return await _forward(_node(request), owner, call)
+
+
+async def _alarm_shard(node: ShardNode, service: GatewayService, alarm_id: str) -> str | None:
+    """The other shard that serves the device of a stored alarm (every shard stores every shard's rows)."""
+    stored = await asyncio.to_thread(service.store.get_alarm, alarm_id)
+    return None if stored is None else _other_owner(node, stored.device_id)
+
+
+@router.post("/alarms/{alarm_id}/ack", include_in_schema=False)
+async def ack_on_its_shard(alarm_id: AlarmIdPath, request: Request, service: ServiceDep,
+                           who: WriterDep) -> dict[str, Any]:  # fmt: skip
+    owner = await _alarm_shard(_node(request), service, alarm_id)
+    if owner is None:
+        return await alarms.ack_alarm(alarm_id, service, who)
+    return await _forward(_node(request), owner, {"op": "ack", "alarm_id": alarm_id, "who": who})
+
+
+@router.post("/alarms/{alarm_id}/clear", include_in_schema=False)
+async def clear_on_its_shard(alarm_id: AlarmIdPath, request: Request, service: ServiceDep,
+                             who: WriterDep) -> dict[str, Any]:  # fmt: skip
+    owner = await _alarm_shard(_node(request), service, alarm_id)
+    if owner is None:
+        return await alarm_clear.clear_alarm(alarm_id, service, who)
+    return await _forward(_node(request), owner, {"op": "clear", "alarm_id": alarm_id, "who": who})
+
+
+# History is kept by the shard that serves the device (it gets every output); the others ask it.
+@router.get("/history", include_in_schema=False)
+async def history_of_all_shards(request: Request, seconds: history.Seconds = 300.0,
+                                max_points: history.MaxPoints = 60) -> dict[str, Any]:  # fmt: skip
+    node = _node(request)
+    out = await history.all_history(request, seconds, max_points)
+    out["devices"] = {d: cols for d, cols in out["devices"].items() if _other_owner(node, d) is None}
+    for answer in await _ask(node, f"gw/shard/*/history_all/{seconds:g}/{max_points}"):
+        out["devices"].update(answer["devices"])
+    out["devices"] = dict(sorted(out["devices"].items()))
+    return out
+
+
+@router.get("/history/{device_id}", include_in_schema=False)
+async def history_from_its_shard(device_id: DeviceIdPath, request: Request, seconds: history.Seconds = 600.0,
+                                 max_points: history.MaxPoints = 4000) -> dict[str, Any]:  # fmt: skip
+    node = _node(request)
+    owner = _other_owner(node, device_id)
+    if owner is not None:
+        answers = await _ask(node, f"gw/shard/{owner}/history/{device_id}/{seconds:g}/{max_points}")
+        if answers:
+            return answers[0]  # type: ignore[no-any-return]
+    return await history.device_history(device_id, request, seconds, max_points)
+
+
+def _forwarded(node: ShardNode, path: str) -> bool:
+    """A reel request another shard ran (`reel_on_its_shard`): that shard publishes its configuration, this one's
+    would undo the mode change."""
+    parts = path.split("/")  # "", "api", "rods", id, "reel"
+    return path.startswith("/api/rods/") and len(parts) > 3 and _other_owner(node, parts[3]) is not None
+
+
 def install(app: FastAPI) -> None:
     """Routes (before gateway.api's, which they override) and the config fan-out middleware; the lifespan sets
     `app.state.shard`."""
@@ -85,7 +172,8 @@ def install(app: FastAPI) -> None:
         response = await call_next(request)
         node: ShardNode | None = getattr(request.app.state, "shard", None)
         if (node is not None and request.method in ("PUT", "POST", "DELETE") and response.status_code < 300
-                and request.url.path.startswith(CONFIG_PATHS) and node.service is not None):  # fmt: skip
+                and request.url.path.startswith(CONFIG_PATHS) and node.service is not None
+                and not _forwarded(node, request.url.path)):  # fmt: skip
             try:
                 async with node.service.config_lock:
                     node.publish_config()

@@ -84,10 +84,27 @@ def chromium_path() -> Path:
     return CHROMIUM
 
 
-@pytest.fixture(scope="module")
-def system(chromium_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
+def child_serves_all(devices: tuple[str, ...]) -> str:
+    """A parent shard id for `--shards 2` whose child shard (`<id>-1`) serves every one of `devices` (rendezvous
+    hashing, gateway/shard/ownership.py): the dashboard on the parent's endpoint then shows only another shard's
+    devices, and its writes (reel, acknowledge) must reach that shard."""
+    from gateway.shard.ownership import ShardInfo, owner_of
+
+    for k in range(1000):
+        sid = f"browser{k}"
+        shards = (ShardInfo(sid), ShardInfo(f"{sid}-1"))
+        if all(owner_of(d, shards) == f"{sid}-1" for d in devices):
+            return sid
+    raise AssertionError("no shard id found")
+
+
+@pytest.fixture(scope="module", params=[1, 2], ids=["one-shard", "two-shards"])
+def system(request: pytest.FixtureRequest, chromium_path: Path,
+           tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:  # fmt: skip
     """Gateway (REST on a free port, zenoh listening on another, viser on a third) and `python -m devices`
-    (one rod with a scripted bite at BITE_AT_S, one ball) connected to it."""
+    (one rod with a scripted bite at BITE_AT_S, one ball) connected to it. With two shards (`--shards 2`) the rod
+    and the ball are served by the local child shard, not by the process whose endpoint the tests use."""
+    shards: int = request.param
     tmp = tmp_path_factory.mktemp("browser")
     http, zport, vport = free_port(), free_port(), free_port()
     endpoint = f"tcp/127.0.0.1:{zport}"
@@ -96,10 +113,11 @@ def system(chromium_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Ite
     script.write_text(json.dumps([{"type": "bite", "t_s": BITE_AT_S, "depth_deg": 25.0, "duration_s": 4.0}]))
     log_gw = open(tmp / "gateway.log", "wb")  # noqa: SIM115 - closed at teardown
     log_dev = open(tmp / "devices.log", "wb")  # noqa: SIM115
-    gw = subprocess.Popen(
-        [sys.executable, "-m", "gateway", "--data-dir", str(tmp / "data"), "--port", str(http), "--listen", endpoint],
-        cwd=REPO, env=env, stdout=log_gw, stderr=subprocess.STDOUT,
-    )  # fmt: skip
+    argv = [sys.executable, "-m", "gateway", "--data-dir", str(tmp / "data"), "--port", str(http), "--listen", endpoint,
+            "--shards", str(shards)]  # fmt: skip
+    if shards == 2:
+        argv += ["--shard-id", child_serves_all(("rod-1", "ball-1"))]
+    gw = subprocess.Popen(argv, cwd=REPO, env=env, stdout=log_gw, stderr=subprocess.STDOUT)
     sysm = System(f"http://127.0.0.1:{http}", "", tmp / "data", [gw])
     try:
         deadline = time.monotonic() + 120
@@ -123,6 +141,9 @@ def system(chromium_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Ite
             assert dev.poll() is None, (tmp / "devices.log").read_text()
             assert time.monotonic() - sysm.started_s < 120, "devices did not come online"
             time.sleep(0.2)
+        if shards == 2:  # the devices really are the other shard's
+            me = get_json(sysm.base + "/api/shards")["me"]
+            assert {d["shard"] for d in get_json(sysm.base + "/api/devices")} == {f"{me}-1"}
         yield sysm
     finally:
         for p in reversed(sysm.procs):

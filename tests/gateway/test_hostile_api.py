@@ -23,7 +23,7 @@ def test_raw_buffers_are_bounded_and_only_for_known_devices() -> None:
     keys of large payloads: +700 MB RSS). Now the stream keeps references to the packets ingest decoded and accepted,
     at most `raw_packets` per device and `max_raw_keys` devices, and a tick drops devices the pipeline forgot."""
     kinds: dict[str, str] = {}
-    live = LiveStream(SimpleNamespace(pipeline=SimpleNamespace(kinds=kinds)),  # type: ignore[arg-type]
+    live = LiveStream(SimpleNamespace(pipeline=SimpleNamespace(kinds=kinds), accept=None),  # type: ignore[arg-type]
                       LiveSettings(max_raw_keys=40, raw_packets=8))  # fmt: skip
     for i in range(100):
         kinds[f"rod-{i}"] = "rod"

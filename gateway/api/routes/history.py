@@ -8,7 +8,8 @@ such as |a| and line tension (the bucket maximum, so a short spike stays visible
 
 Owner: the event loop. Attitude and swing arrive through the hub listener (ingest task); reel tension and water
 readings are sampled from the pipeline once per `poll_s` by a task on the same loop; the routes are `async def`,
-so they read on that loop too and never see a half-written bucket.
+so they read on that loop too and never see a half-written bucket. With several shards each keeps the history of
+the devices it serves (`GatewayService.accept`); the REST front asks the owner for the others' (gateway/shard).
 """
 
 from __future__ import annotations
@@ -124,7 +125,8 @@ class History(HubSink):
     def on_hub(self, topic: str, model: schemas.WireModel) -> None:
         """Hub listener (ingest task): fold attitude and swing in."""
         point = plot_point(model)
-        if point is not None:
+        accept = self.service.accept
+        if point is not None and (accept is None or accept(point[0])):  # other shards keep their devices' own
             self.device(point[0]).add(point[1], **point[2])
 
     def poll(self, now_s: float) -> None:
