@@ -112,22 +112,28 @@ async def _alarm_shard(node: ShardNode, service: GatewayService, alarm_id: str) 
     return None if stored is None else _other_owner(node, stored.device_id)
 
 
+LocalAlarmWrite = Callable[[str, GatewayService, str], Awaitable[dict[str, Any]]]
+
+
+async def _alarm_write(op: str, local: LocalAlarmWrite, alarm_id: str, request: Request, service: GatewayService,
+                       who: str) -> dict[str, Any]:  # fmt: skip
+    """Ack or clear here when this shard serves the alarm's device, else on the shard that does."""
+    owner = await _alarm_shard(_node(request), service, alarm_id)
+    if owner is None:
+        return await local(alarm_id, service, who)
+    return await _forward(_node(request), owner, {"op": op, "alarm_id": alarm_id, "who": who})
+
+
 @router.post("/alarms/{alarm_id}/ack", include_in_schema=False)
 async def ack_on_its_shard(alarm_id: AlarmIdPath, request: Request, service: ServiceDep,
                            who: WriterDep) -> dict[str, Any]:  # fmt: skip
-    owner = await _alarm_shard(_node(request), service, alarm_id)
-    if owner is None:
-        return await alarms.ack_alarm(alarm_id, service, who)
-    return await _forward(_node(request), owner, {"op": "ack", "alarm_id": alarm_id, "who": who})
+    return await _alarm_write("ack", alarms.ack_alarm, alarm_id, request, service, who)
 
 
 @router.post("/alarms/{alarm_id}/clear", include_in_schema=False)
 async def clear_on_its_shard(alarm_id: AlarmIdPath, request: Request, service: ServiceDep,
                              who: WriterDep) -> dict[str, Any]:  # fmt: skip
-    owner = await _alarm_shard(_node(request), service, alarm_id)
-    if owner is None:
-        return await alarm_clear.clear_alarm(alarm_id, service, who)
-    return await _forward(_node(request), owner, {"op": "clear", "alarm_id": alarm_id, "who": who})
+    return await _alarm_write("clear", alarm_clear.clear_alarm, alarm_id, request, service, who)
 
 
 # History is kept by the shard that serves the device (it gets every output); the others ask it.
