@@ -519,10 +519,13 @@ class DeviceIngestCounters(WireModel):
 
 class IngestStats(WireModel):
     """Ingest counters: `rejected` totals by reason (including packets whose device is unknown), per device;
-    `filter_restarts` totals of fusion restarts by reason (a filter raised, or gave a non-finite quaternion)."""
+    `filter_restarts` totals of fusion restarts by reason (a filter raised, or gave a non-finite quaternion).
+    A gateway of several shards sends one message per shard, each with its `shard` id and only the devices that
+    shard owns: a reader keeps the newest per shard and sums them."""
 
     v: Version = 1
     wall_t_us: TimeUs
+    shard: Annotated[str, Field(max_length=64)] | None = None
     received: Annotated[int, Field(ge=0)]
     queue_drops: Annotated[int, Field(ge=0)] = 0
     rejected: dict[str, Annotated[int, Field(ge=0)]] = Field(default_factory=dict)

@@ -140,6 +140,9 @@ def test_two_shards_split_the_devices_share_alarms_and_config_and_fail_over(clus
         assert served == expected
         listed = {d["device_id"]: d["shard"] for d in c.get("B", "/api/devices")}
         assert listed == {d: sid for sid, ds in expected.items() for d in ds}  # from one endpoint, both shards
+        stats = c.get("A", "/api/stats")  # ingest counters summed over the shards: every rod, whoever serves it
+        assert stats["shards"] == 2 and {d["device_id"] for d in stats["devices"]} == set(RODS)
+        assert all(d["ok"] > 0 for d in stats["devices"])
 
         # an acknowledgement through A of a bite on one of B's rods is applied by B's engine: when the bite ends,
         # B's cleared row still says acknowledged (stored beside B's engine, the clear would overwrite it)

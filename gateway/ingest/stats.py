@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from gateway import schemas
@@ -77,6 +78,7 @@ class IngestCounters:
         self.devices: dict[str, DeviceStream] = {}
         self.conflicts_seen: set[str] = set()  # devices with a new conflict packet; the service takes and clears it
         self.log = RateLimitedLog()
+        self.shard: str | None = None  # set by a shard: its snapshots say whose they are
 
     def stream(self, kind: str, device_id: str) -> DeviceStream:
         dev = self.devices.get(device_id)
@@ -133,6 +135,25 @@ class IngestCounters:
                 filter_restarts=dict(d.filter_restarts),
             ))  # fmt: skip
         return schemas.IngestStats(
-            wall_t_us=wall_us, received=self.received, queue_drops=self.queue_drops,
+            wall_t_us=wall_us, shard=self.shard, received=self.received, queue_drops=self.queue_drops,
             rejected=dict(self.rejected), filter_restarts=dict(self.filter_restarts), devices=devices,
         )  # fmt: skip
+
+
+def merge_ingest_stats(parts: Sequence[schemas.IngestStats]) -> schemas.IngestStats | None:
+    """One IngestStats from several shards': counters summed, device rows concatenated (a device that moved
+    between shards keeps the row with the most packets)."""
+    if not parts:
+        return None
+    rejected: Counter[str] = Counter()
+    restarts: Counter[str] = Counter()
+    devices: dict[str, schemas.DeviceIngestCounters] = {}
+    for s in parts:
+        rejected.update(s.rejected)
+        restarts.update(s.filter_restarts)
+        for d in s.devices:
+            if d.device_id not in devices or d.ok > devices[d.device_id].ok:
+                devices[d.device_id] = d
+    return schemas.IngestStats(wall_t_us=max(s.wall_t_us for s in parts), received=sum(s.received for s in parts),
+                               queue_drops=sum(s.queue_drops for s in parts), rejected=dict(rejected),
+                               filter_restarts=dict(restarts), devices=list(devices.values()))  # fmt: skip

@@ -34,6 +34,7 @@ from gateway import schemas
 from gateway.fusion import broad
 from gateway.fusion.base import FloatArray
 from gateway.fusion.evaluate import registered_runner
+from gateway.ingest.stats import merge_ingest_stats
 from gateway.recording._cli import add_zenoh_args, zenoh_config
 from gateway.recording.format import Record, read_meta, read_recording
 from gateway.recording.reference import TOPIC as REF_TOPIC
@@ -197,17 +198,28 @@ class AttitudeCollector:
 
 
 class LatestIngestStats:
-    """Keeps the gateway's newest `gw/diag/ingest` message (queue drops and per-device loss)."""
+    """Keeps the gateway's newest `gw/diag/ingest` message of each shard (queue drops and per-device loss); a
+    sharded gateway sends one per shard, each with only the devices that shard owns."""
 
     def __init__(self) -> None:
-        self.payload: bytes | None = None
+        self.payloads: dict[str | None, bytes] = {}
 
     def __call__(self, sample: zenoh.Sample) -> None:
-        self.payload = sample.payload.to_bytes()
+        payload = sample.payload.to_bytes()
+        try:
+            shard = schemas.IngestStats.model_validate_json(payload).shard
+        except ValueError:
+            return
+        self.payloads[shard] = payload
+
+    @property
+    def payload(self) -> bytes | None:
+        """Any message seen yet (the gateway's subscriptions have reached us)."""
+        return next(iter(self.payloads.values()), None)
 
     def stats(self) -> schemas.IngestStats | None:
-        p = self.payload
-        return None if p is None else schemas.IngestStats.model_validate_json(p)
+        """The shards' newest messages summed into one (per-device rows kept as they are)."""
+        return merge_ingest_stats([schemas.IngestStats.model_validate_json(p) for p in self.payloads.values()])
 
 
 def paced(put: Callable[[Record], None], col: AttitudeCollector, max_ahead_s: float,

@@ -144,6 +144,7 @@ class ShardNode:
         """Hook the service: the device filter and, for site partitions, narrower data subscriptions."""
         self.service = service
         service.accept = self.ownership.owns
+        service.counters.shard = self.shard_id
         chunks = [glob_to_key_chunk(p) for p in self.info.patterns]
         if chunks and all(c is not None for c in chunks):
             service.data_selectors = tuple(

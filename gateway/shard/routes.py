@@ -17,9 +17,11 @@ from typing import Any
 
 from fastapi import APIRouter, FastAPI, HTTPException, Request, Response
 
+from gateway import schemas
 from gateway.api.deps import AlarmIdPath, DeviceIdPath, ServiceDep, WriterDep
-from gateway.api.routes import alarm_clear, alarms, history, reel
+from gateway.api.routes import alarm_clear, alarms, health, history, reel
 from gateway.ingest.runner import GatewayService
+from gateway.ingest.stats import merge_ingest_stats
 from gateway.shard.node import CALL_TIMEOUT_S, QUERY_TIMEOUT_S, ShardNode, query
 
 log = logging.getLogger("gateway.shard")
@@ -66,6 +68,20 @@ async def get_device_from_its_shard(device_id: DeviceIdPath, request: Request) -
     if not answers:
         raise HTTPException(404, f"unknown device {device_id!r} (shard {owner} has no state for it)")
     return answers[0]  # type: ignore[no-any-return]
+
+
+@router.get("/stats", include_in_schema=False)
+async def stats_of_all_shards(request: Request, service: ServiceDep) -> dict[str, Any]:
+    """This shard's /api/stats (queue, batches, delays, publisher) with the ingest counters summed over every live
+    shard, so a device shows up whichever shard serves it; per-shard figures are in /api/shards."""
+    node = _node(request)
+    local = await health.stats(service)
+    others = await _ask(node, "gw/shard/*/stats", STATS_TIMEOUT_S)
+    fields = schemas.IngestStats.model_fields
+    parts = [schemas.IngestStats.model_validate({k: v for k, v in d.items() if k in fields}) for d in (local, *others)]
+    merged = merge_ingest_stats(parts)
+    assert merged is not None
+    return {**local, **merged.model_dump(exclude={"shard"}), "shards": len(parts)}
 
 
 @router.get("/shards")

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import httpx
 import numpy as np
@@ -99,14 +100,32 @@ def wait_http(port: int, proc: subprocess.Popen[bytes], log: Path, timeout_s: fl
     raise AssertionError(f"gateway not up in {timeout_s} s: {log.read_text()[-3000:]}")
 
 
+def test_ingest_stats_of_several_shards_merge_whichever_shard_owns_the_device() -> None:
+    """Each shard sends its own `gw/diag/ingest` with only its devices; the score reads the sum, not the newest."""
+    row = schemas.DeviceIngestCounters(device_id="b-1", kind="rod", ok=90, lost=0, duplicates=0, reordered=0,
+                                       reboots=0)  # fmt: skip
+    mine = schemas.IngestStats(wall_t_us=2, shard="s1", received=90, queue_drops=1, rejected={"bad_json": 2},
+                               devices=[row])  # fmt: skip
+    other = schemas.IngestStats(wall_t_us=3, shard="s2", received=90, queue_drops=0, rejected={"bad_json": 1})
+    latest = score.LatestIngestStats()
+    for msg in (mine, other, other):  # the other shard spoke last, and more often
+        wire = msg.to_json()
+        latest(SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda wire=wire: wire)))  # type: ignore[arg-type]
+    merged = latest.stats()
+    assert merged is not None and merged.devices == [row]
+    assert (merged.received, merged.queue_drops, merged.rejected, merged.wall_t_us) == (180, 1, {"bad_json": 3}, 3)
+    assert score.merge_ingest_stats([]) is None
+
+
 def test_broad_trial_through_zenoh_and_the_gateway_scores_like_evaluate(tmp_path: Path, broad_dir: Path) -> None:
     trial = cut_trial(broad.load_trial(broad_dir / "08_undisturbed_fast_rotation_with_breaks_A.mat"))
     rec = import_trial(trial, tmp_path, "b-1", "rod", samples_per_packet=10)
     port, http_port = free_port(), free_port()
     log = tmp_path / "gw.log"
     gw = subprocess.Popen([sys.executable, "-m", "gateway", "--attitude-blocks", "--no-warmup-bias-seed",
-                           "--filter", "default", "--listen", f"tcp/127.0.0.1:{port}", "--port", str(http_port),
-                           "--data-dir", str(tmp_path / "gw"), "--log-level", "WARNING"], cwd=REPO,
+                           "--filter", "default", "--shards", "2", "--listen", f"tcp/127.0.0.1:{port}",
+                           "--port", str(http_port), "--data-dir", str(tmp_path / "gw"), "--log-level", "WARNING"],
+                          cwd=REPO,
                           stdout=subprocess.DEVNULL, stderr=open(log, "w"))  # noqa: SIM115 # fmt: skip
     try:
         wait_http(http_port, gw, log)
