@@ -48,7 +48,8 @@ def build_parser() -> argparse.ArgumentParser:
     h = p.add_argument_group("shards (docs/gateway.md, Shards)")
     h.add_argument("--shards", type=int, metavar="N",
                    help="gateway processes on this machine sharing the devices; with N > 1 this process is also the "
-                        "zenoh router the others connect to (default 0: one per core; docs/gateway.md)")  # fmt: skip
+                        "zenoh router the others connect to (default 0: one per core, at most 4; "
+                        "docs/gateway.md)")  # fmt: skip
     h.add_argument("--shard-id", metavar="ID", help="this shard's id (default: host name and REST port)")
     h.add_argument("--devices", dest="shard_devices", action="append", metavar="GLOB",
                    help="serve only device ids matching this pattern, e.g. 'site1-*'; repeatable (default: all)")

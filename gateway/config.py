@@ -52,7 +52,8 @@ class Settings(BaseSettings):
     allowed_origins: list[str] = Field(default_factory=list, description="Browser origins (e.g. "
                                        "`https://ops.example`) that may open /ws/stream without the token.")
     shards: int = Field(default=0, ge=0, le=64, description="Gateway shard processes on this machine (`--shards`); "
-                        "0 (default): one per core. Each serves a share of the devices (docs/gateway.md, Shards).")
+                        "0 (default): one per core, at most 4. Each serves a share of the devices "
+                        "(docs/gateway.md, Shards).")
     shard_id: str | None = Field(default=None, pattern=r"^[A-Za-z0-9_-]{1,64}$", description="This shard's id "
                                  "(default: host name and REST port); the devices it serves follow from the ids.")
     shard_devices: list[str] = Field(default_factory=list, description="Device-id glob patterns this shard serves "

@@ -24,9 +24,12 @@ INHERITED = ("default_filter", "attitude_interval_s", "attitude_blocks", "warmup
              "max_devices", "shard_devices", "shard_lease_s", "shard_mirror_hz", "zenoh_config_file")  # fmt: skip
 
 
+DEFAULT_MAX_SHARDS = 4  # every shard still sees every packet (and drops the others'): more cost more than they give
+
+
 def shard_count(settings: Settings) -> int:
-    """`settings.shards`, or one per core this process may run on."""
-    return settings.shards or len(os.sched_getaffinity(0))
+    """`settings.shards`, or one per core this process may run on, at most DEFAULT_MAX_SHARDS."""
+    return settings.shards or min(DEFAULT_MAX_SHARDS, len(os.sched_getaffinity(0)))
 
 
 def default_shard_id(settings: Settings) -> str:
