@@ -252,6 +252,43 @@ def tree_cpu_s(pid: int) -> float:
     return total
 
 
+def thread_cpu_s(pid: int) -> dict[tuple[int, str], float]:
+    """CPU seconds of every thread of a process tree, by (pid, thread name) (threads of one name summed):
+    where the gateway's CPU goes (zenoh's rx/tx threads run the subscriber callbacks, the main thread ingest)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out: dict[tuple[int, str], float] = {}
+    for p in process_tree(pid):
+        try:
+            tids = os.listdir(f"/proc/{p}/task")
+        except OSError:
+            continue
+        for tid in tids:
+            try:
+                with open(f"/proc/{p}/task/{tid}/stat") as f:
+                    text = f.read()
+            except OSError:
+                continue
+            name = re.sub(r"[-_ ]?\d+$", "", text[text.index("(") + 1: text.rindex(")")]) or "?"
+            fields = text.rsplit(")", 1)[1].split()
+            if tid == str(p):
+                name = "main"
+            out[(p, name)] = out.get((p, name), 0.0) + (int(fields[11]) + int(fields[12])) / tick
+    return out
+
+
+def print_threads(before: dict[tuple[int, str], float], after: dict[tuple[int, str], float], root: int,
+                  packets: int) -> None:
+    """The CPU of each process (root = the router-parent) and thread name over the window, ms per processed packet."""
+    total = sum(after.values()) - sum(before.get(k, 0.0) for k in after)
+    print(f"  CPU by process and thread over the window, ms per processed packet ({packets} packets):")
+    for pid in sorted({p for p, _ in after}, key=lambda p: (p != root, p)):
+        rows = sorted(((after[k] - before.get(k, 0.0), k[1]) for k in after if k[0] == pid), reverse=True)
+        proc = sum(c for c, _ in rows)
+        parts = ", ".join(f"{name} {1e3 * c / max(1, packets):.3f}" for c, name in rows if c > 0.0)
+        print(f"    {'parent' if pid == root else 'child':>6} {pid}: {1e3 * proc / max(1, packets):.3f} ({parts})")
+    print(f"    all: {1e3 * total / max(1, packets):.3f}")
+
+
 def tree_rss_mib(pid: int) -> float:
     """Resident memory of a process tree, MiB."""
     total = 0
@@ -266,13 +303,20 @@ def tree_rss_mib(pid: int) -> float:
     return total / 1024.0
 
 
-def start_gateway(data_dir: Path, zenoh_port: int, http_port: int, log_path: Path, shards: int) -> Any:
-    """`python -m gateway --shards S` listening on tcp/127.0.0.1:zenoh_port, REST on http_port."""
+def start_gateway(data_dir: Path, zenoh_port: int, http_port: int, log_path: Path, shards: int,
+                  profile: Path | None = None) -> Any:
+    """`python -m gateway --shards S` listening on tcp/127.0.0.1:zenoh_port, REST on http_port; with `profile`, the
+    parent process runs under cProfile (its main thread only) and writes its stats there on exit."""
     import subprocess
     import sys
 
+    # the profile counts the main thread's CPU time (thread_time), not wall time: on a loaded machine wall time
+    # charges preemption and GIL waits to whatever function was running
+    prof = ["-m", "gateway"] if profile is None else ["-c", (
+        "import cProfile, sys, time; from gateway.__main__ import main; p = cProfile.Profile(time.thread_time)\n"
+        f"try: p.runcall(main, sys.argv[2:])\nfinally: p.dump_stats({str(profile)!r})"), "gateway"]  # fmt: skip
     return subprocess.Popen(
-        [sys.executable, "-m", "gateway", "--data-dir", str(data_dir), "--port", str(http_port), "--no-3d",
+        [sys.executable, *prof, "--data-dir", str(data_dir), "--port", str(http_port), "--no-3d",
          "--listen", f"tcp/127.0.0.1:{zenoh_port}", "--log-level", "WARNING", "--shards", str(shards)],
         cwd=REPO, stdout=log_path.open("wb"), stderr=subprocess.STDOUT, env=os.environ | {"PYTHONUNBUFFERED": "1"},
     )  # fmt: skip
@@ -335,13 +379,15 @@ class Row:
 
 
 def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_path: Path, spp: int, procs: int,
-            duration_s: float, warmup_s: float, work: Path, encoding: str = "json", shards: int = 1) -> Row:
+            duration_s: float, warmup_s: float, work: Path, encoding: str = "json", shards: int = 1,
+            threads: bool = False, profile: bool = False) -> Row:
     """Start a gateway, run n devices for warmup + duration seconds, measure the last `duration_s`."""
     zport, hport = free_port(), free_port()
     n_hook = round(n * hook_share)
     devices = [("hook", f"fleet-hook-{i + 1:04d}", i % len(pools["hook"])) for i in range(n_hook)]
     devices += [("rod", f"fleet-rod-{i + 1:04d}", i % len(pools["rod"])) for i in range(n - n_hook)]
-    gw = start_gateway(work / f"gw-{n}-{shards}", zport, hport, work / f"gw-{n}-{shards}.log", shards)
+    prof = work / f"gw-{n}-{shards}.prof" if profile else None
+    gw = start_gateway(work / f"gw-{n}-{shards}", zport, hport, work / f"gw-{n}-{shards}.log", shards, prof)
     try:
         wait_http(hport, timeout_s=600.0)
         deadline = time.time() + 300.0  # every shard up (its kernels loaded) and in the live set
@@ -364,13 +410,13 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
             time.sleep(max(0.0, start + warmup_s - time.time()))
             probe = RestProbe(hport)  # from the window's start: the first stats call below may be slow itself
             probe.start()
-            s0, cpu0 = stats(hport), tree_cpu_s(gw.pid)
+            s0, cpu0, th0 = stats(hport), tree_cpu_s(gw.pid), thread_cpu_s(gw.pid)
             obs.measuring = True
             rss: list[float] = []
             while time.time() < start + warmup_s + duration_s:
                 rss.append(tree_rss_mib(gw.pid))
                 time.sleep(1.0)
-            cpu1 = tree_cpu_s(gw.pid)
+            cpu1, th1 = tree_cpu_s(gw.pid), thread_cpu_s(gw.pid)
             obs.measuring = False
             probe.stop.set()
             probe.join(timeout=60)
@@ -394,6 +440,8 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
               f"sequence gaps {lost_seq}")
     # packets in the measured window: what the gateway processed between the two stats calls
     done = processed(s1) - processed(s0)
+    if threads:
+        print_threads(th0, th1, gw.pid, done)
     cpu_ms = 1e3 * (cpu1 - cpu0) / max(1, done)
     expected_att = int(n * duration_s * RATE_HZ / spp)
     gen_share = sum(g["cpu_s"] for g in gen) / max(1e-9, max((g["wall_s"] for g in gen), default=1.0))
@@ -407,6 +455,18 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
         generator_core_share=gen_share, devices_seen=len(s1.get("devices", [])),
         rest_p50_s=pct(probe.latency_s, 0.5), rest_max_s=max(probe.latency_s, default=float("nan")),
     )  # fmt: skip
+
+
+def print_profile(path: Path, top: int = 25) -> None:
+    """The parent's cProfile stats: the functions with the most cumulative time in its main thread."""
+    import pstats
+
+    if not path.exists():
+        print(f"  no profile at {path} (the gateway did not exit cleanly)")
+        return
+    st = pstats.Stats(str(path))
+    st.sort_stats("cumulative").print_stats("gateway/", top)
+    st.sort_stats("tottime").print_stats(top)
 
 
 def print_table(rows: Sequence[Row]) -> None:
@@ -435,6 +495,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--procs", type=int, default=2, help="generator processes (default 2)")
     p.add_argument("--pool", type=int, default=16, help="distinct simulated streams per kind (default 16)")
     p.add_argument("--pool-seconds", type=float, default=20.0, help="length of each pooled stream (default 20 s)")
+    p.add_argument("--threads", action="store_true",
+                   help="also print the gateway's CPU by process and thread (zenoh callback threads vs ingest)")
+    p.add_argument("--profile", action="store_true",
+                   help="run the gateway's parent process under cProfile and print its top functions per row")
     p.add_argument("--json", type=Path, help="also write the rows as JSON to this file")
     p.add_argument("--encoding", choices=tuple(ENCODINGS), default="json",
                    help="IMU packets as JSON or protocol v2 binary (default json)")
@@ -453,8 +517,10 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"N = {n}, {sh} shard(s): {args.warmup:g} s warm-up + {args.duration:g} s measured ...",
                       flush=True)  # fmt: skip
                 rows.append(run_one(n, args.hook_share, pools, pool_path, spp, args.procs, args.duration,
-                                    args.warmup, work, args.encoding, sh))  # fmt: skip
+                                    args.warmup, work, args.encoding, sh, args.threads, args.profile))  # fmt: skip
                 print_table(rows[-1:])
+                if args.profile:
+                    print_profile(work / f"gw-{n}-{sh}.prof")
                 logs = (work / f"gw-{n}-{sh}.log").read_text(errors="replace").strip().splitlines()
                 errors = [x for x in logs if "ERROR" in x or "Traceback" in x]
                 if errors:

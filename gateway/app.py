@@ -119,6 +119,7 @@ def create_app(
         shard = ShardNode(settings, bus, settings.shard_id or default_shard_id(settings))
         service = compose(settings, bus, store, writer_factory=shard.writer_factory)
         shard.attach(service)
+        shard.mirror_demand = lambda: view3d.has_clients(app)  # other shards' attitudes: only for a 3-D view client
         app.state.service, app.state.shard = service, shard
         metrics.start_metrics(app, service)
         starting: asyncio.Task[None] | None = None
@@ -139,6 +140,7 @@ def create_app(
             await ws.stop_live(app)
             await history.stop_history(app)
             view3d.stop_view3d(app)
+            await shard.stop()
             await service.stop()
             bus.close()
             store.close()

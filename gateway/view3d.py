@@ -427,6 +427,17 @@ def stop_view3d(app: Any) -> None:
         app.state.view3d = None
 
 
+def has_clients(app: Any) -> bool:
+    """Whether the app's 3-D view runs and a browser is connected to it (any thread)."""
+    view: View3D | None = getattr(app.state, "view3d", None)
+    if view is None:
+        return False
+    try:
+        return bool(view.server.get_clients())
+    except Exception:  # stopping
+        return False
+
+
 @router.get("/view3d", include_in_schema=False)
 def open_view3d(request: Request) -> RedirectResponse:
     """Start the viser server if needed and redirect to it (same host name the browser used)."""

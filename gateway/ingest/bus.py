@@ -22,6 +22,8 @@ log = logging.getLogger("gateway.bus")
 
 SampleCallback = Callable[[str, bytes], None]
 """(key, payload) of one sample, called on a bus thread."""
+Unsubscribe = Callable[[], None]
+"""Returned by `subscribe`: undeclares that subscriber (idempotent; not from a bus callback)."""
 PresenceCallback = Callable[[str, bool], None]
 """(token key, alive) for a liveliness token appearing (True) or vanishing (False), called on a bus thread."""
 QueryHandler = Callable[[str], list[tuple[str, bytes]]]
@@ -31,7 +33,7 @@ QueryHandler = Callable[[str], list[tuple[str, bytes]]]
 class Bus(Protocol):
     """What the gateway needs from a pub/sub transport."""
 
-    def subscribe(self, selector: str, callback: SampleCallback) -> None: ...
+    def subscribe(self, selector: str, callback: SampleCallback) -> Unsubscribe: ...
 
     def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None: ...
 
@@ -96,11 +98,25 @@ class ZenohBus:
         """Open a session from Settings (the gateway listens on tcp/127.0.0.1:7447 by default)."""
         return cls(zenoh.open(zenoh_config(settings)))
 
-    def subscribe(self, selector: str, callback: SampleCallback) -> None:
+    def subscribe(self, selector: str, callback: SampleCallback) -> Unsubscribe:
         def on_sample(sample: zenoh.Sample) -> None:
             callback(str(sample.key_expr), sample.payload.to_bytes())
 
-        self._handles.append(self.session.declare_subscriber(selector, _guarded(selector, on_sample)))
+        sub = self.session.declare_subscriber(selector, _guarded(selector, on_sample))
+        with self._lock:
+            self._handles.append(sub)
+
+        def unsubscribe() -> None:
+            with self._lock:
+                if not any(h is sub for h in self._handles):
+                    return
+                self._handles = [h for h in self._handles if h is not sub]
+            try:
+                sub.undeclare()  # type: ignore[no-untyped-call]
+            except Exception:  # the session is closing
+                pass
+
+        return unsubscribe
 
     def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None:
         with self._lock:
@@ -174,8 +190,10 @@ class MemoryBus:
         self.sent: list[tuple[str, bytes, bool]] = []
         self.closed = False
 
-    def subscribe(self, selector: str, callback: SampleCallback) -> None:
-        self.subs.append((selector, callback))
+    def subscribe(self, selector: str, callback: SampleCallback) -> Unsubscribe:
+        entry = (selector, callback)
+        self.subs.append(entry)
+        return lambda: self.subs.remove(entry) if entry in self.subs else None
 
     def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None:
         self.sent.append((key, payload, block))

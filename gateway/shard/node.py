@@ -15,10 +15,12 @@ A `ShardNode` is attached to a `GatewayService` (gateway/app.py) and, over the s
 - publishes the whole configuration (kind defaults and device settings) on `gw/shard/{id}/config` after each REST
   change, applies (and persists) the others', and answers the same snapshot as a queryable: a starting shard
   adopts the configuration of the longest-running live shard that started before it.
-- hands the other shards' alarm events, and their attitude and swing messages at most `shard_mirror_hz` per device,
-  to this shard's hub listeners (the dashboard's alarm frames, the 3-D view); the live stream and the history keep
-  only this shard's devices and get the others' from their owners (`LivePeers`, gateway/shard/live.py; history
-  queries).
+- hands the other shards' alarm events to this shard's hub listeners (the dashboard's alarm frames), and, only
+  while `mirror_demand()` says someone looks (a 3-D view client on this endpoint) and another shard is live, their
+  attitude and swing messages at most `shard_mirror_hz` per device: subscribed to those outputs, each shard
+  received every other shard's attitude (about one per packet) through the router and dropped most of them. The
+  live stream and the history keep only this shard's devices and get the others' from their owners (`LivePeers`,
+  gateway/shard/live.py; history queries).
 - answers `gw/shard/{id}/devices`, `gw/shard/{id}/device/{device_id}`, `gw/shard/{id}/stats`,
   `gw/shard/{id}/history/{device_id}/{s}/{n}`, `gw/shard/{id}/history_all/{s}/{n}` for the REST front
   (gateway/shard/routes.py), and runs the writes other endpoints forward for its devices
@@ -32,6 +34,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import contextlib
 import json
 import logging
 import math
@@ -56,6 +59,8 @@ from gateway.store import Store, StoreWriter
 
 log = logging.getLogger("gateway.shard")
 MIRRORED = ("gw/*/*/alarm", "gw/*/*/attitude", "gw/hook/*/swing")
+MIRRORED_ON_DEMAND = MIRRORED[1:]  # subscribed only while `mirror_demand()` (the alarms always)
+MIRROR_CHECK_S = 1.0
 MIRROR_MODELS: dict[str, type[schemas.WireModel]] = {"alarm": schemas.AlarmEvent, "attitude": schemas.Attitude,
                                                      "swing": schemas.Swing}  # fmt: skip
 
@@ -126,6 +131,9 @@ class ShardNode:
         self.takeovers: list[tuple[float, str]] = []  # (wall s, device) of devices moved here, newest last (≤ 1000)
         self.history: History | None = None  # this endpoint's dashboard history (set when it starts)
         self.peers: LivePeers | None = None  # the other shards' side of the dashboard stream (set in `start`)
+        self.mirror_demand: Callable[[], bool] = lambda: False  # does anyone here look at other shards' attitudes?
+        self._mirror_unsubs: list[Callable[[], None]] = []
+        self._mirror_task: asyncio.Task[None] | None = None
 
     @property
     def shard_id(self) -> str:
@@ -161,7 +169,9 @@ class ShardNode:
         self.bus.subscribe("gw/shard/*/alarm_row", self._on_row)
         self.bus.subscribe("gw/shard/*/config", self._on_config)
         for sel in MIRRORED:
-            self.bus.subscribe(sel, self._on_output)
+            if sel not in MIRRORED_ON_DEMAND:
+                self.bus.subscribe(sel, self._on_output)
+        self._mirror_task = loop.create_task(self._mirror_loop())
         self.bus.declare_queryable(self.key("**"), self._answer, encoding=schemas.ENCODING_GW)
         self.peers = LivePeers(self.bus, self.ownership, self.shard_id, loop.call_soon_threadsafe)
         self.peers.subscribe()
@@ -252,6 +262,39 @@ class ShardNode:
         if not self._mirror_wake:
             self._mirror_wake = True
             self._loop.call_soon_threadsafe(self._feed_listeners)
+
+    def update_mirror(self) -> bool:
+        """Subscribe to the other shards' attitude and swing outputs while `mirror_demand()` holds and another shard
+        is live, unsubscribe otherwise (event loop); True while subscribed."""
+        want = len(self.ownership.live) > 1 and self.mirror_demand()
+        if want and not self._mirror_unsubs:
+            self._mirror_unsubs = [self.bus.subscribe(sel, self._on_output) for sel in MIRRORED_ON_DEMAND]
+            log.info("mirroring the other shards' attitude and swing (a 3-D view client is connected)")
+        elif not want and self._mirror_unsubs:
+            for unsubscribe in self._mirror_unsubs:
+                unsubscribe()
+            self._mirror_unsubs = []
+            self._mirror_last.clear()
+        return bool(self._mirror_unsubs)
+
+    async def _mirror_loop(self) -> None:
+        while True:
+            try:
+                self.update_mirror()
+            except Exception:
+                log.exception("mirror subscription update failed")
+            await asyncio.sleep(MIRROR_CHECK_S)
+
+    async def stop(self) -> None:
+        """Stop the mirror task and drop the mirror subscriptions (before the bus closes)."""
+        if self._mirror_task is not None:
+            self._mirror_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._mirror_task
+            self._mirror_task = None
+        for unsubscribe in self._mirror_unsubs:
+            unsubscribe()
+        self._mirror_unsubs = []
 
     def _feed_listeners(self) -> None:
         self._mirror_wake = False
