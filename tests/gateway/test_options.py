@@ -6,6 +6,8 @@ import itertools
 import time
 from pathlib import Path
 
+import pytest
+
 from gateway import schemas
 from gateway.__main__ import build_parser, settings_from_args
 from gateway.app import compose
@@ -46,3 +48,19 @@ def test_attitude_blocks_are_published_with_block_next_to_the_decimated_attitude
     # whose attitudes are coalesced to its newest (one per device per batch)
     seqs = [m.seq for m, _ in atts]
     assert all(b - a == 2 for a, b in itertools.pairwise(seqs)) and seqs[-1] >= len(imu) - 2, seqs
+
+
+def test_the_gateway_is_a_zenoh_router_unless_a_mode_is_asked_for(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A router's receive threads cost a third of a peer's per packet (bench.fleet --threads): the default; an
+    explicit `--mode peer` stays a peer with one shard, and with several the first process must route."""
+    from gateway.__main__ import process_settings
+
+    monkeypatch.delenv("RIG_ZENOH_MODE", raising=False)
+
+    def mode(argv: list[str], shards: int) -> str:
+        return process_settings(settings_from_args(build_parser().parse_args(argv)), shards).zenoh_mode
+
+    assert mode([], 1) == "router" and mode([], 2) == "router"
+    assert mode(["--mode", "peer"], 1) == "peer"
+    assert mode(["--mode", "peer"], 2) == "router"
+    assert mode(["--mode", "client", "--connect", "tcp/127.0.0.1:7999"], 1) == "client"
