@@ -184,6 +184,7 @@ class Observer:
     measuring: bool = False
 
     ok_by_shard: dict[str, int] = field(default_factory=dict)
+    diag_at: dict[str, float] = field(default_factory=dict)
 
     def on_diag(self, sample: zenoh.Sample) -> None:
         """gw/diag/ingest (each shard's counters, once a second, made between two batches): packets processed so
@@ -195,9 +196,15 @@ class Observer:
             return
         with self.lock:
             self.ok_by_shard[str(d.get("shard"))] = ok
+            self.diag_at[str(d.get("shard"))] = time.monotonic()
 
-    def processed(self) -> int:
+    def processed(self, shards: int, fresh_s: float = 2.0) -> int | None:
+        """Packets processed by all shards, or None unless every shard's count is at most `fresh_s` old (diag
+        messages are DROP puts: at 1000 devices, each ~150 kB, most of them are dropped)."""
+        now = time.monotonic()
         with self.lock:
+            if len(self.diag_at) < shards or any(now - t > fresh_s for t in self.diag_at.values()):
+                return None
             return sum(self.ok_by_shard.values())
 
     def on_sample(self, sample: zenoh.Sample) -> None:
@@ -430,14 +437,14 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
             time.sleep(max(0.0, start + warmup_s - time.time()))
             probe = RestProbe(hport)  # from the window's start: the first stats call below may be slow itself
             probe.start()
-            cpu0, th0, ok0 = tree_cpu_s(gw.pid), thread_cpu_s(gw.pid), obs.processed()
+            cpu0, th0, ok0 = tree_cpu_s(gw.pid), thread_cpu_s(gw.pid), obs.processed(shards)
             s0 = stats(hport)
             obs.measuring = True
             rss: list[float] = []
             while time.time() < start + warmup_s + duration_s:
                 rss.append(tree_rss_mib(gw.pid))
                 time.sleep(1.0)
-            cpu1, th1, ok1 = tree_cpu_s(gw.pid), thread_cpu_s(gw.pid), obs.processed()
+            cpu1, th1, ok1 = tree_cpu_s(gw.pid), thread_cpu_s(gw.pid), obs.processed(shards)
             obs.measuring = False
             probe.stop.set()
             probe.join(timeout=60)
@@ -460,8 +467,12 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
               f"ingest {s1.get('received')}; rejected {s1.get('rejected')}, "
               f"sequence gaps {lost_seq}")
     # packets in the measured window: what the gateway processed between the two CPU readings, from its diag
-    # messages (at most ~1 s old at either end); the REST counters if no diag arrived
-    done = ok1 - ok0 if ok0 > 0 and ok1 > ok0 else processed(s1) - processed(s0)
+    # messages (at most 2 s old at either end); else the REST counters, whose window may be shorter (late answer)
+    if ok0 is not None and ok1 is not None and ok1 > ok0:
+        done = ok1 - ok0
+    else:
+        done = processed(s1) - processed(s0)
+        print("  CPU per packet from the REST counters (no fresh gw/diag/ingest): unreliable under overload")
     if threads:
         print_threads(th0, th1, gw.pid, done)
     cpu_ms = 1e3 * (cpu1 - cpu0) / max(1, done)
