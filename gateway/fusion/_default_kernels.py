@@ -67,11 +67,7 @@ P_MAG_BEAR_TH = 31  # rad, a bearing further than this from that average marks a
 P_ACC_SPIKE_TH = 32  # m/s², a specific force this far from g is a shock (tap), not a reading; <= 0 disables
 P_MAG_BEAR_LAG = 33  # s, allowance for magnetometer/gyro timing: the threshold grows by |rate| × this
 P_MAG_HEADING_KF_ON = 34  # heading gain from a scalar Kalman filter (faster after a rejection); 0 = fixed gain
-P_ACC_ADAPT_M_S2 = 35  # m/s², accelerometer weight 1/(1 + (| |a| - g | / this)²) into the low-pass; <= 0: off
-P_ACC_ADAPT_RAD = 36  # rad, weight 1/(1 + (residual tilt / this)²), residual = angle of the sample off E6 vertical
-P_TAU_ERR_REF = 37  # rad/s, gyro error std at which the accelerometer time constant is tau_acc; <= 0: fixed tau
-P_TAU_ACC_MIN = 38  # s, shortest accelerometer time constant the adaptation may reach
-N_PARAMS = 39
+N_PARAMS = 35
 
 # ---- state vector ----
 S_QG = 0  # 4: strapdown quaternion body -> I
@@ -102,9 +98,7 @@ S_RUK_LP = 155  # 2 + 4: horizontal part of R·diag(rate)·k, low-passed
 S_MAG_BEAR = 161  # 2: the field's bearing in E6 (rad), smoothed like norm and dip, and its slow average
 S_MAG_P = 163  # heading variance in units of the magnetometer's (NaN: steady state)
 S_HEAD = 164  # 3: the heading delta for which the next two hold, cos(delta/2), sin(delta/2) (output rotation)
-S_GYR_ERR2 = 167  # (rad/s)², the gyro model's error variance in the current motion, low-passed (NaN: not yet)
-S_TAU_EFF = 168  # s, the time constant the accelerometer coefficients were last derived for (NaN: the base one)
-N_STATE = 169
+N_STATE = 167
 
 # ---- per-call coefficients (derived from settings and dt) ----
 C_ACC = 0  # 5: b0 b1 b2 a1 a2
@@ -161,8 +155,6 @@ def new_state(settings: np.ndarray) -> np.ndarray:
     s[S_MAG_BEAR : S_MAG_BEAR + 2] = np.nan  # set from the first field
     s[S_MAG_P] = np.nan
     s[S_HEAD : S_HEAD + 3] = (0.0, 1.0, 0.0)
-    s[S_GYR_ERR2] = np.nan
-    s[S_TAU_EFF] = np.nan
     return s
 
 
@@ -374,32 +366,6 @@ def _bias_update(s: np.ndarray, prm: np.ndarray, c: np.ndarray, wk: np.ndarray) 
             s[p + 6 * j + i] = v
 
 
-@njit(cache=True, error_model="numpy")
-def _adapt_tau(s: np.ndarray, prm: np.ndarray, c: np.ndarray, ux: float, uy: float, uz: float, dt_s: float) -> None:
-    """Accelerometer time constant from the gyro model's own uncertainty: the tilt the gyro loses per second is
-    about e = sqrt(Σ P_bias,i + Σ u_i² P_scale,i) (bias and scale variances of the bias filter, u the rate); a
-    filter whose tilt random-walks with e against a fixed accelerometer noise has its best gain ∝ e, so
-    tau = tau_acc · e_ref / e, clipped to [tau_acc_min, tau_acc]. e² is low-passed over tau_acc; the coefficients
-    (shared with the bias filter's low-passes, so they stay aligned) are re-derived when tau moves by 2 %."""
-    e2 = 0.0
-    for i in range(3):
-        e2 += s[S_BIAS_P + 7 * i]
-    e2 += ux * ux * s[S_BIAS_P + 21] + uy * uy * s[S_BIAS_P + 28] + uz * uz * s[S_BIAS_P + 35]
-    tau0 = prm[P_TAU_ACC]
-    if math.isnan(s[S_GYR_ERR2]):
-        s[S_GYR_ERR2] = e2
-    else:
-        s[S_GYR_ERR2] += (1.0 - math.exp(-dt_s / tau0)) * (e2 - s[S_GYR_ERR2])
-    e = math.sqrt(s[S_GYR_ERR2])
-    tau = tau0 if e <= prm[P_TAU_ERR_REF] else max(tau0 * prm[P_TAU_ERR_REF] / e, prm[P_TAU_ACC_MIN])
-    last = s[S_TAU_EFF]
-    if math.isnan(last):
-        last = tau0
-    if abs(tau - last) > 0.002 * last:
-        _butter2(tau, dt_s, c, C_ACC)
-        s[S_TAU_EFF] = tau
-
-
 @njit(cache=True, error_model="numpy", inline="always")
 def _step_sample(
     s: np.ndarray, prm: np.ndarray, c: np.ndarray, wk: np.ndarray,
@@ -464,22 +430,8 @@ def _step_sample(
             if s[S_REST_T] >= prm[P_REST_MIN]:
                 s[S_REST] = 1.0
     # -- inclination: low-pass the specific force in I, rotate to E6, turn it fully vertical
-    if prm[P_TAU_ERR_REF] > 0.0:
-        _adapt_tau(s, prm, c, ux, uy, uz, dt_s)
     fx, fy, fz = _rotate(s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3], ax, ay, az)
     wk[0], wk[1], wk[2] = fx, fy, fz
-    w_acc = 1.0
-    if prm[P_ACC_ADAPT_M_S2] > 0.0:
-        dev = abs(math.sqrt(ax * ax + ay * ay + az * az) - GRAVITY_M_S2) / prm[P_ACC_ADAPT_M_S2]
-        w_acc /= 1.0 + dev * dev
-    if prm[P_ACC_ADAPT_RAD] > 0.0:
-        vx, vy, vz = _rotate(s[S_QI], s[S_QI + 1], s[S_QI + 2], s[S_QI + 3], fx, fy, fz)
-        res = math.atan2(math.sqrt(vx * vx + vy * vy), vz) / prm[P_ACC_ADAPT_RAD]
-        w_acc /= 1.0 + res * res
-    if w_acc < 1.0 and not math.isnan(s[S_ACC_LP + 3]):
-        # a disturbed sample moves the low-pass less: its input is pulled towards the current output
-        for i in range(3):
-            wk[i] = s[S_ACC_LP + i] + w_acc * (wk[i] - s[S_ACC_LP + i])
     _lowpass_vec(wk, 0, 3, c, C_ACC, s, S_ACC_LP)
     ex, ey, ez = _rotate(s[S_QI], s[S_QI + 1], s[S_QI + 2], s[S_QI + 3], wk[0], wk[1], wk[2])
     en = math.sqrt(ex * ex + ey * ey + ez * ez)

@@ -67,12 +67,6 @@ class DefaultSettings:
     mag_heading_kf: bool = True  # gain grows with the time the field was rejected: the drift gathered meanwhile
     # is taken out quickly once the field is clean (same steady-state gain as a fixed `tau_mag_s`)
     acc_spike_m_s2: float = 60.0  # |specific force - g| above ~6 g is a shock (tap, knock), skipped; 0 disables
-    # Accelerometer-disturbance weighting (off by default; docs/fusion.md, "Trial 15"): a sample's weight in the
-    # low-pass is 1/(1 + (| |a| - g | / acc_adapt_m_s2)²) and/or 1/(1 + (residual tilt / acc_adapt_deg)²); 0 disables
-    acc_adapt_m_s2: float = 0.0
-    acc_adapt_deg: float = 0.0
-    tau_err_ref_deg_s: float = 0.0  # gyro error std at which tau_acc holds; larger errors shorten it (0: fixed tau)
-    tau_acc_min_s: float = 1.0
     motion_bias: bool = True
     rest_bias: bool = True
     mag_rejection: bool = True
@@ -116,10 +110,6 @@ class DefaultSettings:
         p[K.P_ACC_SPIKE_TH] = self.acc_spike_m_s2
         p[K.P_MAG_BEAR_LAG] = self.mag_bearing_lag_s
         p[K.P_MAG_HEADING_KF_ON] = float(self.mag_heading_kf)
-        p[K.P_ACC_ADAPT_M_S2] = self.acc_adapt_m_s2
-        p[K.P_ACC_ADAPT_RAD] = self.acc_adapt_deg * _DEG
-        p[K.P_TAU_ERR_REF] = self.tau_err_ref_deg_s * _DEG
-        p[K.P_TAU_ACC_MIN] = self.tau_acc_min_s
         return p
 
     def __post_init__(self) -> None:
