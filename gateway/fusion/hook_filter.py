@@ -71,7 +71,7 @@ N_INPUT = 8  # per-sample process input: accelerometer x/y, gyroscope (3), its b
 # params layout (numba kernels take one float array)
 (_G, _RX, _RY, _RZ, _MX, _MY, _MZ, _USE_MAG, _GATE, _TIP_PSD, _FORCE_STD, _HOIST_TAU, _L_MIN, _TIP_TAU,
  _FORCE_ON, _L_MAX, _NIS_TAU, _NIS_GATE, _TIP_MOVE, _TIP_STD, _TIP_GATE, _MOVE_FREEZE, _MOVE_HOLD,
- _TIP_GATE_STD, _MEAN_TAU, _MEAN_GATE, _L_RATE_TAU) = range(27)
+ _TIP_GATE_STD, _MEAN_TAU, _MEAN_GATE, _L_RATE_TAU, _JUMP_ROPE) = range(28)
 
 
 @dataclass(frozen=True)
@@ -101,7 +101,8 @@ class HookFilterSettings:
     lever_std_m: float = 0.03  # prior std of the IMU's x/y offset from the rope axis around `lever_arm_m`
     torsion_accel_psd: float = 1.0  # (rad/s²)²/Hz: the hook's twist is driven by the rope's torsion spring
     gyro_bias_psd: float = 1e-8  # (rad/s)²/s: bias random walk
-    acc_bias_psd: float = 1e-6  # (m/s²)²/s: drift of the tension channel's offset
+    acc_bias_psd: float = 1e-5  # (m/s²)²/s: drift of the tension channel's offset (1e-6 before: a slow mismatch went
+    # into the hoist acceleration instead and the rope length drifted on a still hook; 1e-4: 0.182 vs 0.178°)
     acc_xy_bias_psd: float = 1e-8  # (m/s²)²/s: drift of the accelerometer x/y bias
     log_length_psd: float = 1e-7  # 1/s: slow drift of ln l (rope stretch, rigging)
     rope_rate_psd: float = 1e-5  # (m/s)²/s: rope speed changes beyond the modelled hoist accelerations
@@ -123,6 +124,8 @@ class HookFilterSettings:
     # only (tried: no gain on the tuning seeds)
     move_hold_s: float = 0.0  # a detected move lasts at least this long (s)
     move_rollback_s: float = 0.3  # on a jump, go back this far, open the tip state there and run again (0: no)
+    jump_rope_rel_std: float = 0.0  # a jump also opens the rope length by this (relative): a wrong configured length
+    # trips the jump test as a move does, and the two explanations must compete
     move_mean_tau_s: float = 0.5  # running mean of the whitened swing-rate innovation *vector*: a boom-tip
     # acceleration the model lacks biases the innovation one way for as long as it lasts, which its mean shows
     # √(2τ/dt) times more clearly than the squared innovation (the NIS test above stayed below its gate through
@@ -404,7 +407,8 @@ def ekf_step(
     lasts, [2:4] the running mean of the whitened swing-rate innovation (`_innovation_mean_test`), [4] the seconds
     since (minus `params[_MOVE_HOLD]`) the last jump, [5] 1 if this step found a jump. Jump test: when that mean
     fails its χ² gate, the boom tip's acceleration has jumped (a move started, turned or stopped):
-    `params[_TIP_MOVE]`² is added to the tip state's variance once and the mean restarts. Older tests (off by default): above `params[_NIS_GATE]`, or while the
+    `params[_TIP_MOVE]`² is added to the tip state's variance once and the mean restarts. Older tests (off by
+    default): above `params[_NIS_GATE]`, or while the
     predicted tip acceleration exceeds `params[_TIP_GATE]` times its stationary variance, the tip state's variance
     is held at `params[_TIP_MOVE]`² (NIS) or `params[_TIP_GATE_STD]`² (tip)."""
     m = z.shape[0]
@@ -424,6 +428,7 @@ def ekf_step(
         monitor[4] = params[_MOVE_HOLD]
         for i in (17, 18):
             p_pred[i, i] += params[_TIP_MOVE] * params[_TIP_MOVE]
+        p_pred[_LOG_L, _LOG_L] += params[_JUMP_ROPE] * params[_JUMP_ROPE]
     jump = monitor[4] > 0.0
     monitor[4] -= dt_s
     move_std = params[_TIP_MOVE] if moving else params[_TIP_GATE_STD]
@@ -493,6 +498,7 @@ def ekf_run(
             mon = hist_mon[j0 % b].copy()
             for t in (17, 18):
                 p[t, t] += params[_TIP_MOVE] * params[_TIP_MOVE]
+            p[_LOG_L, _LOG_L] += params[_JUMP_ROPE] * params[_JUMP_ROPE]
             for j in range(j0, hist_n[0]):
                 x, p = ekf_step(x, p, hist_z[j % b, :m], hist_u[j % b], dt_s, quiet, q_psd, r_diag, mon)
             monitor[0], monitor[1] = mon[0], mon[1]
@@ -549,7 +555,7 @@ class HookFilter(AttitudeFilter):
                          1.0 if s.use_force_input else 0.0, s.max_rope_length_m, s.move_nis_tau_s, s.move_nis_gate,
                          s.tip_accel_move_std_m_s2, s.tip_accel_std_m_s2, s.tip_move_gate, s.move_freeze,
                          s.move_hold_s, s.tip_gate_move_std_m_s2, s.move_mean_tau_s,
-                         s.move_mean_gate, s.rope_rate_tau_s])  # fmt: skip
+                         s.move_mean_gate, s.rope_rate_tau_s, s.jump_rope_rel_std])  # fmt: skip
 
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings
