@@ -16,14 +16,17 @@ estimation and magnetic disturbance rejection", Information Fusion 91:187-204, 2
    norm or dip (optionally: its bearing in E6) departs from a tracked reference.
 
 All time constants are in seconds, so one set of defaults serves 50 Hz .. 1 kHz. Everything here is scalar code on
-flat float64 arrays: no allocation per sample, so `step_device` streams one device and `step_devices` loops it over N.
-The per-sample helpers are inlined at numba IR level (`inline="always"`): a regular call that takes arrays pays
-reference-count updates on every sample, which cost the kernel about a fifth of its speed.
+flat float64 arrays: no allocation per sample. A device's whole filter (state, settings, coefficients, scratch) is one
+context vector (`X_*` layout), so `_step_context` streams one device from a call with six arguments and
+`step_contexts` runs the same compiled code per row of N stacked contexts. The per-sample helpers are inlined at numba
+IR level (`inline="always"`): a regular call that takes arrays pays reference-count updates on every sample, which
+cost the kernel about a fifth of its speed.
 """
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit, prange
@@ -118,6 +121,19 @@ N_COEFFS = 26
 
 W_Q6 = 80  # 4: body -> E6 quaternion of the current sample (NaN in [0]: not computed yet)
 N_WORK = 84
+
+# ---- context vector: all one device's filter holds (state, settings, coefficients, scratch) in one float64 array,
+# so a call for a 10-sample packet passes one array instead of seven and numba's dispatcher checks fewer arguments
+X_STATE = 0  # N_STATE
+X_PRM = X_STATE + N_STATE  # N_PARAMS
+X_COEFFS = X_PRM + N_PARAMS  # N_COEFFS
+X_WORK = X_COEFFS + N_COEFFS  # N_WORK
+X_DT = X_WORK + N_WORK  # s, the device's sample period
+X_COEFFS_DT = X_DT + 1  # s, the period the coefficients were derived for (NaN: none yet)
+X_Q = X_COEFFS_DT + 1  # 4: the last output quaternion
+X_USE_MAG = X_Q + 4  # 1.0: 9D (batch rows; a single device passes the flag per call)
+X_ACTIVE = X_USE_MAG + 1  # 1.0: the row takes part in this step (batch rows)
+N_CTX = X_ACTIVE + 1
 
 
 def new_state(settings: np.ndarray) -> np.ndarray:
@@ -651,7 +667,7 @@ def _output(s: np.ndarray, wk: np.ndarray, use_mag: bool, out: np.ndarray, i: in
     out[i, 3] = qz
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")  # inlined into `_step_context` only: 15-30 % faster there
 def _step_one(
     s: np.ndarray, prm: np.ndarray, c: np.ndarray, wk: np.ndarray,
     gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool, dt_s: float, out: np.ndarray,
@@ -664,68 +680,129 @@ def _step_one(
         _output(s, wk, use_mag, out, i)
 
 
-@njit(cache=True, error_model="numpy")
-def step_prepared(
-    s: np.ndarray, prm: np.ndarray, c: np.ndarray, wk: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
-    mag: np.ndarray, use_mag: bool, dt_s: float, out: np.ndarray,
+def new_context(settings: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """A context vector (N_CTX,) holding `state` and the settings vector; period unset, 6D, active."""
+    x = np.zeros(N_CTX)
+    x[X_STATE : X_STATE + N_STATE] = state
+    x[X_PRM : X_PRM + N_PARAMS] = settings
+    x[X_DT] = math.nan
+    x[X_COEFFS_DT] = math.nan
+    x[X_Q : X_Q + 4] = state[S_QG : S_QG + 4]
+    x[X_ACTIVE] = 1.0
+    return x
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _context_step(
+    x: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool, out: np.ndarray
 ) -> None:
-    """`step_device` with the coefficients c (from `coefficients(prm, dt_s, c)`) and scratch wk (N_WORK,) supplied
-    by the caller, so a stream of small packets neither recomputes them nor allocates."""
-    _step_one(s, prm, c, wk, gyr, acc, mag, use_mag, dt_s, out)
+    """Filter n samples with the context x (N_CTX,): coefficients follow x[X_DT], the last quaternion goes to x[X_Q]."""
+    dt_s = x[X_DT]
+    prm = x[X_PRM : X_PRM + N_PARAMS]
+    c = x[X_COEFFS : X_COEFFS + N_COEFFS]
+    if dt_s != x[X_COEFFS_DT]:
+        coefficients(prm, dt_s, c)
+        x[X_COEFFS_DT] = dt_s
+    _step_one(x[X_STATE : X_STATE + N_STATE], prm, c, x[X_WORK : X_WORK + N_WORK], gyr, acc, mag, use_mag, dt_s, out)
+    n = gyr.shape[0]
+    if n > 0:
+        for k in range(4):
+            x[X_Q + k] = out[n - 1, k]
 
 
 @njit(cache=True, error_model="numpy")
-def step_sample(
-    s: np.ndarray, prm: np.ndarray, c: np.ndarray, wk: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
-    mag: np.ndarray, use_mag: bool, dt_s: float, q: np.ndarray,
+def _step_context(
+    x: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool, out: np.ndarray
 ) -> None:
-    """One sample, inputs (3,) each, body->ENU quaternion written to q (4,); c and wk as in `step_prepared`."""
-    _step_sample(
-        s, prm, c, wk, gyr[0], gyr[1], gyr[2], acc[0], acc[1], acc[2], mag[0], mag[1], mag[2], use_mag, dt_s,
-    )
-    _output(s, wk, use_mag, q.reshape((1, 4)), 0)
+    """One device, n samples: context x (N_CTX,) with x[X_DT] > 0, inputs (n, 3), quaternions written to out (n, 4).
+
+    Shapes are checked here (the kernel does not bounds-check its indexing)."""
+    n = gyr.shape[0]
+    if x.shape[0] != N_CTX or gyr.shape[1] != 3 or acc.shape != gyr.shape or mag.shape != gyr.shape:
+        raise ValueError("context must be (N_CTX,) and gyr, acc, mag (n, 3) each")
+    if out.shape[0] != n or out.shape[1] != 4:
+        raise ValueError("out must be (n, 4)")
+    _context_step(x, gyr, acc, mag, use_mag, out)
 
 
 @njit(cache=True, error_model="numpy")
-def step_device(
-    s: np.ndarray, prm: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool, dt_s: float,
-    out: np.ndarray,
+def _step_context_sample(
+    x: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: bool, q: np.ndarray
 ) -> None:
-    """Filter n samples of one device: state s (N_STATE,), inputs (n, 3), quaternions written to out (n, 4)."""
-    c = np.empty(N_COEFFS)
-    wk = np.empty(N_WORK)
-    coefficients(prm, dt_s, c)
-    _step_one(s, prm, c, wk, gyr, acc, mag, use_mag, dt_s, out)
+    """One sample: inputs (3,) each, the body->ENU quaternion written to q (4,) and x[X_Q]."""
+    if x.shape[0] != N_CTX or gyr.shape[0] != 3 or acc.shape[0] != 3 or mag.shape[0] != 3 or q.shape[0] != 4:
+        raise ValueError("context must be (N_CTX,), gyr, acc, mag (3,) and q (4,)")
+    _step_context(x, gyr.reshape((1, 3)), acc.reshape((1, 3)), mag.reshape((1, 3)), use_mag, q.reshape((1, 4)))
+
+
+_C1 = "float64[::1]"
+_C2 = "float64[:, ::1]"
+_C3 = "float64[:, :, ::1]"
+
+
+def _fixed(dispatcher: Any, signature: str) -> Any:
+    """The dispatcher compiled (or loaded from numba's cache) for its one signature, with compilation for other
+    argument types disabled: a call with anything but C-contiguous float64 arrays of the right ndim raises TypeError
+    at once (the caller converts and retries) instead of compiling a new version. The per-call type check stays
+    numba's C fast path over the arguments."""
+    if not dispatcher.signatures:
+        dispatcher.compile(signature)
+        dispatcher.disable_compile()
+    return dispatcher
+
+
+def context_kernel() -> Any:
+    """`_step_context(x, gyr, acc, mag, use_mag, out)` for one device's n-sample block (see `_fixed`)."""
+    return _fixed(_step_context, f"void({_C1}, {_C2}, {_C2}, {_C2}, boolean, {_C2})")
+
+
+def context_sample_kernel() -> Any:
+    """`_step_context_sample(x, gyr, acc, mag, use_mag, q)` for one sample (see `_fixed`)."""
+    return _fixed(_step_context_sample, f"void({_C1}, {_C1}, {_C1}, {_C1}, boolean, {_C1})")
+
+
+def rows_kernels() -> tuple[Any, Any]:
+    """(`step_contexts`, `step_contexts_serial`) for N devices' n-sample blocks (see `_fixed`)."""
+    sig = f"void({_C2}, {_C3}, {_C3}, {_C3}, boolean, {_C3})"
+    return _fixed(step_contexts, sig), _fixed(step_contexts_serial, sig)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _context_rows(x: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, mag_on: bool, out: np.ndarray,
+                  d: int) -> None:
+    """Row d of a stacked context (N, N_CTX): its own period and 6D/9D flag; an inactive row's output is NaN."""
+    row = x[d]
+    if row[X_ACTIVE] != 0.0:
+        _step_context(row, gyr[d], acc[d], mag[d], mag_on and row[X_USE_MAG] != 0.0, out[d])
+    else:
+        out[d, :, :] = math.nan
+
+
+@njit(cache=True, error_model="numpy")
+def _check_rows(x: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, out: np.ndarray) -> None:
+    if x.shape[1] != N_CTX or gyr.shape[0] != x.shape[0] or gyr.shape[2] != 3:
+        raise ValueError("contexts must be (N, N_CTX) and gyr (N, n, 3)")
+    if acc.shape != gyr.shape or mag.shape != gyr.shape:
+        raise ValueError("gyr, acc, mag must have one shape")
+    if out.shape[0] != gyr.shape[0] or out.shape[1] != gyr.shape[1] or out.shape[2] != 4:
+        raise ValueError("out must be (N, n, 4)")
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def step_devices(
-    s: np.ndarray, prm: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: np.ndarray,
-    dt_s: np.ndarray, active: np.ndarray, out: np.ndarray,
-) -> None:
-    """Filter n samples of N devices: states (N, N_STATE), inputs (N, n, 3), flags/periods (N,), out (N, n, 4).
-
-    Device d runs exactly the per-device code path with its own dt_s[d] and use_mag[d]; inactive slots are skipped.
-    Devices are independent, so they are spread over the CPU cores (numba prange); results do not depend on it.
-    For a handful of devices the thread start-up costs more than it saves: use `step_devices_serial`.
-    """
-    for d in prange(s.shape[0]):
-        if active[d]:
-            c = np.empty(N_COEFFS)
-            wk = np.empty(N_WORK)
-            coefficients(prm, dt_s[d], c)
-            _step_one(s[d], prm, c, wk, gyr[d], acc[d], mag[d], use_mag[d], dt_s[d], out[d])
+def step_contexts(x: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, mag_on: bool,
+                  out: np.ndarray) -> None:
+    """N devices, n samples each: contexts (N, N_CTX), inputs (N, n, 3), out (N, n, 4); `mag_on=False` runs every
+    row 6D for this step. Rows are independent, so they are spread over the cores (numba prange); for a handful of
+    devices the thread start-up costs more than it saves: use `step_contexts_serial` (same results)."""
+    _check_rows(x, gyr, acc, mag, out)
+    for d in prange(x.shape[0]):
+        _context_rows(x, gyr, acc, mag, mag_on, out, d)
 
 
 @njit(cache=True, error_model="numpy")
-def step_devices_serial(
-    s: np.ndarray, prm: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, use_mag: np.ndarray,
-    dt_s: np.ndarray, active: np.ndarray, out: np.ndarray,
-) -> None:
-    """`step_devices` on one thread (same arguments, same results)."""
-    c = np.empty(N_COEFFS)
-    wk = np.empty(N_WORK)
-    for d in range(s.shape[0]):
-        if active[d]:
-            coefficients(prm, dt_s[d], c)
-            _step_one(s[d], prm, c, wk, gyr[d], acc[d], mag[d], use_mag[d], dt_s[d], out[d])
+def step_contexts_serial(x: np.ndarray, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, mag_on: bool,
+                         out: np.ndarray) -> None:
+    """`step_contexts` on one thread."""
+    _check_rows(x, gyr, acc, mag, out)
+    for d in range(x.shape[0]):
+        _context_rows(x, gyr, acc, mag, mag_on, out, d)

@@ -7,6 +7,7 @@ code path of `DefaultFilter.update_block` per device, so results equal the singl
 from __future__ import annotations
 
 import os
+from typing import Any
 
 # numba's OpenMP layer spins idle threads between steps by default; on a shared box (gateway, zenoh, web server)
 # that burns a core per step for nothing. Must be set before the layer loads, i.e. before the first batched step.
@@ -24,19 +25,36 @@ PARALLEL_MIN_SAMPLES = 4000
 
 
 class DefaultFilterBatch:
-    """N default filters in rows of flat arrays; rows follow `device_ids` (order of joining, compacted on removal)."""
+    """N default filters in rows of one context array (N, N_CTX) (`_default_kernels.X_*`: state, settings,
+    coefficients, scratch, period, 6D/9D flag); rows follow `device_ids` (order of joining, compacted on removal)."""
 
     def __init__(self, settings: DefaultSettings | None = None) -> None:
         self.settings = settings or DefaultSettings()
         self._params = self.settings.to_array()
         self.device_ids: list[str] = []
         self._row: dict[str, int] = {}
-        self.states = np.empty((0, K.N_STATE))
-        self.dt_s = np.empty(0)
-        self.use_mag = np.empty(0, dtype=np.bool_)
+        self._ctx = np.empty((0, K.N_CTX))
+        self._all_active = True  # every row's X_ACTIVE is 1 (so a step without a mask writes nothing)
+        self._parallel, self._serial = K.rows_kernels()
+        self._fast = True  # inputs so far were C-contiguous float64 (no conversion)
 
     def __len__(self) -> int:
         return len(self.device_ids)
+
+    @property
+    def states(self) -> FloatArray:
+        """Kernel states (N, N_STATE): a view, writes go to the filters."""
+        return self._ctx[:, K.X_STATE : K.X_STATE + K.N_STATE]
+
+    @property
+    def dt_s(self) -> FloatArray:
+        """Sample period of each row (N,), read-only copy (`set_dt` changes one)."""
+        return self._ctx[:, K.X_DT].copy()
+
+    @property
+    def use_mag(self) -> NDArray[np.bool_]:
+        """9D flag of each row (N,)."""
+        return np.asarray(self._ctx[:, K.X_USE_MAG] != 0.0, dtype=np.bool_)
 
     def add(
         self,
@@ -52,10 +70,11 @@ class DefaultFilterBatch:
             raise ValueError(f"device {device_id!r} already present")
         if not dt_s > 0:
             raise ValueError(f"dt_s must be positive, got {dt_s}")
-        state = initial_state(self._params, acc_m_s2, mag_uT if use_mag else None)
-        self.states = np.vstack([self.states, state[None]])
-        self.dt_s = np.append(self.dt_s, float(dt_s))
-        self.use_mag = np.append(self.use_mag, bool(use_mag))
+        row = K.new_context(self._params, initial_state(self._params, acc_m_s2, mag_uT if use_mag else None))
+        row[K.X_DT] = float(dt_s)
+        row[K.X_USE_MAG] = float(bool(use_mag))
+        self._ctx = np.vstack([self._ctx, row[None]])
+        self._all_active = False
         self._row[device_id] = len(self.device_ids)
         self.device_ids.append(device_id)
         return self._row[device_id]
@@ -63,9 +82,7 @@ class DefaultFilterBatch:
     def remove(self, device_id: str) -> None:
         """Drop a device; later rows move up by one."""
         row = self._row.pop(device_id)
-        self.states = np.delete(self.states, row, axis=0)
-        self.dt_s = np.delete(self.dt_s, row)
-        self.use_mag = np.delete(self.use_mag, row)
+        self._ctx = np.delete(self._ctx, row, axis=0)
         del self.device_ids[row]
         for i in range(row, len(self.device_ids)):
             self._row[self.device_ids[i]] = i
@@ -78,7 +95,7 @@ class DefaultFilterBatch:
         """Change one device's sample period (coefficients follow on its next step)."""
         if not dt_s > 0:
             raise ValueError(f"dt_s must be positive, got {dt_s}")
-        self.dt_s[self._row[device_id]] = dt_s
+        self._ctx[self._row[device_id], K.X_DT] = dt_s
 
     def step(
         self,
@@ -92,20 +109,32 @@ class DefaultFilterBatch:
         `mag_uT=None` runs all devices 6D for this step; rows with `active[i] == False` are left untouched (their
         output rows are NaN), for rounds in which a device sent no packet.
         """
-        n_dev = len(self.device_ids)
+        if active is not None:
+            act = np.asarray(active, dtype=np.bool_)
+            if act.shape != (len(self.device_ids),):
+                raise ValueError(f"active must be ({len(self.device_ids)},), got {act.shape}")
+            self._ctx[:, K.X_ACTIVE] = act
+            self._all_active = False
+        elif not self._all_active:
+            self._ctx[:, K.X_ACTIVE] = 1.0
+            self._all_active = True
+        mag_on = mag_uT is not None
+        mag = mag_uT if mag_uT is not None else gyr_rad_s
+        if self._fast:
+            try:
+                out = np.empty((len(gyr_rad_s), len(gyr_rad_s[0]) if len(gyr_rad_s) else 0, 4))
+                self._kernel(out.shape[1])(self._ctx, gyr_rad_s, acc_m_s2, mag, mag_on, out)
+                return out
+            except TypeError:  # convert from now on (numba's failed type match costs ~80 µs per call)
+                self._fast = False
         gyr = np.ascontiguousarray(gyr_rad_s, dtype=np.float64)
         acc = np.ascontiguousarray(acc_m_s2, dtype=np.float64)
-        assert gyr.ndim == 3 and gyr.shape[0] == n_dev and gyr.shape[2] == 3 and acc.shape == gyr.shape
-        if mag_uT is None:
-            mag = gyr
-            use_mag = np.zeros(n_dev, dtype=np.bool_)
-        else:
-            mag = np.ascontiguousarray(mag_uT, dtype=np.float64)
-            assert mag.shape == gyr.shape
-            use_mag = self.use_mag
-        act = np.ones(n_dev, dtype=np.bool_) if active is None else np.asarray(active, dtype=np.bool_)
-        assert act.shape == (n_dev,)
-        out = np.full((n_dev, gyr.shape[1], 4), np.nan)
-        kernel = K.step_devices if n_dev * gyr.shape[1] >= PARALLEL_MIN_SAMPLES else K.step_devices_serial
-        kernel(self.states, self._params, gyr, acc, mag, use_mag, self.dt_s, act, out)
+        mag = np.ascontiguousarray(mag, dtype=np.float64) if mag_on else gyr
+        if gyr.ndim != 3 or acc.ndim != 3 or mag.ndim != 3:
+            raise ValueError("gyr, acc and mag must be (N, n, 3) arrays")
+        out = np.empty((gyr.shape[0], gyr.shape[1], 4))
+        self._kernel(out.shape[1])(self._ctx, gyr, acc, mag, mag_on, out)
         return out
+
+    def _kernel(self, n_samples: int) -> Any:
+        return self._parallel if len(self.device_ids) * n_samples >= PARALLEL_MIN_SAMPLES else self._serial

@@ -183,10 +183,24 @@ def initial_state(params: FloatArray, acc_m_s2: FloatArray | None, mag_uT: Float
     return s
 
 
+def _as_rows(
+    ndim: int, gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: bool, message: str
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The inputs as C-contiguous float64 arrays of `ndim` dimensions (mag is gyr in 6D); the kernel checks shapes."""
+    g = np.ascontiguousarray(gyr, dtype=np.float64)
+    a = np.ascontiguousarray(acc, dtype=np.float64)
+    m = np.ascontiguousarray(mag, dtype=np.float64) if use_mag else g
+    if g.ndim != ndim or a.ndim != ndim or m.ndim != ndim:
+        raise ValueError(message)
+    return g, a, m
+
+
 class DefaultFilter(AttitudeFilter):
     """The project's default filter (VQF-class): see the module docstring and `DefaultSettings`.
 
-    State is one flat float64 vector (`state`), the same layout `gateway.fusion.batch` stacks for N devices.
+    Everything the kernel reads or writes (state, settings, coefficients, scratch) is one float64 context vector, so a
+    packet costs one numba call over six arguments; `state` is the view of its state part, the same layout
+    `gateway.fusion.batch` stacks for N devices.
     """
 
     name = "default"
@@ -195,46 +209,56 @@ class DefaultFilter(AttitudeFilter):
         super().__init__(use_mag=use_mag)
         self.settings = settings or DefaultSettings()
         self._params = self.settings.to_array()
-        self.state = K.new_state(self._params)
-        self._coeffs = np.empty(K.N_COEFFS)  # for `_coeffs_dt_s`; recomputed only when the period changes
-        self._coeffs_dt_s = math.nan
-        self._work = np.empty(K.N_WORK)
-        self._q = np.array([1.0, 0.0, 0.0, 0.0])
+        self._ctx = K.new_context(self._params, K.new_state(self._params))
+        self._dt_s = math.nan  # the period in the context (validated when it changes)
+        self._step = K.context_kernel()
+        self._step_sample = K.context_sample_kernel()
+        self._fast_block = self._fast_sample = True  # inputs so far were C-contiguous float64 (no conversion)
 
     @property
     def params(self) -> FloatArray:
         """The kernels' parameter vector (read-only copy)."""
         return self._params.copy()
 
+    @property
+    def state(self) -> FloatArray:
+        """The kernel state vector (N_STATE,): a view, writes go to the filter."""
+        return self._ctx[K.X_STATE : K.X_STATE + K.N_STATE]
+
+    @state.setter
+    def state(self, value: FloatArray) -> None:
+        self._ctx[K.X_STATE : K.X_STATE + K.N_STATE] = value
+
     def initialise(self, acc_m_s2: FloatArray, mag_uT: FloatArray | None) -> None:
         """Start from a rest reading: attitude from acc (+ mag); that field becomes the accepted reference."""
         use_mag = self.use_mag and mag_uT is not None
         self.state = initial_state(self._params, acc_m_s2, mag_uT if use_mag else None)
-        self._q = self.state[K.S_QG : K.S_QG + 4].copy()
+        self._ctx[K.X_Q : K.X_Q + 4] = self._ctx[K.X_STATE + K.S_QG : K.X_STATE + K.S_QG + 4]
+
+    def _set_period(self, dt_s: float) -> None:
+        if not dt_s > 0:
+            raise ValueError(f"dt_s must be positive, got {dt_s}")
+        self._ctx[K.X_DT] = dt_s  # the kernel derives its coefficients when this differs from theirs
+        self._dt_s = dt_s
 
     def update(
         self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float
     ) -> FloatArray:
         """One sample; returns the body->ENU quaternion (4,). A zero acc or mag sample means "no reading"."""
-        c = self._coefficients(dt_s)
-        gyr = np.asarray(gyr_rad_s, dtype=np.float64)
-        acc = np.asarray(acc_m_s2, dtype=np.float64)
+        if dt_s != self._dt_s:
+            self._set_period(dt_s)
         use_mag = self.use_mag and mag_uT is not None
-        mag = np.asarray(mag_uT, dtype=np.float64) if use_mag else gyr
-        assert gyr.shape == (3,) and acc.shape == (3,) and mag.shape == (3,)
+        mag = mag_uT if use_mag and mag_uT is not None else gyr_rad_s
         q = np.empty(4)
-        K.step_sample(self.state, self._params, c, self._work, gyr, acc, mag, use_mag, float(dt_s), q)
-        self._q = q
+        if self._fast_sample:
+            try:
+                self._step_sample(self._ctx, gyr_rad_s, acc_m_s2, mag, use_mag, q)
+                return q
+            except TypeError:
+                self._fast_sample = False  # see `update_block`
+        gyr, acc, mag = _as_rows(1, gyr_rad_s, acc_m_s2, mag, use_mag, "gyr, acc and mag must be 3-vectors")
+        self._step_sample(self._ctx, gyr, acc, mag, use_mag, q)
         return q
-
-    def _coefficients(self, dt_s: float) -> FloatArray:
-        """The kernels' coefficients for this sample period (cached: a stream keeps one period)."""
-        if dt_s != self._coeffs_dt_s:
-            if not dt_s > 0:
-                raise ValueError(f"dt_s must be positive, got {dt_s}")
-            K.coefficients(self._params, float(dt_s), self._coeffs)
-            self._coeffs_dt_s = dt_s
-        return self._coeffs
 
     def update_block(
         self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float
@@ -242,18 +266,25 @@ class DefaultFilter(AttitudeFilter):
         """n samples of one packet, inputs (n, 3) sampled every `dt_s`; returns quaternions (n, 4).
 
         Rows with a non-finite gyro are skipped (the attitude is held); zero or non-finite acc / mag rows are treated
-        as missing readings.
+        as missing readings. C-contiguous float64 arrays go straight to the kernel, whose dispatcher checks the types;
+        once a call needs converting (lists, float32, strided views), every later call converts first.
         """
-        c = self._coefficients(dt_s)
-        gyr = np.ascontiguousarray(gyr_rad_s, dtype=np.float64)
-        acc = np.ascontiguousarray(acc_m_s2, dtype=np.float64)
+        if dt_s != self._dt_s:
+            self._set_period(dt_s)
         use_mag = self.use_mag and mag_uT is not None
-        mag = np.ascontiguousarray(mag_uT, dtype=np.float64) if use_mag else gyr
-        assert gyr.ndim == 2 and gyr.shape[1] == 3 and acc.shape == gyr.shape and mag.shape == gyr.shape
+        mag = mag_uT if use_mag and mag_uT is not None else gyr_rad_s
+        if self._fast_block:
+            try:
+                out = np.empty((len(gyr_rad_s), 4))
+                self._step(self._ctx, gyr_rad_s, acc_m_s2, mag, use_mag, out)
+                return out
+            except TypeError:
+                # this caller's arrays need converting: convert from now on instead of paying numba's failed type
+                # match (~80 µs) on every call
+                self._fast_block = False
+        gyr, acc, mag = _as_rows(2, gyr_rad_s, acc_m_s2, mag, use_mag, "gyr, acc and mag must be (n, 3) arrays")
         out = np.empty((gyr.shape[0], 4))
-        K.step_prepared(self.state, self._params, c, self._work, gyr, acc, mag, use_mag, float(dt_s), out)
-        if out.shape[0]:
-            self._q = out[-1].copy()
+        self._step(self._ctx, gyr, acc, mag, use_mag, out)
         return out
 
     def run(
@@ -265,7 +296,7 @@ class DefaultFilter(AttitudeFilter):
     @property
     def quaternion(self) -> FloatArray:
         """Current body->ENU estimate (4,), scalar first."""
-        return self._q.copy()
+        return self._ctx[K.X_Q : K.X_Q + 4].copy()
 
     @property
     def bias_rad_s(self) -> FloatArray:

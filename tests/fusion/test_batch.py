@@ -96,3 +96,28 @@ def test_per_device_sample_period_matters():
     acc = np.stack([d["acc"], d["acc"]])
     out = batch.step(gyr, acc, None)
     assert np.abs(out[0, -1] - out[1, -1]).max() > 1e-3
+
+
+def test_strided_and_contiguous_rounds_agree_and_bad_shapes_are_refused():
+    """Contiguous rounds go straight to the kernel; a strided round switches the batch to converting. Both give the
+    same quaternions; mismatched shapes raise ValueError (the kernel does not bounds-check its indexing)."""
+    data = _devices(3, seconds=4.0)
+    n = min(len(d["gyr"]) for d in data) // 10 * 10
+    stacked = {k: np.stack([d[k][:n] for d in data]) for k in ("gyr", "acc", "mag")}
+    batches = [DefaultFilterBatch(), DefaultFilterBatch()]
+    for b in batches:
+        for i, d in enumerate(data):
+            b.add(f"dev{i}", dt_s=d["dt_s"], acc_m_s2=d["acc"][0], mag_uT=d["mag"][0])
+    out: list[list[np.ndarray]] = [[], []]
+    for r in range(0, n, 10):
+        s = np.s_[:, r : r + 10]
+        out[0].append(batches[0].step(*(np.ascontiguousarray(stacked[k][s]) for k in ("gyr", "acc", "mag"))))
+        out[1].append(batches[1].step(*(stacked[k][s] for k in ("gyr", "acc", "mag"))))  # strided views
+    assert batches[0]._fast and not batches[1]._fast
+    np.testing.assert_array_equal(np.concatenate(out[0], axis=1), np.concatenate(out[1], axis=1))
+    g = np.ascontiguousarray(stacked["gyr"][:, :10])
+    for gyr, acc in ((g, g[:, :9].copy()), (g[:2].copy(), g[:2].copy()), (g[:, :, :2].copy(), g[:, :, :2].copy())):
+        with pytest.raises(ValueError):
+            batches[0].step(gyr, acc)
+    with pytest.raises(ValueError):
+        batches[0].step(g, g, active=np.ones(2, dtype=bool))

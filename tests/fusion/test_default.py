@@ -72,6 +72,56 @@ def test_update_update_block_and_run_agree():
         np.testing.assert_allclose(fs[0].quaternion, q_run[-1])
 
 
+def test_any_array_form_gives_the_same_result_and_bad_shapes_are_refused():
+    """C-contiguous float64 packets go straight to the kernel (numba checks their types); strided views, float32 and
+    lists are converted, and from then on every call converts. Each form gives the same quaternions, before and after
+    the switch; mismatched shapes raise ValueError (the kernel does not bounds-check, so this must not read past an
+    array)."""
+    d = synthetic_imu(6.0, seed=3, ext_acc_m_s2=1.0)
+    n = len(d["gyr"]) - len(d["gyr"]) % 20
+    for use_mag in (True, False):
+        mag = d["mag"] if use_mag else None
+        ref = DefaultFilter(use_mag=use_mag)
+        ref.initialise(d["acc"][0], d["mag"][0])
+        q_ref = ref.run(d["gyr"][:n], d["acc"][:n], None if mag is None else mag[:n], d["dt_s"])
+        f = DefaultFilter(use_mag=use_mag)
+        f.initialise(d["acc"][0], d["mag"][0])
+        forms = [
+            lambda a, s: a[s],  # contiguous: the fast path
+            lambda a, s: np.repeat(a[s], 2, axis=1)[:, ::2],  # a strided view of the same values
+            lambda a, s: a[s].tolist(),
+            lambda a, s: a[s],  # contiguous again, now through the conversion
+        ]
+        out = []
+        for i in range(0, n, 20):
+            form = forms[(i // 20) % 4 if i < 4 * 20 else 3]
+            s = np.s_[i : i + 20]
+            out.append(f.update_block(form(d["gyr"], s), form(d["acc"], s), None if mag is None else form(mag, s),
+                                      d["dt_s"]))
+        assert not f._fast_block  # the switch did happen
+        np.testing.assert_allclose(np.vstack(out), q_ref, atol=1e-12, rtol=0)
+        g = DefaultFilter(use_mag=use_mag)
+        g.initialise(d["acc"][0], d["mag"][0])
+        q_one = [g.update(np.repeat(d["gyr"][i], 2)[::2] if i >= 20 else d["gyr"][i], d["acc"][i].tolist(),
+                          None if mag is None else mag[i], d["dt_s"]) for i in range(40)]
+        assert not g._fast_sample
+        np.testing.assert_allclose(q_one, q_ref[:40], atol=1e-12, rtol=0)
+    f = DefaultFilter()
+    for gyr, acc, mag in (
+        (d["gyr"][:10], d["acc"][:9], d["mag"][:10]),  # fast path, acc short
+        (d["gyr"][:10], d["acc"][:10], d["mag"][:11]),
+        (d["gyr"][:10, :2].copy(), d["acc"][:10, :2].copy(), d["mag"][:10, :2].copy()),
+        (d["gyr"][:10].tolist(), d["acc"][:9].tolist(), d["mag"][:10]),  # converted path, acc short
+        (d["gyr"][0], d["acc"][0], d["mag"][0]),  # a sample where a block belongs
+    ):
+        with pytest.raises(ValueError):
+            f.update_block(gyr, acc, mag, 0.01)
+    with pytest.raises(ValueError):
+        f.update(d["gyr"][0, :2], d["acc"][0, :2], d["mag"][0, :2], 0.01)
+    with pytest.raises(ValueError):
+        f.update(d["gyr"][:2], d["acc"][:2], d["mag"][:2], 0.01)
+
+
 @pytest.mark.parametrize("rate_rad_s", [0.05, 3.0, 40.0])  # small steps take the Taylor series, large ones sin/cos
 def test_strapdown_is_exact_for_a_constant_rate(rate_rad_s):
     """Without accelerometer readings (zero rows) the filter only integrates the gyro: after n samples of a constant

@@ -130,6 +130,43 @@ def test_history_is_bounded_decimated_and_keeps_peaks() -> None:
     assert len(small["t_s"]) <= 4 and small["t_s"][-1] == cols["t_s"][-1]
 
 
+def test_history_memory_is_fixed_once_a_device_has_sent_its_fields() -> None:
+    """An hour of a rod's history fits in ~200 kB allocated up front, and a second hour adds nothing (the deque
+    of dicts it replaced held 2.8 MB per rod-hour, growing all hour: 2.8 GB at 1000 devices)."""
+    import tracemalloc
+
+    from gateway.api.routes.history import DeviceHistory
+
+    fields = ("roll_deg", "pitch_deg", "yaw_deg", "tension_n", "line_out_m")
+    tracemalloc.start()
+    try:
+        h = DeviceHistory(bucket_s=0.5, maxlen=7200)
+        sizes = []
+        for hour in range(2):
+            for k in range(36_000):  # 10 Hz for an hour
+                h.add(hour * 3600.0 + k / 10, **{f: float(k % 97) for f in fields})
+            sizes.append(tracemalloc.get_traced_memory()[0])
+    finally:
+        tracemalloc.stop()
+    assert sizes[0] < 300_000, sizes
+    assert abs(sizes[1] - sizes[0]) < 20_000, sizes
+    cols = h.columns(0.0, 100_000)
+    assert len(cols["t_s"]) == 7201 and cols["t_s"][0] > 3599.0  # the newest hour (+ the open bucket)
+
+
+def test_history_field_that_arrives_late_is_null_before() -> None:
+    from gateway.api.routes.history import DeviceHistory
+
+    h = DeviceHistory(bucket_s=0.5, maxlen=100)
+    for k in range(40):
+        extra = {"tension_n": 2.5} if k >= 20 else {}
+        h.add(k * 0.25, pitch_deg=1.125, **extra)
+    cols = h.columns(0.0, 1000)
+    assert cols["tension_n"][:10] == [None] * 10 and cols["tension_n"][10:] == [2.5] * 10
+    assert cols["pitch_deg"] == [1.125] * 20 and "roll_deg" not in cols
+    assert h.columns(1e9, 10) == {"t_s": []}
+
+
 def test_history_route_fills_from_the_live_pipeline(running: Callable[[], Running]) -> None:
     r = running()
     r.feed(rod_messages(3.0), paced=True)

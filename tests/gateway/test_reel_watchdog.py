@@ -75,10 +75,10 @@ async def _until(cond: Any, timeout_s: float) -> None:
         await asyncio.sleep(0.005)
 
 
-def _service(tmp_path: Path) -> tuple[GatewayService, MemoryBus, Store, Recorder]:
+def _service(tmp_path: Path, watchdog_s: float = PERIOD_S) -> tuple[GatewayService, MemoryBus, Store, Recorder]:
     settings_ = Settings(data_dir=tmp_path / "data", zenoh_listen=[])
     bus, store = MemoryBus(), Store(settings_.db_path)
-    svc = compose(settings_, bus, store, PipelineSettings(reel_watchdog_s=PERIOD_S), blocking_thread=False)
+    svc = compose(settings_, bus, store, PipelineSettings(reel_watchdog_s=watchdog_s), blocking_thread=False)
     rec = Recorder()
     svc.hub.listeners.append(rec)
     return svc, bus, store, rec
@@ -145,7 +145,7 @@ def test_watchdog_stops_the_reel_when_attitude_stops_and_auto_resumes_on_fresh_d
 
 def test_rod_going_offline_in_auto_stops_the_reel_at_once(tmp_path: Path) -> None:
     async def scenario() -> float:
-        svc, bus, store, rec = _service(tmp_path)
+        svc, bus, store, rec = _service(tmp_path, watchdog_s=60.0)  # no watchdog tick within the test
         await svc.start()
         try:
             token = schemas.device_token_key("rod", ROD)
@@ -167,8 +167,9 @@ def test_rod_going_offline_in_auto_stops_the_reel_at_once(tmp_path: Path) -> Non
             await svc.stop()
             store.close()
 
-    # Sooner than the data timeout could act: the liveliness path stopped it, not the watchdog.
-    assert asyncio.run(scenario()) < TIMEOUT_S - 0.1
+    # With the watchdog 60 s away only the liveliness path can have stopped it; "at once" within a bound a loaded
+    # machine keeps (it was asserted < 0.2 s against a 0.1 s watchdog before, and failed under load).
+    assert asyncio.run(scenario()) < 0.5
 
 
 def test_offline_rod_not_in_auto_gets_no_command(tmp_path: Path) -> None:

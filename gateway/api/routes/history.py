@@ -4,7 +4,8 @@ last few seconds.
 Samples are folded into buckets of `bucket_s` (0.5 s): angles and readings keep the bucket mean, except the
 swing direction (an angle that wraps at ±180°: its last value, a mean across the wrap would be wrong) and peaks
 such as |a| and line tension (the bucket maximum, so a short spike stays visible). Each device keeps at most
-`keep_s / bucket_s` buckets (7200 for an hour), about 0.5 MB per device with every field.
+`keep_s / bucket_s` buckets (7200 for an hour) in fixed numpy columns: ~200 kB per rod-hour, allocated when
+a field first arrives, so memory is flat after a device's first seconds.
 
 Owner: the event loop. Attitude and swing arrive through the hub listener (ingest task); reel tension and water
 readings are sampled from the pipeline once per `poll_s` by a task on the same loop; the routes are `async def`,
@@ -15,13 +16,14 @@ the devices it serves (`GatewayService.accept`); the REST front asks the owner f
 from __future__ import annotations
 
 import asyncio
-import collections
 import math
 import time
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Literal
 
+import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request
+from numpy.typing import NDArray
 
 from gateway import schemas
 from gateway.api.deps import DeviceIdPath
@@ -73,11 +75,17 @@ class _Bucket:
 
 
 class DeviceHistory:
-    """Closed buckets (bounded deque) plus the open one."""
+    """Closed buckets in a fixed ring (wall time float64, one float32 column per field the device has sent, NaN
+    where a bucket lacks it) plus the open bucket. A column is allocated whole when its field first arrives, so
+    memory stops growing within a device's first seconds: 8 + 4 bytes per field per bucket, ~200 kB for a rod-hour
+    (a deque of dicts took 2.8 MB and grew for the whole hour)."""
 
     def __init__(self, bucket_s: float, maxlen: int) -> None:
         self.bucket_s = bucket_s
-        self.rows: collections.deque[tuple[float, dict[str, float]]] = collections.deque(maxlen=maxlen)
+        self.maxlen = maxlen
+        self.t_s = np.full(maxlen, np.nan)
+        self.cols: dict[str, NDArray[np.float32]] = {}
+        self.written = 0  # closed buckets so far; bucket i lives in row i % maxlen
         self._open: _Bucket | None = None
 
     def add(self, t_s: float, **vals: float) -> None:
@@ -86,23 +94,44 @@ class DeviceHistory:
             return
         if b is None or t_s >= b.t0_s + self.bucket_s:
             if b is not None and b.value:
-                self.rows.append((round(b.t_s, 3), {k: round(v, 4) for k, v in b.value.items()}))
+                self._close(b)
             b = self._open = _Bucket(t0_s=math.floor(t_s / self.bucket_s) * self.bucket_s)
         b.add(t_s, vals)
 
+    def _close(self, b: _Bucket) -> None:
+        row = self.written % self.maxlen
+        self.t_s[row] = round(b.t_s, 3)
+        for col in self.cols.values():
+            col[row] = np.nan
+        for k, v in b.value.items():
+            if k not in self.cols:
+                self.cols[k] = np.full(self.maxlen, np.nan, dtype=np.float32)
+            self.cols[k][row] = v
+        self.written += 1
+
     def columns(self, since_s: float, max_points: int) -> dict[str, list[float | None]]:
         """Columnar `{"t_s": [...], field: [...]}` from `since_s`, at most `max_points` rows (every k-th bucket
-        when there are more; fields a bucket lacks are null)."""
-        rows = [r for r in self.rows if r[0] >= since_s]
-        if self._open is not None and self._open.value and self._open.t_s >= since_s:
-            rows.append((round(self._open.t_s, 3), dict(self._open.value)))
-        if len(rows) > max_points:
-            step = math.ceil(len(rows) / max_points)
-            rows = rows[len(rows) - 1 - step * ((len(rows) - 1) // step) :: step]  # keep the newest row
-        keys = sorted({k for _, vals in rows for k in vals})
-        out: dict[str, list[float | None]] = {"t_s": [t for t, _ in rows]}
-        for k in keys:
-            out[k] = [vals.get(k) for _, vals in rows]
+        when there are more, the newest kept; fields a bucket lacks are null; values to 4 decimals)."""
+        n = min(self.written, self.maxlen)
+        rows = np.arange(self.written - n, self.written) % self.maxlen  # oldest first
+        rows = rows[self.t_s[rows] >= since_s]
+        t = self.t_s[rows]
+        vals = {k: col[rows].astype(np.float64) for k, col in self.cols.items()}
+        b = self._open
+        if b is not None and b.value and b.t_s >= since_s:
+            t = np.append(t, round(b.t_s, 3))
+            for k in b.value.keys() - vals.keys():
+                vals[k] = np.full(len(rows), np.nan)
+            vals = {k: np.append(v, b.value.get(k, np.nan)) for k, v in vals.items()}
+        if len(t) > max_points:
+            step = math.ceil(len(t) / max_points)
+            pick = np.arange((len(t) - 1) % step, len(t), step)  # ends on the newest row
+            t, vals = t[pick], {k: v[pick] for k, v in vals.items()}
+        out: dict[str, list[float | None]] = {"t_s": t.tolist()}
+        for k in sorted(vals):
+            v = np.round(vals[k], 4)
+            if np.isfinite(v).any():
+                out[k] = [None if math.isnan(x) else x for x in v.tolist()]
         return out
 
 
