@@ -741,30 +741,52 @@ _C3 = "float64[:, :, ::1]"
 
 
 def _fixed(dispatcher: Any, signature: str) -> Any:
-    """The dispatcher compiled (or loaded from numba's cache) for its one signature, with compilation for other
-    argument types disabled: a call with anything but C-contiguous float64 arrays of the right ndim raises TypeError
-    at once (the caller converts and retries) instead of compiling a new version. The per-call type check stays
-    numba's C fast path over the arguments."""
-    if not dispatcher.signatures:
-        dispatcher.compile(signature)
-        dispatcher.disable_compile()
+    """The dispatcher compiled (or loaded from numba's cache) for `signature`, with compilation for other argument
+    types disabled: a call with anything but C-contiguous float64 arrays of the right ndim raises TypeError at once
+    (the caller converts and retries) instead of compiling a new version. The per-call type check stays numba's C
+    fast path over the arguments. Only for a dispatcher no kernel compiled later calls (see `_fix_all`)."""
+    dispatcher.compile(signature)  # a no-op when loaded or compiled already (e.g. as another kernel's callee)
+    dispatcher.disable_compile()
     return dispatcher
+
+
+_ROWS_SIG = f"void({_C2}, {_C3}, {_C3}, {_C3}, boolean, {_C3})"
+_fixed_all = False
+
+
+def _fix_all() -> None:
+    """Fix every public kernel at once, callers before callees: `step_contexts*` and `_step_context_sample`
+    compile `_step_context` as their callee, which fails once its compilation is off; fixing them one at a time
+    made the outcome depend on which was asked for first and on what numba's cache held."""
+    global _fixed_all
+    if _fixed_all:
+        return
+    kernels = ((step_contexts, _ROWS_SIG), (step_contexts_serial, _ROWS_SIG),
+               (_step_context_sample, f"void({_C1}, {_C1}, {_C1}, {_C1}, boolean, {_C1})"),
+               (_step_context, f"void({_C1}, {_C2}, {_C2}, {_C2}, boolean, {_C2})"))  # fmt: skip
+    for dispatcher, signature in kernels:
+        dispatcher.compile(signature)
+    for dispatcher, signature in kernels:
+        _fixed(dispatcher, signature)
+    _fixed_all = True
 
 
 def context_kernel() -> Any:
     """`_step_context(x, gyr, acc, mag, use_mag, out)` for one device's n-sample block (see `_fixed`)."""
-    return _fixed(_step_context, f"void({_C1}, {_C2}, {_C2}, {_C2}, boolean, {_C2})")
+    _fix_all()
+    return _step_context
 
 
 def context_sample_kernel() -> Any:
     """`_step_context_sample(x, gyr, acc, mag, use_mag, q)` for one sample (see `_fixed`)."""
-    return _fixed(_step_context_sample, f"void({_C1}, {_C1}, {_C1}, {_C1}, boolean, {_C1})")
+    _fix_all()
+    return _step_context_sample
 
 
 def rows_kernels() -> tuple[Any, Any]:
     """(`step_contexts`, `step_contexts_serial`) for N devices' n-sample blocks (see `_fixed`)."""
-    sig = f"void({_C2}, {_C3}, {_C3}, {_C3}, boolean, {_C3})"
-    return _fixed(step_contexts, sig), _fixed(step_contexts_serial, sig)
+    _fix_all()
+    return step_contexts, step_contexts_serial
 
 
 @njit(cache=True, error_model="numpy", inline="always")

@@ -72,6 +72,28 @@ def test_update_update_block_and_run_agree():
         np.testing.assert_allclose(fs[0].quaternion, q_run[-1])
 
 
+def test_fixed_kernel_refuses_other_types_even_when_another_kernel_compiled_it_first():
+    """With a cold numba cache a batched kernel may compile the one-device kernel as its callee before `_fixed` sees
+    it; compilation must still be switched off, so a list gives TypeError (the caller converts), not a compile."""
+    from numba import njit
+
+    from gateway.fusion._default_kernels import _fixed
+
+    @njit
+    def callee(x):  # type: ignore[no-untyped-def]
+        return x[0] * 2.0
+
+    @njit
+    def caller(x):  # type: ignore[no-untyped-def]
+        return callee(x)
+
+    assert caller(np.ones(3)) == 2.0 and callee.signatures  # compiled as a callee first
+    fixed = _fixed(callee, "float64(float64[::1])")
+    assert fixed(np.ones(2)) == 2.0
+    with pytest.raises(TypeError):
+        fixed([1.0, 2.0])
+
+
 def test_any_array_form_gives_the_same_result_and_bad_shapes_are_refused():
     """C-contiguous float64 packets go straight to the kernel (numba checks their types); strided views, float32 and
     lists are converted, and from then on every call converts. Each form gives the same quaternions, before and after
