@@ -11,23 +11,29 @@ the pendulum, so they are fed into the model as a measured input instead of bein
 axis reads the tension `T/m = g n_z + l |n'|² - l''`, which carries the swing amplitude and the hoist's
 acceleration `l''`.
 
-State (21): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
+State (24): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
 `n_z = sqrt(1 - |p|²)`); `v = p'`; the hook heading about the rope `α` (swing-twist split
 `q = q_swing(n) ⊗ q_z(α)`, see gateway.fusion.hook) and its rate `α'`; the gyroscope bias `b` (rad/s, body);
 the offset of the tension channel (m/s²); the accelerometer x/y bias (m/s², body); the gyroscope's x/y
-sensitivity `c` to the z rate (cross-axis coupling); the rope: `ln l`, `l'` (m/s) and `l''` (m/s²).
+sensitivity `c` to the z rate (cross-axis coupling); the rope: `ln l`, `l'` (m/s) and `l''` (m/s²); the boom
+tip's horizontal acceleration (m/s², ENU); the IMU's x/y offset from the rope axis (m); the magnetometer's hard
+iron (µT, body).
 
 * Predict: RK4 of the pendulum with a moving rope length,
   `p'' = -(g n_z p + W)/l - 2 (l'/l) p' - |n'|² p`, where `W` is the horizontal part of the measured non-tension
   force `R (f_x - b_x, f_y - b_y, 0)` (accelerometer x/y minus its bias and the lever-arm terms
   `ω' × r + ω × (ω × r)` of the IMU's offset `r` from the rope axis, from the measured gyroscope). The boom tip's
-  acceleration (trolley, slewing) is unobservable from the hook (equivalence principle) and enters as process
-  noise on `v` (`tip_accel_psd / l²`). `α` integrates `α'`; `α'`, the biases and the offset random-walk; `c` is
-  constant; `l` integrates `l'`, which integrates `l''` (mean-reverting: hoist drives accelerate briefly).
+  acceleration (trolley, slewing) cannot be told from a tilt by the hook at any one moment (equivalence principle):
+  it is a slow Gauss-Markov state (`tip_accel_*`) that a *jump test* opens when a move starts, turns or stops
+  (see `ekf_step`): from then on the gyroscope's integral, not the pendulum law, carries the tilt, and the tip
+  state takes what the pendulum law cannot explain. A small white part stays on `v` (`tip_accel_psd / l²`).
+  `α` integrates `α'`; `α'`, the biases and the offset random-walk; `c` is constant; `l` integrates `l'`, which
+  integrates `l''` (mean-reverting: hoist drives accelerate briefly).
 * Update: gyroscope `ω_b(n, n', α, α') + b + (c_x, c_y, 0) ω_z` (exact kinematics of the split, as in
   devices.hook_physics); accelerometer z `l |n'|² + g n_z - l'' + [ω' × r + ω × (ω × r)]_z + offset` after
-  subtracting the zero-g offset calibrated at start; in 9D the magnetometer `Rᵀ m_ref` for heading only (its
-  Jacobian is restricted to `α`, so hard-iron errors cannot tilt the estimate).
+  subtracting the zero-g offset calibrated at start; in 9D the magnetometer `Rᵀ m_ref + h` for heading and the
+  hard iron `h` only (its Jacobian is restricted to `α` and `h`, so magnetometer errors cannot tilt the estimate;
+  `h` is body-fixed while the field turns with the twist, so a hook that twists reveals it).
 * Rope length: the pendulum frequency (gravity's restoring term) and the response of the rope rate to a
   measured pull (`W / l`) make `l` observable whenever the hook swings or is pushed; a configured length is the
   prior (`rope_length_known`), not a constraint.
@@ -38,9 +44,10 @@ sensitivity `c` to the z rate (cross-axis coupling); the rope: `ln l`, `l'` (m/s
 * Adaptive process noise: when the swing-rate innovation fails a χ² gate, its square is added to the rope-rate
   variance (an unmodelled push), so the state follows the gyroscope instead of bending bias and tilt.
 
-Limits: during a trolley or slewing move Θ is estimated assuming a still boom tip (the error is about the tip's
-acceleration / g for as long as the move lasts against the filter's pull towards the pendulum model); a steady
-force present when the filter starts is indistinguishable from accelerometer bias. 6D heading is a free gauge
+Limits: the tilt during a trolley or slewing move is as good as the jump test's timing: a tip acceleration that
+builds up too slowly to trip it is partly taken for tilt (up to the tip's acceleration / g); a steady
+force present when the filter starts is indistinguishable from accelerometer bias; a hook that never twists
+keeps its hard iron's heading error. 6D heading is a free gauge
 (starts at 0), so bearings and torsion are relative to the start heading.
 """
 
@@ -50,19 +57,21 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from gateway.fusion.base import AttitudeFilter, FloatArray
 from gateway.fusion.quaternion import njit
 
-N_STATE = 21
+N_STATE = 24
 _P, _V, _ALPHA, _ALPHA_RATE, _BIAS, _ACC_BIAS = slice(0, 2), slice(2, 4), 4, 5, slice(6, 9), 9
 _ACC_XY, _CROSS, _LOG_L, _L_RATE, _L_ACC, _TIP = slice(10, 12), slice(12, 14), 14, 15, 16, slice(17, 19)
 _LEVER = slice(19, 21)  # the IMU's x/y offset from the rope axis (its z offset is a setting)
+_HARD_IRON = slice(21, 24)  # the magnetometer's residual hard iron (µT, body), learnt as the hook twists
 N_INPUT = 8  # per-sample process input: accelerometer x/y, gyroscope (3), its backward difference (3)
 # params layout (numba kernels take one float array)
 (_G, _RX, _RY, _RZ, _MX, _MY, _MZ, _USE_MAG, _GATE, _TIP_PSD, _FORCE_STD, _HOIST_TAU, _L_MIN, _TIP_TAU,
  _FORCE_ON, _L_MAX, _NIS_TAU, _NIS_GATE, _TIP_MOVE, _TIP_STD, _TIP_GATE, _MOVE_FREEZE, _MOVE_HOLD,
- _TIP_GATE_STD) = range(24)
+ _TIP_GATE_STD, _MEAN_TAU, _MEAN_GATE, _L_RATE_TAU, _JUMP_ROPE) = range(28)
 
 
 @dataclass(frozen=True)
@@ -84,19 +93,25 @@ class HookFilterSettings:
     mag_noise_uT: float = 3.0  # a calibrated compass (hard iron ~0.5 µT): 30 µT left the z bias of a hook twisting at
     # start unlearnt (torsion drifted ~1 °/s, bench.hook_suite seed 5); 1 µT couples its errors into the swing
     tip_accel_std_m_s2: float = 0.06  # boom-tip acceleration (trolley, slewing): stationary std of its state
-    tip_accel_tau_s: float = 5.0  # ... and its correlation time (moves start and stop)
-    tip_accel_psd: float = 0.001  # (m/s²)²/Hz: white part of the unmeasured horizontal accelerations
+    tip_accel_tau_s: float = 20.0  # ... and its correlation time: long, a slew's centripetal part lasts (the jump
+    # test opens the state when a move starts or stops; 5 s before it, when nothing opened it)
+    tip_accel_psd: float = 1e-4  # (m/s²)²/Hz: white part of the unmeasured horizontal accelerations (0.001 before the
+    # jump test: it let the swing rate follow any push, so the innovation never showed a move)
     use_force_input: bool = True  # False: the accelerometer's x/y are ignored (the filter before issue 11)
     lever_std_m: float = 0.03  # prior std of the IMU's x/y offset from the rope axis around `lever_arm_m`
     torsion_accel_psd: float = 1.0  # (rad/s²)²/Hz: the hook's twist is driven by the rope's torsion spring
     gyro_bias_psd: float = 1e-8  # (rad/s)²/s: bias random walk
-    acc_bias_psd: float = 1e-6  # (m/s²)²/s: drift of the tension channel's offset
+    acc_bias_psd: float = 1e-5  # (m/s²)²/s: drift of the tension channel's offset (1e-6 before: a slow mismatch went
+    # into the hoist acceleration instead and the rope length drifted on a still hook; 1e-4: 0.182 vs 0.178°)
     acc_xy_bias_psd: float = 1e-8  # (m/s²)²/s: drift of the accelerometer x/y bias
     log_length_psd: float = 1e-7  # 1/s: slow drift of ln l (rope stretch, rigging)
     rope_rate_psd: float = 1e-5  # (m/s)²/s: rope speed changes beyond the modelled hoist accelerations
     hoist_accel_std_m_s2: float = 0.05  # stationary std of the mean-reverting hoist acceleration l'' (larger lets
     # swing errors in the tension channel read as hoisting: tuned on bench.hook_suite seeds 1-6)
     hoist_tau_s: float = 1.0  # its correlation time
+    rope_rate_tau_s: float = 30.0  # the rope speed l' reverts to 0 with this time constant (0: a pure integrator,
+    # as before: on a still hook, where nothing but the tension channel sees l', it drifted and the length with it,
+    # 3.9 -> 50 m in 50 s on tuning seed 12; 10 s: 14 % rope RMS but Θ 0.201 vs 0.193° on seeds 1-12)
     move_nis_tau_s: float = 0.3  # running mean of the swing-rate innovation's normalised square (2 when all is well)
     move_nis_gate: float = 4.0  # above it a move is going on: the boom-tip acceleration state is widened
     tip_accel_move_std_m_s2: float = 0.5  # the boom-tip acceleration's std during a move the NIS test detected
@@ -108,6 +123,19 @@ class HookFilterSettings:
     move_freeze: float = 0.0  # 1: during a detected move the rope length and gyro bias take no corrections, 2: rope
     # only (tried: no gain on the tuning seeds)
     move_hold_s: float = 0.0  # a detected move lasts at least this long (s)
+    move_rollback_s: float = 0.3  # on a jump, go back this far, open the tip state there and run again (0: no)
+    jump_rope_rel_std: float = 0.1  # a jump also opens the rope length by this (relative): a wrong configured length
+    # trips the jump test as a move does, and the two explanations must compete (0.3: 0.49° on the 12 m/6 m case)
+    move_mean_tau_s: float = 0.5  # running mean of the whitened swing-rate innovation *vector*: a boom-tip
+    # acceleration the model lacks biases the innovation one way for as long as it lasts, which its mean shows
+    # √(2τ/dt) times more clearly than the squared innovation (the NIS test above stayed below its gate through
+    # every trolley and slewing move of the tuning seeds)
+    move_mean_gate: float = 20.0  # χ² (2 dof) gate on that mean scaled to unit variance (0: off). 13.8 (p = 0.001):
+    # tuning seeds 0.178° but a wrongly configured length (12 m told, 6 m true) tripped it so often that the tip
+    # state took the length error (0.80° vs 0.22°); 9: a still hook's drifting rope length tripped it (seed 12)
+    mag_hard_iron_std_uT: float = 0.5  # prior std of the magnetometer's residual hard iron, per body axis (0: not
+    # estimated). A calibrated board keeps ~0.5 µT (devices.common.ImuErrorModel.calibrated): 1-4° of heading
+    mag_hard_iron_psd: float = 1e-6  # µT²/s: its drift (battery and motor currents)
     surprise_gate: float = 16.0  # χ² (2 dof) gate on the swing-rate innovation for adaptive process noise
     init_swing_std: float = 0.02  # rad, per horizontal axis: hanging still at initialisation
     init_rate_std_rad_s: float = 0.02
@@ -209,7 +237,7 @@ def process(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray) -> Fl
     out[3] = vy + dt_s / 6.0 * (a1y + 2.0 * a2y + 2.0 * a3y + a4y)
     out[4] = x[4] + dt_s * x[5]
     out[_LOG_L] = math.log(max(l0 + dt_s * ld + 0.5 * dt_s * dt_s * ldd, params[_L_MIN]))
-    out[_L_RATE] = ld + dt_s * ldd
+    out[_L_RATE] = (ld + dt_s * ldd) * (math.exp(-dt_s / params[_L_RATE_TAU]) if params[_L_RATE_TAU] > 0.0 else 1.0)
     out[_L_ACC] = ldd * math.exp(-dt_s / params[_HOIST_TAU])
     decay = math.exp(-dt_s / params[_TIP_TAU])
     out[17], out[18] = x[17] * decay, x[18] * decay
@@ -241,13 +269,13 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
     out = np.zeros(7)
     out[0], out[1], out[2] = wx + x[6] + x[12] * wz, wy + x[7] + x[13] * wz, wz + x[8]
     out[3] = l * (vx * vx + vy * vy + vz * vz) + g * nz - x[_L_ACC] + lever_z + x[9]
-    if params[_USE_MAG] > 0.0:  # Rᵀ m_ref
+    if params[_USE_MAG] > 0.0:  # Rᵀ m_ref + hard iron
         mx, my, mz = params[_MX], params[_MY], params[_MZ]
         xx, yy, zz, xy, xz, yz = qx * qx, qy * qy, qz * qz, qx * qy, qx * qz, qy * qz
         wx_, wy_, wz_ = qw * qx, qw * qy, qw * qz
-        out[4] = (1.0 - 2.0 * (yy + zz)) * mx + 2.0 * (xy + wz_) * my + 2.0 * (xz - wy_) * mz
-        out[5] = 2.0 * (xy - wz_) * mx + (1.0 - 2.0 * (xx + zz)) * my + 2.0 * (yz + wx_) * mz
-        out[6] = 2.0 * (xz + wy_) * mx + 2.0 * (yz - wx_) * my + (1.0 - 2.0 * (xx + yy)) * mz
+        out[4] = (1.0 - 2.0 * (yy + zz)) * mx + 2.0 * (xy + wz_) * my + 2.0 * (xz - wy_) * mz + x[21]
+        out[5] = 2.0 * (xy - wz_) * mx + (1.0 - 2.0 * (xx + zz)) * my + 2.0 * (yz + wx_) * mz + x[22]
+        out[6] = 2.0 * (xz + wy_) * mx + 2.0 * (yz - wx_) * my + (1.0 - 2.0 * (xx + yy)) * mz + x[23]
     return out
 
 
@@ -288,6 +316,9 @@ def measurement_jacobian(x: FloatArray, params: FloatArray) -> tuple[FloatArray,
     for j in range(N_STATE):
         if j != 4:  # heading-only magnetometer: hard iron must not tilt the rope estimate
             h_jac[4:, j] = 0.0
+    if params[_USE_MAG] > 0.0:
+        for i in range(3):  # ... but is itself estimated: body-fixed, it turns against the field as the hook twists
+            h_jac[4 + i, 21 + i] = 1.0
         if 4 <= j <= 8:  # tension informs swing, rope and its own offset only; lever terms must not steer twist/bias
             h_jac[3, j] = 0.0
     return h0, h_jac
@@ -348,17 +379,39 @@ def process_noise(x: FloatArray, dt_s: float, q_psd: FloatArray, params: FloatAr
 
 
 @njit
+def _innovation_mean_test(y: FloatArray, s2: FloatArray, dt_s: float, params: FloatArray, monitor: FloatArray) -> bool:
+    """Update the running mean `monitor[2:4]` of the whitened swing-rate innovation `L⁻¹ y` (`s2 = L Lᵀ`) and test
+    it: True when its square, scaled by the mean's variance under a correct model (`a / (2 - a)` for the running
+    mean's weight `a`), exceeds `params[_MEAN_GATE]` (χ², 2 dof). A boom-tip acceleration the model does not know
+    makes the innovation one-signed for as long as it lasts."""
+    l11 = math.sqrt(s2[0, 0])
+    l21 = s2[1, 0] / l11
+    l22 = math.sqrt(max(s2[1, 1] - l21 * l21, 1e-30))
+    w0 = y[0] / l11
+    w1 = (y[1] - l21 * w0) / l22
+    a = min(1.0, dt_s / params[_MEAN_TAU])
+    monitor[2] += (w0 - monitor[2]) * a
+    monitor[3] += (w1 - monitor[3]) * a
+    stat = float((monitor[2] * monitor[2] + monitor[3] * monitor[3]) * (2.0 - a) / a)
+    return stat > float(params[_MEAN_GATE])
+
+
+@njit
 def ekf_step(
     x: FloatArray, p: FloatArray, z: FloatArray, u: FloatArray, dt_s: float, params: FloatArray, q_psd: FloatArray,
     r_diag: FloatArray, monitor: FloatArray,
 ) -> tuple[FloatArray, FloatArray]:
     """One predict + update in filterpy's operation order (Joseph form); `z` and `r_diag` are (4,) or (7,).
 
-    `monitor` (2,) is updated in place: [0] a running mean (time constant `params[_NIS_TAU]`) of the swing-rate
+    `monitor` (6,) is updated in place: [0] a running mean (time constant `params[_NIS_TAU]`) of the swing-rate
     innovation's normalised square (2 on average when the model holds), [1] the seconds a detected move still
-    lasts. Above `params[_NIS_GATE]`, or while the predicted boom-tip acceleration exceeds `params[_TIP_GATE]`
-    times its stationary variance, an unmodelled push is going on (a trolley or slewing move): the boom-tip
-    acceleration state's variance is raised to `params[_TIP_MOVE]`² (NIS) or `params[_TIP_GATE_STD]`² (tip)."""
+    lasts, [2:4] the running mean of the whitened swing-rate innovation (`_innovation_mean_test`), [4] the seconds
+    since (minus `params[_MOVE_HOLD]`) the last jump, [5] 1 if this step found a jump. Jump test: when that mean
+    fails its χ² gate, the boom tip's acceleration has jumped (a move started, turned or stopped):
+    `params[_TIP_MOVE]`² is added to the tip state's variance once and the mean restarts. Older tests (off by
+    default): above `params[_NIS_GATE]`, or while the
+    predicted tip acceleration exceeds `params[_TIP_GATE]` times its stationary variance, the tip state's variance
+    is held at `params[_TIP_MOVE]`² (NIS) or `params[_TIP_GATE_STD]`² (tip)."""
     m = z.shape[0]
     f_jac = process_jacobian(x, dt_s, u, params)
     x_pred = process(x, dt_s, u, params)
@@ -369,6 +422,16 @@ def ekf_step(
     s2 = h_jac[:2] @ p_pred @ h_jac[:2].T + np.diag(r_diag[:2])
     monitor[0] += (y @ np.linalg.solve(s2, y) - monitor[0]) * min(1.0, dt_s / params[_NIS_TAU])
     moving = monitor[0] > params[_NIS_GATE]
+    monitor[5] = 0.0
+    if params[_MEAN_GATE] > 0.0 and _innovation_mean_test(y, s2, dt_s, params, monitor):
+        monitor[2] = monitor[3] = 0.0  # a jump of the boom-tip acceleration: open its state once, test afresh
+        monitor[5] = 1.0
+        monitor[4] = params[_MOVE_HOLD]
+        for i in (17, 18):
+            p_pred[i, i] += params[_TIP_MOVE] * params[_TIP_MOVE]
+        p_pred[_LOG_L, _LOG_L] += params[_JUMP_ROPE] * params[_JUMP_ROPE]
+    jump = monitor[4] > 0.0
+    monitor[4] -= dt_s
     move_std = params[_TIP_MOVE] if moving else params[_TIP_GATE_STD]
     if params[_TIP_GATE] > 0.0:
         tip2 = (x_pred[17] * x_pred[17] + x_pred[18] * x_pred[18]) / (params[_TIP_STD] * params[_TIP_STD])
@@ -387,7 +450,7 @@ def ekf_step(
     pht = p_pred @ h_jac.T
     k = pht @ np.linalg.inv(h_jac @ pht + rmat)
     _restrict_gain(k, surprised)
-    if moving and params[_MOVE_FREEZE] > 0.0:
+    if (moving or jump) and params[_MOVE_FREEZE] > 0.0:
         for j in range(k.shape[1]):
             for i in (14, 15, 16):
                 k[i, j] = 0.0
@@ -404,16 +467,43 @@ def ekf_step(
 @njit
 def ekf_run(
     x0: FloatArray, p0: FloatArray, z: FloatArray, u: FloatArray, dt_s: float, params: FloatArray,
-    q_psd: FloatArray, r_diag: FloatArray, monitor: FloatArray,
+    q_psd: FloatArray, r_diag: FloatArray, monitor: FloatArray, hist_x: FloatArray, hist_p: FloatArray,
+    hist_z: FloatArray, hist_u: FloatArray, hist_mon: FloatArray, hist_n: NDArray[np.int64],
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Batch filter over measurements z (N, 4 or 7) and process inputs u (N, N_INPUT): quaternions (N, 4), rope lengths
-    (N,), final state and covariance."""
-    n = z.shape[0]
+    (N,), final state and covariance.
+
+    Jump rollback: the `hist_*` rings (B rows, kept across calls in `hist_n` = [samples stored, measurement width])
+    hold the state before each of the last B samples and that sample's inputs. When `ekf_step` finds a boom-tip
+    jump, the jump test has needed those samples to see it, and the pendulum law has meanwhile bent the tilt: the
+    filter goes back B samples, opens the tip state there, and runs them again (the jump test off), so the tilt
+    keeps the gyroscope's integral from before the move. Past outputs are not rewritten (a live filter cannot)."""
+    n, m = z.shape[0], z.shape[1]
+    b = hist_x.shape[0]
     out = np.empty((n, 4))
     lengths = np.empty(n)
     x, p = x0.copy(), p0.copy()
+    if hist_n[1] != m:
+        hist_n[0], hist_n[1] = 0, m
+    quiet = params.copy()
+    quiet[_MEAN_GATE] = 0.0
     for i in range(n):
+        k = hist_n[0] % b
+        hist_x[k], hist_p[k], hist_mon[k] = x, p, monitor
+        hist_z[k, :m], hist_u[k] = z[i], u[i]
+        hist_n[0] += 1
         x, p = ekf_step(x, p, z[i], u[i], dt_s, params, q_psd, r_diag, monitor)
+        if monitor[5] > 0.0 and b > 1:
+            j0 = hist_n[0] - min(hist_n[0], b)
+            x, p = hist_x[j0 % b].copy(), hist_p[j0 % b].copy()
+            mon = hist_mon[j0 % b].copy()
+            for t in (17, 18):
+                p[t, t] += params[_TIP_MOVE] * params[_TIP_MOVE]
+            p[_LOG_L, _LOG_L] += params[_JUMP_ROPE] * params[_JUMP_ROPE]
+            for j in range(j0, hist_n[0]):
+                x, p = ekf_step(x, p, hist_z[j % b, :m], hist_u[j % b], dt_s, quiet, q_psd, r_diag, mon)
+            monitor[0], monitor[1] = mon[0], mon[1]
+            hist_n[0] = 0  # a later jump goes back no further than this one
         out[i] = attitude_and_rate(x)[0]
         lengths[i] = math.exp(x[_LOG_L])
     return out, lengths, x, p
@@ -440,7 +530,9 @@ class HookFilter(AttitudeFilter):
         self.acc_z_offset_m_s2 = 0.0
         self.mag_ref_uT: FloatArray | None = None
         self._gyr_prev: FloatArray | None = None  # last gyro sample: its difference gives ω' for the lever arm
-        self._monitor = np.array([2.0, 0.0])  # running mean of the swing-rate NIS (see `ekf_step`)
+        self._monitor = np.array([2.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # swing-rate innovation statistics (`ekf_step`)
+        self._history: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, NDArray[np.int64]] | None
+        self._history = None
         self._q_psd = np.array(
             [0.0, 0.0, 0.0, 0.0, 0.0, s.torsion_accel_psd]
             + [s.gyro_bias_psd] * 3
@@ -450,6 +542,7 @@ class HookFilter(AttitudeFilter):
             + [s.log_length_psd, s.rope_rate_psd, 2.0 * s.hoist_accel_std_m_s2**2 / s.hoist_tau_s]
             + [2.0 * s.tip_accel_std_m_s2**2 / s.tip_accel_tau_s] * 2
             + [0.0] * 2
+            + [s.mag_hard_iron_psd] * 3
         )
         self._initialised = False
         self._reset(heading_rad=0.0, heading_std_rad=s.init_heading_std_rad, acc_xy_bias=np.zeros(2))
@@ -462,7 +555,8 @@ class HookFilter(AttitudeFilter):
                          s.force_noise_m_s2, s.hoist_tau_s, s.min_rope_length_m, s.tip_accel_tau_s,
                          1.0 if s.use_force_input else 0.0, s.max_rope_length_m, s.move_nis_tau_s, s.move_nis_gate,
                          s.tip_accel_move_std_m_s2, s.tip_accel_std_m_s2, s.tip_move_gate, s.move_freeze,
-                         s.move_hold_s, s.tip_gate_move_std_m_s2])  # fmt: skip
+                         s.move_hold_s, s.tip_gate_move_std_m_s2, s.move_mean_tau_s,
+                         s.move_mean_gate, s.rope_rate_tau_s, s.jump_rope_rel_std])  # fmt: skip
 
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings
@@ -472,6 +566,7 @@ class HookFilter(AttitudeFilter):
 
     def _reset(self, heading_rad: float, heading_std_rad: float, acc_xy_bias: FloatArray) -> None:
         s = self.settings
+        self._history = None
         self.x = np.zeros(N_STATE)
         self.x[_ALPHA] = heading_rad
         self.x[_ACC_XY] = acc_xy_bias
@@ -489,6 +584,7 @@ class HookFilter(AttitudeFilter):
             + [rope_std, 0.05, 0.05]
             + [s.tip_accel_std_m_s2] * 2
             + [s.lever_std_m] * 2
+            + [s.mag_hard_iron_std_uT] * 3
         )
         self.P = np.diag(std**2)
 
@@ -573,6 +669,15 @@ class HookFilter(AttitudeFilter):
         p_start = p_mid + rate.mean(axis=0) * t[0]
         return p_start, rate[:5].mean(axis=0), math.hypot(2.0 * sigma, 0.1 * norm)
 
+    def _rings(self, dt_s: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
+                                            NDArray[np.int64]]:  # fmt: skip
+        """The jump-rollback history of `ekf_run` (`settings.move_rollback_s` of samples), made on first use."""
+        b = max(1, round(self.settings.move_rollback_s / dt_s))
+        if self._history is None or self._history[0].shape[0] != b:
+            self._history = (np.zeros((b, N_STATE)), np.zeros((b, N_STATE, N_STATE)), np.zeros((b, 7)),
+                             np.zeros((b, N_INPUT)), np.zeros((b, 6)), np.zeros(2, dtype=np.int64))  # fmt: skip
+        return self._history
+
     def _inputs(self, gyr: FloatArray, acc: FloatArray, dt_s: float) -> FloatArray:
         """Process inputs (N, N_INPUT) for the samples, continuing the gyro difference across calls."""
         prev = gyr[0] if self._gyr_prev is None else self._gyr_prev
@@ -593,8 +698,9 @@ class HookFilter(AttitudeFilter):
         if use_mag:
             z.append(np.asarray(mag_uT, dtype=np.float64))
         zv: FloatArray = np.concatenate(z)
-        self.x, self.P = ekf_step(self.x, self.P, zv, u, dt_s, self._params(use_mag), self._q_psd,
-                                  self._r_diag(zv.shape[0]), self._monitor)  # fmt: skip
+        _, _, self.x, self.P = ekf_run(self.x, self.P, zv[None, :], u[None, :], dt_s, self._params(use_mag),
+                                       self._q_psd, self._r_diag(zv.shape[0]), self._monitor,
+                                       *self._rings(dt_s))  # fmt: skip
         return self.quaternion
 
     def run_with_length(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float
@@ -610,7 +716,8 @@ class HookFilter(AttitudeFilter):
         z = np.ascontiguousarray(np.concatenate(cols, axis=1))
         u = self._inputs(np.ascontiguousarray(gyr), np.ascontiguousarray(acc), dt_s)
         quats, lengths, self.x, self.P = ekf_run(self.x, self.P, z, u, dt_s, self._params(use_mag), self._q_psd,
-                                                 self._r_diag(z.shape[1]), self._monitor)  # fmt: skip
+                                                 self._r_diag(z.shape[1]), self._monitor,
+                                                 *self._rings(dt_s))  # fmt: skip
         return quats, lengths
 
     def run(
