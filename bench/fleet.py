@@ -5,7 +5,7 @@
     python -m bench.fleet --counts 50 --duration 10 --procs 1   # quick look
     python -m bench.fleet --counts 300 --shards 1 2            # one shard vs two shard processes, same session
 
-For each N (and each `--shards` S) it starts `python -m gateway --shards S` (zenoh peer, with S > 1 router, on a
+For each N (and each `--shards` S) it starts `python -m gateway --shards S` (a zenoh router, the default, on a
 free loopback port, REST on another), a cheap load generator and an observer, each its own process, then prints
 one row:
 
