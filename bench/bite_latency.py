@@ -21,6 +21,7 @@ import dataclasses
 import json
 import math
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -62,13 +63,17 @@ def start_gateway(
     )  # fmt: skip
 
 
-def stop_gateway(gw: subprocess.Popen[bytes]) -> None:
-    """SIGTERM (graceful: the gateway closes its zenoh session and stops its devices), SIGKILL after 15 s."""
-    gw.terminate()
+def stop_process(p: subprocess.Popen[bytes], timeout_s: float = 15.0, sig: int = signal.SIGTERM) -> None:
+    """`sig` (SIGTERM: the gateway closes its zenoh session and stops its devices), SIGKILL after `timeout_s`;
+    returns once the process is gone. Nothing to do for one that has ended."""
+    if p.poll() is not None:
+        return
+    p.send_signal(sig)
     try:
-        gw.wait(timeout=15)
+        p.wait(timeout=timeout_s)
     except subprocess.TimeoutExpired:
-        gw.kill()
+        p.kill()
+        p.wait()
 
 
 def wait_http(port: int, timeout_s: float = 180.0) -> None:
@@ -248,7 +253,7 @@ def run_session(script: list[dict[str, Any]], duration_s: float, seed: int, work
             for s in subs:
                 s.undeclare()  # type: ignore[no-untyped-call]
     finally:
-        stop_gateway(gw)
+        stop_process(gw)
     return rec, rod
 
 

@@ -50,7 +50,7 @@ from typing import Any
 
 import zenoh
 
-from bench.bite_latency import REPO, free_port, observer_config, stop_gateway, wait_http
+from bench.bite_latency import REPO, free_port, observer_config, stop_process, wait_http
 from gateway import schemas
 
 RATE_HZ = 100.0
@@ -453,7 +453,7 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
             time.sleep(5.0)  # let the gateway drain its queue before the final count
             s1 = stats(hport)
     finally:
-        stop_gateway(gw)
+        stop_process(gw)
     if s1.get("shards", 0) != shards:
         print(f"  only {s1.get('shards', 0)} of {shards} shards answered the final count: the sums are short")
     gen = [json.loads(Path(j.result_path).read_text()) for j in jobs if Path(j.result_path).exists()]

@@ -46,7 +46,7 @@ import numpy as np
 import zenoh
 from tqdm import tqdm
 
-from bench.bite_latency import REPO, Recorder, free_port, observer_config, start_gateway, stop_gateway, wait_http
+from bench.bite_latency import REPO, Recorder, free_port, observer_config, start_gateway, stop_process, wait_http
 from devices import common
 from devices.common import FleetSettings, ImuErrorModel, Message, SensorModel
 from devices.hook_physics import HookPhysicsSettings, HookScenario, TrolleyMove, simulate, trolley_traverse
@@ -288,7 +288,7 @@ def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenar
             for s in subs:
                 s.undeclare()  # type: ignore[no-untyped-call]
     finally:
-        stop_gateway(gw)
+        stop_process(gw)
     if dev.returncode != 0:
         print(dev.stderr.decode()[-2000:], file=sys.stderr)
     return rec, dev.returncode

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import zenoh
 
-from bench.bite_latency import REPO, free_port, observer_config, start_gateway, stop_gateway, wait_http
+from bench.bite_latency import REPO, free_port, observer_config, start_gateway, stop_process, wait_http
 
 
 def listen(port: int, duration_s: float, out_path: Path, work_ms: float, stall_every: int, stall_ms: float,
@@ -90,7 +90,7 @@ def run(hooks: int, duration_s: float, work: Path, work_ms: float = 4.0, stall_e
         )  # fmt: skip
         listener.wait(timeout=duration_s + 60)
     finally:
-        stop_gateway(gw)
+        stop_process(gw)
     result: dict[str, list[int]] = json.loads(out.read_text()) if out.exists() else {}
     return result
 

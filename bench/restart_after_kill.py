@@ -22,7 +22,7 @@ from pathlib import Path
 
 import httpx
 
-from bench.bite_latency import REPO, free_port, start_gateway, stop_gateway
+from bench.bite_latency import REPO, free_port, start_gateway, stop_process
 
 
 def _get(port: int, path: str) -> object:
@@ -73,7 +73,7 @@ def restart_round(data: Path, zport: int, hport: int, n_devices: int, log: Path)
         gw.send_signal(signal.SIGKILL)
         gw.wait()
     except BaseException:
-        stop_gateway(gw)
+        stop_process(gw)
         raise
     return t_http, cpu, t_online, t_dev
 

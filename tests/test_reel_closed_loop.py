@@ -18,7 +18,7 @@ import httpx
 import pytest
 import zenoh
 
-from bench.bite_latency import REPO, Recorder, free_port, observer_config, start_gateway, wait_http
+from bench.bite_latency import REPO, Recorder, free_port, observer_config, start_gateway, stop_process, wait_http
 from gateway import schemas
 
 pytestmark = pytest.mark.timeout(240)
@@ -107,13 +107,5 @@ def test_auto_reel_drives_the_sim_reel_and_manual_takes_over(tmp_path: Path) -> 
                 s.undeclare()  # type: ignore[no-untyped-call]
     finally:
         if rod is not None:
-            rod.terminate()
-            try:
-                rod.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                rod.kill()
-        gw.terminate()
-        try:
-            gw.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            gw.kill()
+            stop_process(rod, 10.0)
+        stop_process(gw)

@@ -24,7 +24,7 @@ from typing import Any
 import httpx
 import pytest
 
-from bench.bite_latency import free_port
+from bench.bite_latency import free_port, stop_process
 from gateway.shard.ownership import ShardInfo, owner_of
 
 REPO = Path(__file__).resolve().parent.parent
@@ -36,16 +36,6 @@ FAILOVER_BOUND_S = 2.0
 def _spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
     return subprocess.Popen([sys.executable, *args], cwd=REPO, stdout=log.open("wb"), stderr=subprocess.STDOUT,
                             env=os.environ | {"PYTHONUNBUFFERED": "1"})  # fmt: skip
-
-
-def _stop(p: subprocess.Popen[bytes]) -> None:
-    if p.poll() is None:
-        p.terminate()
-        try:
-            p.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
 
 
 def _until(cond: Callable[[], Any], timeout_s: float, what: str) -> Any:
@@ -97,7 +87,7 @@ class Cluster:
     def close(self) -> None:
         for name in ("A", "B", "router"):
             if name in self.procs:
-                _stop(self.procs[name])
+                stop_process(self.procs[name], 20.0)
 
 
 @pytest.fixture(scope="module")
@@ -172,7 +162,7 @@ def test_two_shards_split_the_devices_share_alarms_and_config_and_fail_over(clus
         assert c.get("B", f"/api/devices/{rod_b}")["auto_reel"]
         rods.wait(timeout=60)
     finally:
-        _stop(rods)
+        stop_process(rods, 20.0)
 
     # the bite and the lost tokens: one alarm per rod, listed by both endpoints
     def offline_rows(sid: str) -> list[dict[str, Any]]:
@@ -209,4 +199,4 @@ def test_two_shards_split_the_devices_share_alarms_and_config_and_fail_over(clus
                "A to process B's rods")  # fmt: skip
         print(f"failover: B's {len(took)} rods taken over {delay * 1e3:.0f} ms after SIGKILL")
     finally:
-        _stop(rods)
+        stop_process(rods, 20.0)

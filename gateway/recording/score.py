@@ -202,24 +202,18 @@ class LatestIngestStats:
     sharded gateway sends one per shard, each with only the devices that shard owns."""
 
     def __init__(self) -> None:
-        self.payloads: dict[str | None, bytes] = {}
+        self.latest: dict[str | None, schemas.IngestStats] = {}  # by shard id (None: an unsharded gateway)
 
     def __call__(self, sample: zenoh.Sample) -> None:
-        payload = sample.payload.to_bytes()
         try:
-            shard = schemas.IngestStats.model_validate_json(payload).shard
+            msg = schemas.IngestStats.model_validate_json(sample.payload.to_bytes())
         except ValueError:
             return
-        self.payloads[shard] = payload
-
-    @property
-    def payload(self) -> bytes | None:
-        """Any message seen yet (the gateway's subscriptions have reached us)."""
-        return next(iter(self.payloads.values()), None)
+        self.latest[msg.shard] = msg
 
     def stats(self) -> schemas.IngestStats | None:
         """The shards' newest messages summed into one (per-device rows kept as they are)."""
-        return merge_ingest_stats([schemas.IngestStats.model_validate_json(p) for p in self.payloads.values()])
+        return merge_ingest_stats(list(self.latest.values()))
 
 
 def paced(put: Callable[[Record], None], col: AttitudeCollector, max_ahead_s: float,
@@ -266,7 +260,7 @@ def wait_for_routes(session: zenoh.Session, rt: RecordedTrial, diag: LatestInges
     deadline = time.monotonic() + timeout_s
     probe = session.declare_publisher(schemas.imu_key(rt.kind, rt.device_id))
     try:
-        while not (probe.matching_status.matching and diag.payload is not None):  # type: ignore[attr-defined]
+        while not (probe.matching_status.matching and diag.latest):  # type: ignore[attr-defined]
             if time.monotonic() > deadline:
                 raise TimeoutError("the gateway's subscriptions did not reach this session")
             time.sleep(0.02)

@@ -271,11 +271,14 @@ class ShardNode:
             self._mirror_unsubs = [self.bus.subscribe(sel, self._on_output) for sel in MIRRORED_ON_DEMAND]
             log.info("mirroring the other shards' attitude and swing (a 3-D view client is connected)")
         elif not want and self._mirror_unsubs:
-            for unsubscribe in self._mirror_unsubs:
-                unsubscribe()
-            self._mirror_unsubs = []
-            self._mirror_last.clear()
+            self._drop_mirror()
         return bool(self._mirror_unsubs)
+
+    def _drop_mirror(self) -> None:
+        for unsubscribe in self._mirror_unsubs:
+            unsubscribe()
+        self._mirror_unsubs = []
+        self._mirror_last.clear()
 
     async def _mirror_loop(self) -> None:
         while True:
@@ -292,9 +295,7 @@ class ShardNode:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._mirror_task
             self._mirror_task = None
-        for unsubscribe in self._mirror_unsubs:
-            unsubscribe()
-        self._mirror_unsubs = []
+        self._drop_mirror()
 
     def _feed_listeners(self) -> None:
         self._mirror_wake = False

@@ -22,6 +22,8 @@ from typing import Any
 
 import pytest
 
+from bench.bite_latency import stop_process
+
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]  # fmt: skip
@@ -59,16 +61,6 @@ class System:
     data_dir: Path
     procs: list[subprocess.Popen[bytes]] = field(default_factory=list)
     started_s: float = 0.0
-
-
-def _stop(p: subprocess.Popen[bytes]) -> None:
-    if p.poll() is None:
-        p.send_signal(signal.SIGINT)
-        try:
-            p.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
 
 
 @pytest.fixture(scope="session")
@@ -147,7 +139,7 @@ def system(request: pytest.FixtureRequest, chromium_path: Path,
         yield sysm
     finally:
         for p in reversed(sysm.procs):
-            _stop(p)
+            stop_process(p, 10.0, signal.SIGINT)
         log_gw.close()
         log_dev.close()
 

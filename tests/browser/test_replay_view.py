@@ -11,6 +11,7 @@ from urllib.parse import urlparse
 
 import pytest
 
+from bench.bite_latency import stop_process
 from gateway.recording.format import Record, write_recording
 from tests.browser.conftest import CHROMIUM_ARGS, OUT, REPO, free_port
 from tests.gateway.conftest import rod_messages
@@ -57,9 +58,5 @@ def test_replay_view_scrubs_a_recording(chromium_path: Path, tmp_path: Path) -> 
             assert hosts == {"127.0.0.1"}, requests
             b.close()
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        stop_process(proc, 10.0)
         log.close()

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+from bench.bite_latency import stop_process
+
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -65,8 +67,4 @@ def test_first_start_prints_every_url_and_starts_the_3d_view(tmp_path: Path) -> 
             assert json.load(r)["running"] is True
         print(f"served after {served_s:.1f} s, ready after {ready_s:.1f} s")
     finally:
-        gw.send_signal(signal.SIGINT)
-        try:
-            gw.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            gw.kill()
+        stop_process(gw, 30.0, signal.SIGINT)

@@ -15,7 +15,7 @@ import httpx
 import numpy as np
 import pytest
 
-from bench.bite_latency import free_port
+from bench.bite_latency import free_port, stop_process
 from gateway import schemas
 from gateway.fusion import broad
 from gateway.fusion.evaluate import registered_runner
@@ -135,12 +135,7 @@ def test_broad_trial_through_zenoh_and_the_gateway_scores_like_evaluate(tmp_path
                                  "--speed", "0", "--idle-s", "2", "--check", "0.01", "--json", "--no-progress",
                                  "--connect", f"tcp/127.0.0.1:{port}"], cwd=REPO, stdout=f, timeout=150).returncode
     finally:
-        gw.terminate()
-        try:
-            gw.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            gw.kill()
-            gw.wait()
+        stop_process(gw, 30.0)
     res = json.loads(out_json.read_text())
     ingest = res["gateway_ingest"]
     assert ingest["queue_drops"] == 0
