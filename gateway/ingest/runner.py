@@ -496,8 +496,10 @@ class GatewayService:
         return schemas.DeviceConfig(device_id=device_id, kind=kind, thresholds=values)  # type: ignore[arg-type]
 
     def config_changed(self) -> None:
-        """Owner: settings or defaults changed; `config_view` is rebuilt after the current command/batch."""
+        """Owner: settings or defaults changed; `config_view` is rebuilt now, so a REST write that returned is already
+        what the queryable answers (the owner may run commands and yield to REST before its next batch)."""
         self._config_dirty = True
+        self.refresh_config_view()
 
     def refresh_config_view(self) -> None:
         """Owner, after each batch: publish a new `config_view` if devices appeared or settings changed (a new dict
