@@ -115,6 +115,7 @@ class DataSubscriptions:
         self.tokenless: dict[str, tuple[str, float]] = {}  # device -> (kind, last seen: probe or packet, monotonic)
         self.held: dict[str, Unsubscribe] = {}  # selector -> its subscriber
         self.probes = 0
+        self.per_device = False  # what `held` is: the devices' keys (True) or the catch-all
         self._wanted_ids: frozenset[str] = frozenset()  # devices subscribed one by one (read by the probe callback)
         self._probe_seen: set[str] = set()
         self._lock = asyncio.Lock()
@@ -205,26 +206,26 @@ class DataSubscriptions:
             offer = self.offer
             assert offer is not None
             wanted = self.wanted()
+            per_device = wanted.isdisjoint(self.catch_all)
             add = sorted(wanted - self.held.keys())
             drop = [self.held[s] for s in self.held.keys() - wanted]
-            if not add and not drop:
-                return
-            per_device = wanted.isdisjoint(self.catch_all)
             if per_device:  # the probe callback skips these from now on
                 self._wanted_ids = frozenset(k.split("/")[2] for k in wanted)
+            if add or drop:
 
-            def apply() -> dict[str, Unsubscribe]:
-                new = {s: self.bus.subscribe(s, offer) for s in add}
-                for unsubscribe in drop:
-                    unsubscribe()
-                return new
+                def apply() -> dict[str, Unsubscribe]:
+                    new = {s: self.bus.subscribe(s, offer) for s in add}
+                    for unsubscribe in drop:
+                        unsubscribe()
+                    return new
 
-            new = await asyncio.to_thread(apply)
-            self.held = {s: u for s, u in self.held.items() if s in wanted} | new
+                new = await asyncio.to_thread(apply)
+                self.held = {s: u for s, u in self.held.items() if s in wanted} | new
+                log.info("data subscriptions: %d (%s; +%d -%d)", len(self.held), "per device" if per_device
+                         else "catch-all", len(add), len(drop))  # fmt: skip
+            self.per_device = per_device
             if not per_device:
                 self._wanted_ids = frozenset()
-            log.info("data subscriptions: %d (%s; +%d -%d)", len(self.held), "per device" if per_device
-                     else "catch-all", len(add), len(drop))  # fmt: skip
 
     # -- probes ------------------------------------------------------------------------------------------------
 
@@ -278,6 +279,5 @@ class DataSubscriptions:
         self.offer = None
 
     def stats(self) -> dict[str, object]:
-        per_device = bool(self.held) and set(self.held).isdisjoint(self.catch_all)
-        return {"data_subscriptions": len(self.held), "data_mode": "devices" if per_device else "all",
+        return {"data_subscriptions": len(self.held), "data_mode": "devices" if self.per_device else "all",
                 "tokenless": len(self.tokenless), "probes": self.probes}  # fmt: skip

@@ -104,6 +104,7 @@ def test_alone_the_catch_all_beside_another_shard_only_its_own_devices() -> None
         assert rig.selectors() == {k for d in MINE for k in device_keys(DEVICES[d], d)}
         rig.send_all(DEVICES)
         assert rig.reached() == MINE  # B's packets never reach A
+        assert rig.subs.stats()["data_mode"] == "devices"
         assert len(rig.offered) == sum(len(device_keys(DEVICES[d], d)) for d in MINE)  # each once
 
         rig.offered.clear()  # B leaves: the catch-all again
