@@ -171,18 +171,19 @@ def test_two_shards_split_the_devices_share_alarms_and_config_and_fail_over(clus
     rods = c.rods("--duration", "30", "--script", json.dumps(BITE))
     try:
         # every rod once: each shard processes exactly the rods rendezvous hashing gives it
-        _until(lambda: set(c.served("A")) | set(c.served("B")) == set(RODS), 60.0, "packets of all rods")
+        # (the other test's tokenless rod may still be listed: only the rods are compared)
+        _until(lambda: set(c.served("A")) | set(c.served("B")) >= set(RODS), 60.0, "packets of all rods")
         time.sleep(2.0)
-        served = {sid: set(c.served(sid)) for sid in ("A", "B")}
+        served = {sid: set(c.served(sid)) & set(RODS) for sid in ("A", "B")}
         assert served == expected
         for sid in ("A", "B"):  # each shard's session received its own rods' packets only
             shard = c.shard(sid)
             assert shard["data_mode"] == "devices" and shard["ignored"] == 0, (sid, shard["ignored"])
-        listed = {d["device_id"]: d["shard"] for d in c.get("B", "/api/devices")}
+        listed = {d["device_id"]: d["shard"] for d in c.get("B", "/api/devices") if d["device_id"] in RODS}
         assert listed == {d: sid for sid, ds in expected.items() for d in ds}  # from one endpoint, both shards
         stats = c.get("A", "/api/stats")  # ingest counters summed over the shards: every rod, whoever serves it
-        assert stats["shards"] == 2 and {d["device_id"] for d in stats["devices"]} == set(RODS)
-        assert all(d["ok"] > 0 for d in stats["devices"])
+        assert stats["shards"] == 2 and {d["device_id"] for d in stats["devices"]} >= set(RODS)
+        assert all(d["ok"] > 0 for d in stats["devices"] if d["device_id"] in RODS)
 
         # an acknowledgement through A of a bite on one of B's rods is applied by B's engine: when the bite ends,
         # B's cleared row still says acknowledged (stored beside B's engine, the clear would overwrite it)
@@ -240,7 +241,7 @@ def test_two_shards_split_the_devices_share_alarms_and_config_and_fail_over(clus
         c.procs["B"].send_signal(signal.SIGKILL)
         c.procs["B"].wait()
         shards_a = _until(lambda: (s := c.get("A", "/api/shards"))["live"] == ["A"] and s, 10.0, "A to see B gone")
-        took = {d: t for t, d in shards_a["shards"][0]["takeovers"] if t >= t_kill}
+        took = {d: t for t, d in shards_a["shards"][0]["takeovers"] if t >= t_kill and d in RODS}
         assert set(took) == expected["B"]
         delay = max(took.values()) - t_kill
         assert delay <= FAILOVER_BOUND_S, f"takeover {delay:.2f} s after SIGKILL"

@@ -12,11 +12,11 @@ command key), for the devices it knows of:
   subscribes, so such a device is served exactly once, from the first packet after the probe that saw it. One
   that sends nothing for `IDLE_S` is forgotten.
 
-Measured (zenoh 1.x, a client session behind a router): the session matches each sample against every subscriber it
-holds, so one exact-key subscriber costs about 60 ns per received sample, a wildcard one about 200 ns; 500 exact
-subscribers receiving 5000 samples/s took as much subscriber CPU as one wildcard subscriber receiving 10000/s.
-Past `MAX_DEVICE_SUBSCRIBERS` the shard therefore falls back to the catch-all (its inbox drops the others' packets,
-counted as `ignored`). docs/gateway.md, Shards.
+Subscribers are not free: a zenoh 1.x session matches each received sample against every subscriber it holds
+(`python -m bench.zenoh_subscribers`: 500 exact-key subscribers receiving 5,000 samples/s cost a client session
+more CPU than one wildcard subscriber receiving all 10,000/s; 150 receiving 1,500/s a little less than one receiving
+3,000/s). Past `MAX_DEVICE_SUBSCRIBERS` the shard therefore holds the catch-all again (its inbox drops the others'
+packets, counted as `ignored`). docs/gateway.md, Shards.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ log = logging.getLogger("gateway.shard")
 PROBE_EVERY_S = 10.0
 PROBE_WINDOW_S = 0.5
 IDLE_S = 30.0
-MAX_DEVICE_SUBSCRIBERS = 1200  # ~0.07 ms of zenoh matching per received sample at this many (60 ns each)
+MAX_DEVICE_SUBSCRIBERS = 400  # about where matching costs what the others' packets cost (bench.zenoh_subscribers)
 Mode = Literal["all", "devices"]
 
 
