@@ -96,8 +96,9 @@ class DataSubscriptions:
 
     `sync()` computes the selectors to hold from the mode, the known devices and ownership, and applies the
     difference (new subscribers first, then the old ones go: a packet may arrive twice while both are held, and the
-    sequence check drops the second copy; none is missed). Declaring a zenoh subscriber takes ~0.6 ms, so the
-    difference is applied in a worker thread, one change set at a time."""
+    sequence check drops the second copy; none is missed), in a worker thread (zenoh calls are not made on the event
+    loop), one change set at a time. The subscribers are `direct` (their callbacks run on zenoh's receive thread):
+    zenoh-python's default gives each callback subscriber a Python thread of its own."""
 
     def __init__(
         self, bus: Bus, catch_all: tuple[str, ...], owns: Callable[[str], bool], max_devices: int,
@@ -214,7 +215,7 @@ class DataSubscriptions:
             if add or drop:
 
                 def apply() -> dict[str, Unsubscribe]:
-                    new = {s: self.bus.subscribe(s, offer) for s in add}
+                    new = {s: self.bus.subscribe(s, offer, direct=True) for s in add}
                     for unsubscribe in drop:
                         unsubscribe()
                     return new
@@ -247,7 +248,8 @@ class DataSubscriptions:
             self._probe_seen.add(parts[2])
             loop.call_soon_threadsafe(self.found, parts[1], parts[2])
 
-        unsubs = await asyncio.to_thread(lambda: [self.bus.subscribe(s, on_sample) for s in self.catch_all])
+        catch_all = self.catch_all
+        unsubs = await asyncio.to_thread(lambda: [self.bus.subscribe(s, on_sample, direct=True) for s in catch_all])
         self.probes += 1
         try:
             await asyncio.sleep(PROBE_WINDOW_S if window_s is None else window_s)
