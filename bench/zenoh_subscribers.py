@@ -9,7 +9,11 @@ devices round-robin, and a client subscriber (as a local shard is), each its own
 - `catch-all`: one `rig/*/*/imu` subscriber, receives every sample (what a shard held before per-device
   subscriptions: it then drops the other shards' samples in its inbox);
 - `half-wildcard`: one `rig/*/a$*/imu`, receives half (the ideal: half the traffic, one subscriber);
-- `half-per-device`: one exact-key subscriber per device of the `a` half (what a shard beside another now holds).
+- `half-per-device`: one exact-key subscriber per device of the `a` half, callbacks on zenoh's receive thread
+  (`Callback(indirect=False)`: what a shard beside another now holds);
+- `half-per-device-threads`: the same with zenoh-python's default callbacks, a Python thread per subscriber.
+
+The catch-all and wildcard cases use the default callbacks, as the gateway's catch-all subscriptions do.
 
 Prints the subscriber's and the router's CPU (share of one core) and the subscriber's CPU per received sample.
 The callbacks only count (the gateway's do a little more: `Inbox.offer`). gateway/shard/subscriptions.py uses the
@@ -30,7 +34,7 @@ import zenoh
 
 from bench.bite_latency import free_port
 
-CASES = ("catch-all", "half-wildcard", "half-per-device")
+CASES = ("catch-all", "half-wildcard", "half-per-device", "half-per-device-threads")
 
 
 def _config(mode: str, listen: str | None = None, connect: str | None = None) -> zenoh.Config:
@@ -91,6 +95,9 @@ def subscriber(ep: str, case: str, devices: int, seconds: float, out: Any, start
             subs = [s.declare_subscriber("rig/*/*/imu", on_sample)]
         elif case == "half-wildcard":
             subs = [s.declare_subscriber("rig/*/a$*/imu", on_sample)]
+        elif case == "half-per-device":
+            subs = [s.declare_subscriber(_key(i), zenoh.handlers.Callback(on_sample, indirect=False))
+                    for i in range(0, devices, 2)]  # fmt: skip
         else:
             subs = [s.declare_subscriber(_key(i), on_sample) for i in range(0, devices, 2)]
         time.sleep(1.0)
@@ -133,11 +140,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rounds", type=int, default=2, help="cases alternate this many times (default 2)")
     args = p.parse_args(argv)
     print(f"{args.devices} devices, {args.rate} samples/s of 1 KB, {args.seconds:g} s per case")
-    print("case             subscribers  received/s  subscriber CPU  ms/sample  router CPU")
+    print("case                     subscribers  received/s  subscriber CPU  ms/sample  router CPU")
     for _ in range(args.rounds):
         for case in CASES:
             r = run_case(case, args.devices, args.rate, args.seconds)
-            print(f"{case:16s} {r['subscribers']:11.0f} {r['received_per_s']:11.0f} {r['sub_cpu']:14.1%} "
+            print(f"{case:24s} {r['subscribers']:11.0f} {r['received_per_s']:11.0f} {r['sub_cpu']:14.1%} "
                   f"{r['sub_ms_per_sample']:10.4f} {r['router_cpu']:11.1%}", flush=True)  # fmt: skip
     return 0
 
