@@ -69,9 +69,7 @@ P_MAG_BEAR_TH = 31  # rad, a bearing further than this from that average marks a
 P_ACC_SPIKE_TH = 32  # m/s², a specific force this far from g is a shock (tap), not a reading; <= 0 disables
 P_MAG_BEAR_LAG = 33  # s, allowance for magnetometer/gyro timing: the threshold grows by |rate| × this
 P_MAG_HEADING_KF_ON = 34  # heading gain from a scalar Kalman filter (faster after a rejection); 0 = fixed gain
-P_ACC_RATE_REF = 35  # rad/s: tau_acc shrinks as tau / sqrt(1 + (|rate| / this)²); <= 0 keeps tau_acc fixed
-P_TAU_ACC_REST = 36  # s, experiment: tau_acc while at rest (<= 0: same as in motion)
-N_PARAMS = 37
+N_PARAMS = 35
 
 # ---- state vector ----
 S_QG = 0  # 4: strapdown quaternion body -> I
@@ -119,8 +117,7 @@ C_SCALE_V = 22
 C_SCALE_P0 = 23
 C_K_BEAR_FAST = 24  # first-order gains of the two bearing averages
 C_K_BEAR_SLOW = 25
-C_ACC_SVF = 26  # 3: a1 a2 a3 of the state-variable form of the acceleration low-pass (time-varying tau)
-N_COEFFS = 29
+N_COEFFS = 26
 
 W_Q6 = 80  # 4: body -> E6 quaternion of the current sample (NaN in [0]: not computed yet)
 N_WORK = 84
@@ -250,44 +247,6 @@ def _lowpass_vec(x: np.ndarray, xo: int, n: int, c: np.ndarray, kc: int, s: np.n
         s[k + 1] = b2 * xi - a2 * y
         s[base + i] = y
         x[xo + i] = y
-
-
-@njit(cache=True, error_model="numpy")
-def _svf_coeffs(tau_s: float, dt_s: float, c: np.ndarray) -> None:
-    """Coefficients of the trapezoidal state-variable form of the same Butterworth low-pass (fc = 1/(2π·tau)).
-
-    Its two states are integrator states (output and its rate), so tau may change from sample to sample without
-    the jumps a biquad's memory makes when its coefficients change."""
-    g = math.tan(0.5 * dt_s / tau_s)
-    a1 = 1.0 / (1.0 + g * (g + math.sqrt(2.0)))
-    c[C_ACC_SVF] = a1
-    c[C_ACC_SVF + 1] = g * a1
-    c[C_ACC_SVF + 2] = g * g * a1
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _lp_acc(x: np.ndarray, xo: int, n: int, c: np.ndarray, s: np.ndarray, base: int, svf: bool) -> None:
-    """The acceleration-rate low-pass of x[xo:xo+n] in place: the biquad, or the state-variable form (same memory
-    slots: rate-like state, output-like state) when tau varies."""
-    if not svf:
-        _lowpass_vec(x, xo, n, c, C_ACC, s, base)
-        return
-    a1, a2, a3 = c[C_ACC_SVF], c[C_ACC_SVF + 1], c[C_ACC_SVF + 2]
-    m = base + n
-    if math.isnan(s[m]):
-        for i in range(n):
-            s[m + 2 * i] = 0.0
-            s[m + 2 * i + 1] = x[xo + i]
-    for i in range(n):
-        k = m + 2 * i
-        ic1, ic2 = s[k], s[k + 1]
-        v3 = x[xo + i] - ic2
-        v1 = a1 * ic1 + a2 * v3
-        v2 = ic2 + a2 * ic1 + a3 * v3
-        s[k] = 2.0 * v1 - ic1
-        s[k + 1] = 2.0 * v2 - ic2
-        s[base + i] = v2
-        x[xo + i] = v2
 
 
 @njit(cache=True, error_model="numpy")
@@ -473,16 +432,9 @@ def _step_sample(
             if s[S_REST_T] >= prm[P_REST_MIN]:
                 s[S_REST] = 1.0
     # -- inclination: low-pass the specific force in I, rotate to E6, turn it fully vertical
-    w_ref = prm[P_ACC_RATE_REF]
-    if w_ref > 0.0:
-        g2 = s[S_REST_GYR] ** 2 + s[S_REST_GYR + 1] ** 2 + s[S_REST_GYR + 2] ** 2
-        _svf_coeffs(prm[P_TAU_ACC] / math.sqrt(1.0 + g2 / (w_ref * w_ref)), dt_s, c)
-    if prm[P_TAU_ACC_REST] > 0.0:
-        w_ref = 1.0
-        _svf_coeffs(prm[P_TAU_ACC_REST] if s[S_REST] != 0.0 else prm[P_TAU_ACC], dt_s, c)
     fx, fy, fz = _rotate(s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3], ax, ay, az)
     wk[0], wk[1], wk[2] = fx, fy, fz
-    _lp_acc(wk, 0, 3, c, s, S_ACC_LP, w_ref > 0.0)
+    _lowpass_vec(wk, 0, 3, c, C_ACC, s, S_ACC_LP)
     ex, ey, ez = _rotate(s[S_QI], s[S_QI + 1], s[S_QI + 2], s[S_QI + 3], wk[0], wk[1], wk[2])
     en = math.sqrt(ex * ex + ey * ey + ez * ez)
     if en == 0.0:
@@ -521,21 +473,21 @@ def _step_sample(
         # acceleration so they line up in time with the corrections they explain
         wk[21] = wk[3] * bx + wk[4] * by + wk[5] * bz
         wk[22] = wk[6] * bx + wk[7] * by + wk[8] * bz
-        _lp_acc(wk, 21, 2, c, s, S_RB_LP, w_ref > 0.0)
+        _lowpass_vec(wk, 21, 2, c, C_ACC, s, S_RB_LP)
         rb0, rb1 = wk[21], wk[22]
         if scale_on:
             wk[21] = wk[3] * ux * kx + wk[4] * uy * ky + wk[5] * uz * kz
             wk[22] = wk[6] * ux * kx + wk[7] * uy * ky + wk[8] * uz * kz
-            _lp_acc(wk, 21, 2, c, s, S_RUK_LP, w_ref > 0.0)
+            _lowpass_vec(wk, 21, 2, c, C_ACC, s, S_RUK_LP)
             ruk0, ruk1 = wk[21], wk[22]
             for i in range(3):  # R diag(u) at wk[24:33], low-passed into the state, then into H below
                 wk[24 + 3 * i] = wk[3 + 3 * i] * ux
                 wk[25 + 3 * i] = wk[4 + 3 * i] * uy
                 wk[26 + 3 * i] = wk[5 + 3 * i] * uz
-            _lp_acc(wk, 24, 9, c, s, S_RU_LP, w_ref > 0.0)
+            _lowpass_vec(wk, 24, 9, c, C_ACC, s, S_RU_LP)
         else:
             ruk0 = ruk1 = 0.0
-        _lp_acc(wk, 3, 9, c, s, S_R_LP, w_ref > 0.0)
+        _lowpass_vec(wk, 3, 9, c, C_ACC, s, S_R_LP)
         # H = [LP(R), -LP(R diag u)] (3x6) at wk[3:21]
         for i in range(3):
             for j in range(3):

@@ -66,8 +66,6 @@ class DefaultSettings:
     mag_bearing_lag_s: float = 0.02
     mag_heading_kf: bool = True  # gain grows with the time the field was rejected: the drift gathered meanwhile
     # is taken out quickly once the field is clean (same steady-state gain as a fixed `tau_mag_s`)
-    acc_rate_ref_deg_s: float = 0.0  # experiment
-    tau_acc_rest_s: float = 0.0  # experiment
     acc_spike_m_s2: float = 60.0  # |specific force - g| above ~6 g is a shock (tap, knock), skipped; 0 disables
     motion_bias: bool = True
     rest_bias: bool = True
@@ -112,8 +110,6 @@ class DefaultSettings:
         p[K.P_ACC_SPIKE_TH] = self.acc_spike_m_s2
         p[K.P_MAG_BEAR_LAG] = self.mag_bearing_lag_s
         p[K.P_MAG_HEADING_KF_ON] = float(self.mag_heading_kf)
-        p[K.P_ACC_RATE_REF] = self.acc_rate_ref_deg_s * _DEG
-        p[K.P_TAU_ACC_REST] = self.tau_acc_rest_s
         return p
 
     def __post_init__(self) -> None:
