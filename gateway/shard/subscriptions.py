@@ -132,6 +132,8 @@ class DataSubscriptions:
         self.offer = offer
         self._loop = asyncio.get_running_loop()
         self._task = self._loop.create_task(self._timer())
+        if self.mode == "all":  # as a single gateway: subscribed when `start` returns, as before sharding
+            self.held = {s: self.bus.subscribe(s, offer) for s in self.catch_all}
         self.changed()
         if self.mode == "devices":
             self.probe_soon()
@@ -215,7 +217,7 @@ class DataSubscriptions:
             if add or drop:
 
                 def apply() -> dict[str, Unsubscribe]:
-                    new = {s: self.bus.subscribe(s, offer, direct=True) for s in add}
+                    new = {s: self.bus.subscribe(s, offer, direct=per_device) for s in add}
                     for unsubscribe in drop:
                         unsubscribe()
                     return new
