@@ -3,9 +3,11 @@
 A `ShardNode` is attached to a `GatewayService` (gateway/app.py) and, over the service's bus:
 
 - declares the liveliness token `gw/shard/{id}/{patterns}` and watches the others' (history included), so every
-  shard holds the same live set; `Ownership` (rendezvous hashing) then says which devices are this shard's. The
-  service's inbox drops the packets of other shards' devices before decoding them; presence, offline alarms, reel
-  watchdog stops and config replies only for its own devices.
+  shard holds the same live set; `Ownership` (rendezvous hashing) then says which devices are this shard's.
+  Beside other shards it subscribes to its own devices' data keys only (`DataSubscriptions`,
+  gateway/shard/subscriptions.py: from the device tokens, tokenless devices from periodic probes), so the router
+  does not send it the others' packets; the inbox still drops any of them before decoding. Presence, offline
+  alarms, reel watchdog stops and config replies only for its own devices.
 - on a live-set change (on the event loop): devices that moved away lose their fusion and rules state here and their
   active alarms are released; devices that moved here start from a fresh warm-up (as after a restart) and resume
   the active alarms the store holds for them, so a condition still present updates that alarm instead of raising
@@ -151,7 +153,8 @@ class ShardNode:
         return self.writer
 
     def attach(self, service: GatewayService) -> None:
-        """Hook the service: the device filter and, for site partitions, narrower data subscriptions."""
+        """Hook the service: the device filter, its data subscriptions (`DataSubscriptions`) and, for site
+        partitions, narrower catch-all selectors."""
         self.service = service
         service.accept = self.ownership.owns
         service.counters.shard = self.shard_id

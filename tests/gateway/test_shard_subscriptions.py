@@ -9,6 +9,8 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from gateway import schemas
 from gateway.ingest.bus import MemoryBus
@@ -196,3 +198,13 @@ def test_site_globs_that_exclude_each_other_do_not_overlap() -> None:
     assert may_overlap(ShardInfo("a", ("site1-*",)), ShardInfo("b"))  # b serves every id
     assert may_overlap(ShardInfo("a", ("rod-?",)), ShardInfo("b", ("hook-*",)))  # not decided: assume overlap
     assert may_overlap(ShardInfo("a", ("rod-1",)), ShardInfo("b", ("rod-*",)))
+
+
+globs = st.lists(st.from_regex(r"[a-c1-2-]{0,4}\*?", fullmatch=True).filter(bool), min_size=1, max_size=3)
+
+
+@given(globs, globs, st.lists(st.from_regex(r"[a-c1-2-]{1,6}", fullmatch=True), max_size=40))
+def test_shards_said_not_to_overlap_never_both_serve_an_id(p: list[str], q: list[str], ids: list[str]) -> None:
+    a, b = ShardInfo("a", tuple(p)), ShardInfo("b", tuple(q))
+    if not may_overlap(a, b):
+        assert not any(a.serves(d) and b.serves(d) for d in ids)
