@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Awaitable, Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -13,8 +14,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from gateway import schemas
+from gateway.config import Settings
 from gateway.ingest.bus import MemoryBus
 from gateway.shard import subscriptions
+from gateway.shard.node import ShardNode
 from gateway.shard.ownership import Ownership, ShardInfo, owner_of
 from gateway.shard.subscriptions import DataSubscriptions, device_keys, may_overlap
 
@@ -208,3 +211,13 @@ def test_shards_said_not_to_overlap_never_both_serve_an_id(p: list[str], q: list
     a, b = ShardInfo("a", tuple(p)), ShardInfo("b", tuple(q))
     if not may_overlap(a, b):
         assert not any(a.serves(d) and b.serves(d) for d in ids)
+
+
+def test_a_site_shard_beside_other_sites_keeps_its_narrowed_catch_all(tmp_path: Path) -> None:
+    """`--devices 'site1-*'` beside a `site2-*` shard: alone for its ids, so one wildcard subscriber per topic."""
+    shard = ShardNode(Settings(data_dir=tmp_path, zenoh_listen=[], shard_devices=["site1-*"]), MemoryBus(), "s1")
+    assert shard.alone()
+    shard.ownership.update(ShardInfo("s2", ("site2-*",)), True)
+    assert shard.alone()
+    shard.ownership.update(ShardInfo("any"), True)  # serves every id, site1's too
+    assert not shard.alone()
