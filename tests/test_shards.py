@@ -68,7 +68,8 @@ class Cluster:
         for sid, port in self.http.items():
             self.procs[sid] = _spawn(
                 ["-m", "gateway", "--shards", "1", "--shard-id", sid, "--mode", "client", "--connect", self.endpoint,
-                 "--port", str(port), "--data-dir", str(tmp / sid), "--no-3d", "--log-level", "INFO"],
+                 "--port", str(port), "--data-dir", str(tmp / sid), "--no-3d", "--log-level", "INFO",
+                 "--shard-subscribe", "own"],
                 tmp / f"{sid}.log",
             )  # fmt: skip
 

@@ -4,9 +4,10 @@ A `ShardNode` is attached to a `GatewayService` (gateway/app.py) and, over the s
 
 - declares the liveliness token `gw/shard/{id}/{patterns}` and watches the others' (history included), so every
   shard holds the same live set; `Ownership` (rendezvous hashing) then says which devices are this shard's.
-  Beside other shards it subscribes to its own devices' data keys only (`DataSubscriptions`,
+  It subscribes to every device's data and its inbox drops the other shards' packets before decoding; with
+  `--shard-subscribe own`, beside other shards, to its own devices' data keys only (`DataSubscriptions`,
   gateway/shard/subscriptions.py: from the device tokens, tokenless devices from periodic probes), so the router
-  does not send it the others' packets; the inbox still drops any of them before decoding. Presence, offline
+  does not send it the others' packets. Presence, offline
   alarms, reel watchdog stops and config replies only for its own devices.
 - on a live-set change (on the event loop): devices that moved away lose their fusion and rules state here and their
   active alarms are released; devices that moved here start from a fresh warm-up (as after a restart) and resume
@@ -170,9 +171,10 @@ class ShardNode:
             dev = service.counters.devices.get(device_id)
             return None if dev is None else dev.last_arrival_s
 
-        self.data = DataSubscriptions(self.bus, service.data_selectors, self.ownership.owns,
-                                      self.settings.max_devices, last_packet_s)  # fmt: skip
-        service.subscribe_data = self.data.start
+        if self.settings.shard_subscribe == "own":  # else the catch-all `data_selectors`, as a single gateway
+            self.data = DataSubscriptions(self.bus, service.data_selectors, self.ownership.owns,
+                                          self.settings.max_devices, last_packet_s)  # fmt: skip
+            service.subscribe_data = self.data.start
 
     async def start(self, adopt_config: bool = False) -> None:
         """Join: watch the shard tokens, serve the queryables, take the running shards' configuration, then declare
