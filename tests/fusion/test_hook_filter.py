@@ -84,9 +84,10 @@ def rmse_deg(err_rad):
 def test_free_swing_angle_accuracy_beats_vqf(seed):
     """Free swing of about 8° after a violent 1.6 m/s² trolley kick (legacy sensor model, 20 mg accel bias), scored
     from 12 s after it: swing-angle RMSE ≤ 0.2° and below VQF on the same data through the same hook.swing_angle.
-    Measured 0.05° and 0.11° (VQF about 0.75°): the jump test sees the kick start and stop and puts it in the
+    Measured 0.17° and 0.13° (VQF about 0.75°): the jump test sees the kick start and stop and puts it in the
     boom-tip state. Without it (the filter before) 0.61° and 0.53°: the kick, an unmeasured boom-tip acceleration,
-    threw the rope-length, boom-tip and bias states off for tens of seconds.
+    threw the rope-length, boom-tip and bias states off for tens of seconds. (0.05° and 0.11° before the boom-tip
+    tracking after a jump: it keeps the tip state loose for a while after a kick 3× the suite's largest move.)
     """
     vqf = pytest.importorskip("vqf")
     truth, gyr, acc, mag = swing_data(seed=seed, duration_s=30.0, kick_m_s2=1.6)
@@ -253,22 +254,62 @@ def slew_data(seed: int):
 OLD_TIP = {"move_mean_gate": 0.0, "tip_accel_tau_s": 5.0, "tip_accel_psd": 1e-3}
 
 
+# The boom-tip tracking of this filter (issue 11, second round), each switched off.
+NO_TRACK = {"move_track_s": 0.0}
+NO_TURN = {"tip_turn_psd": 0.0}
+BEFORE_TRACKING = {"move_track_s": 0.0, "tip_turn_psd": 0.0, "slow_mean_gate": 0.0}
+
+
 def test_a_slewing_move_is_followed_not_averaged_away():
-    """Through a slewing move and 20 s after it, Θ RMSE ≤ 0.5° and max ≤ 1.7° (measured 0.43° / 1.48°, most of it
-    while the tangential acceleration turns into the centripetal one, too slowly to trip the jump test): the jump
-    test sees the boom tip's acceleration start, settle and stop, and opens the tip state each time. With the boom-tip
-    settings before it (tight, never opened: the squared-innovation test stayed below its gate) 0.79° / 2.36°."""
+    """Through a slewing move and 20 s after it, Θ RMSE ≤ 0.35° and max ≤ 1.0° (measured 0.31° / 0.82°): the jump
+    test sees the boom tip's acceleration start, settle and stop and opens the tip state each time; for 10 s after a
+    jump the tip state keeps tracking (while its estimate is not near 0), and takes noise across its own direction,
+    so the slew's tangential part can turn into the centripetal one. Without the tracking 0.49° / 1.23°, without the
+    noise across 0.39° / 0.92°, without either (and the slow test) 0.43° / 1.48°; with the boom-tip settings before
+    the jump test (tight, never opened: the squared-innovation test stayed below its gate) 0.80° / 2.36°."""
     truth, gyr, acc, mag = slew_data(seed=41)
     assert truth.swing_rad.max() > math.radians(2.0)
     errors = []
-    for over in ({}, OLD_TIP):
+    for over in ({}, NO_TRACK, NO_TURN, BEFORE_TRACKING, BEFORE_TRACKING | OLD_TIP):
         f = HookFilter(HookFilterSettings(rope_length_m=8.0, rope_length_known=True, **over), use_mag=False)
         f.start(gyr[:50], acc[:50], None, DT_S)
         q = f.run(gyr, acc, None, DT_S)
         errors.append(np.abs(np.degrees(hook.swing_angle(q) - truth.swing_rad))[truth.t_s > 0.5])
     rmse = [float(np.sqrt(np.mean(e**2))) for e in errors]
-    assert rmse[0] <= 0.5 and errors[0].max() <= 1.7, (rmse[0], errors[0].max())
-    assert rmse[1] > 1.5 * rmse[0] and errors[1].max() > 1.4 * errors[0].max(), (rmse, errors[1].max())
+    worst = [float(e.max()) for e in errors]
+    assert rmse[0] <= 0.35 and worst[0] <= 1.0, (rmse[0], worst[0])
+    assert rmse[1] > 1.3 * rmse[0] and rmse[2] > 1.15 * rmse[0], rmse
+    assert rmse[3] > 1.3 * rmse[0] and worst[3] > 1.5 * worst[0], (rmse, worst)
+    assert rmse[4] > 2.0 * rmse[0] and worst[4] > 2.0 * worst[0], (rmse, worst)
+
+
+def first_detection_s(bias: float, seed: int, duration_s: float) -> tuple[float, float]:
+    """Seconds until the jump test and the slow test first fire on whitened swing-rate innovations (unit white noise
+    plus `bias` on one axis, as a boom-tip acceleration the model lacks leaves); `inf` if never."""
+    from gateway.fusion.hook_filter import N_MONITOR, _mean_test
+
+    s = HookFilterSettings()
+    monitor = np.zeros(N_MONITOR)
+    first = [math.inf, math.inf]
+    noise = np.random.default_rng(seed).standard_normal((int(duration_s * RATE_HZ), 2))
+    for i, w in enumerate(noise + np.array([bias, 0.0])):
+        for k, (tau, gate, at) in enumerate(((s.move_mean_tau_s, s.move_mean_gate, 2),
+                                             (s.slow_mean_tau_s, s.slow_mean_gate, 6))):  # fmt: skip
+            if _mean_test(w[0], w[1], tau, gate, DT_S, monitor, at) and first[k] == math.inf:
+                first[k] = i * DT_S
+    return first[0], first[1]
+
+
+def test_a_small_steady_innovation_bias_is_seen_by_the_slow_test_first():
+    """A steady bias of 0.15 σ on the whitened swing-rate innovation (a boom-tip acceleration turning too slowly to
+    trip the jump test): the slow test (3 s mean, gate 20) fires after a median of under 12 s over 20 noise draws
+    (measured 7.8 s), the 0.5 s jump test after more than 15 s (measured 25 s). Without a bias neither fires in
+    60 s on at least 18 of 20 draws (false alarms)."""
+    biased = np.array([first_detection_s(0.15, seed, 40.0) for seed in range(20)])
+    fast, slow = np.median(np.minimum(biased, 40.0), axis=0)
+    assert slow < 12.0 and fast > 15.0, (fast, slow)
+    quiet = [first_detection_s(0.0, seed, 60.0) for seed in range(20)]
+    assert sum(math.isinf(a) and math.isinf(b) for a, b in quiet) >= 18, quiet
 
 
 def test_hard_iron_is_learnt_as_the_hook_twists():
