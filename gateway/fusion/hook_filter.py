@@ -26,7 +26,10 @@ iron (µT, body).
   acceleration (trolley, slewing) cannot be told from a tilt by the hook at any one moment (equivalence principle):
   it is a slow Gauss-Markov state (`tip_accel_*`) that a *jump test* opens when a move starts, turns or stops
   (see `ekf_step`): from then on the gyroscope's integral, not the pendulum law, carries the tilt, and the tip
-  state takes what the pendulum law cannot explain. A small white part stays on `v` (`tip_accel_psd / l²`).
+  state takes what the pendulum law cannot explain. For a while after a jump the tip state keeps tracking (while its
+  estimate is not near 0), and it takes process noise across its own direction (a slew's acceleration turns with the
+  boom); a slower test on the same innovation opens it when the acceleration turns too slowly for the jump test. A
+  small white part stays on `v` (`tip_accel_psd / l²`).
   `α` integrates `α'`; `α'`, the biases and the offset random-walk; `c` is constant; `l` integrates `l'`, which
   integrates `l''` (mean-reverting: hoist drives accelerate briefly).
 * Update: gyroscope `ω_b(n, n', α, α') + b + (c_x, c_y, 0) ω_z` (exact kinematics of the split, as in
