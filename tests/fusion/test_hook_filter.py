@@ -17,7 +17,7 @@ from hypothesis.extra.numpy import arrays
 from devices.common import EARTH_FIELD_ENU_UT, G_M_S2, ImuErrorModel, SensorModel
 from devices.hook_physics import HookPhysicsSettings, HookScenario, TrolleyMove, simulate
 from gateway.fusion import hook
-from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
+from gateway.fusion.hook_filter import TRACKING, HookFilter, HookFilterSettings
 
 RATE_HZ = 100.0
 DT_S = 1.0 / RATE_HZ
@@ -84,10 +84,9 @@ def rmse_deg(err_rad):
 def test_free_swing_angle_accuracy_beats_vqf(seed):
     """Free swing of about 8° after a violent 1.6 m/s² trolley kick (legacy sensor model, 20 mg accel bias), scored
     from 12 s after it: swing-angle RMSE ≤ 0.2° and below VQF on the same data through the same hook.swing_angle.
-    Measured 0.17° and 0.13° (VQF about 0.75°): the jump test sees the kick start and stop and puts it in the
+    Measured 0.05° and 0.11° (VQF about 0.75°): the jump test sees the kick start and stop and puts it in the
     boom-tip state. Without it (the filter before) 0.61° and 0.53°: the kick, an unmeasured boom-tip acceleration,
-    threw the rope-length, boom-tip and bias states off for tens of seconds. (0.05° and 0.11° before the boom-tip
-    tracking after a jump: it keeps the tip state loose for a while after a kick 3× the suite's largest move.)
+    threw the rope-length, boom-tip and bias states off for tens of seconds.
     """
     vqf = pytest.importorskip("vqf")
     truth, gyr, acc, mag = swing_data(seed=seed, duration_s=30.0, kick_m_s2=1.6)
@@ -175,10 +174,8 @@ def test_seeded_bias_is_used():
 
 def test_a_tag_line_pull_is_measured_not_guessed():
     """A 300 N pull on a 500 kg hook for 3 s (0.6 m/s², 3.5° of equilibrium shift) and let go: with the
-    accelerometer's x/y as the force input, Θ stays within 0.3° of the truth through the pull and after it (measured
-    0.20°); without it and without the boom-tip tracking after a jump (the filter before issue 11 had neither) the
-    error is at least 3× larger (0.76°); without it alone at least 1.8× (0.43°: the tracking follows part of an
-    unmeasured push as it would a slew)."""
+    accelerometer's x/y as the force input, Θ stays within 0.3° of the truth through the pull and after it; without
+    (the filter before issue 11) the error is at least 3× larger."""
     from devices.hook_physics import Pull
 
     physics = HookPhysicsSettings(gravity_m_s2=G_M_S2, earth_field_uT=EARTH_FIELD_ENU_UT, internal_rate_hz=500.0,
@@ -190,14 +187,13 @@ def test_a_tag_line_pull_is_measured_not_guessed():
         truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, DT_S)  # fmt: skip
     assert truth.swing_rad.max() > math.radians(3.0)
     errors = []
-    for over in ({}, {"use_force_input": False, "move_track_s": 0.0}, {"use_force_input": False}):
-        f = HookFilter(HookFilterSettings(**over), use_mag=False)
+    for on in (True, False):
+        f = HookFilter(HookFilterSettings(use_force_input=on), use_mag=False)
         f.start(gyr[:50], acc[:50], None, DT_S)
         q = f.run(gyr, acc, None, DT_S)
         errors.append(np.abs(np.degrees(hook.swing_angle(q) - truth.swing_rad))[truth.t_s > 1.0])
     assert errors[0].max() < 0.3, errors[0].max()
-    assert errors[1].max() > 3.0 * errors[0].max(), (errors[0].max(), errors[1].max())
-    assert errors[2].max() > 1.8 * errors[0].max(), (errors[0].max(), errors[2].max())
+    assert errors[1].max() > 3.0 * errors[0].max()
 
 
 def test_a_suite_crane_twisting_at_start_keeps_its_heading_from_the_magnetometer():
@@ -254,23 +250,24 @@ def slew_data(seed: int):
 OLD_TIP = {"move_mean_gate": 0.0, "tip_accel_tau_s": 5.0, "tip_accel_psd": 1e-3}
 
 
-# The boom-tip tracking of this filter (issue 11, second round), each switched off.
-NO_TRACK = {"move_track_s": 0.0}
-NO_TURN = {"tip_turn_psd": 0.0}
-BEFORE_TRACKING = {"move_track_s": 0.0, "tip_turn_psd": 0.0, "slow_mean_gate": 0.0}
+# The optional boom-tip tracking (issue 11, second round), and it with one part switched off.
+NO_TRACK = TRACKING | {"move_track_s": 0.0}
+NO_TURN = TRACKING | {"tip_turn_psd": 0.0}
 
 
 def test_a_slewing_move_is_followed_not_averaged_away():
-    """Through a slewing move and 20 s after it, Θ RMSE ≤ 0.35° and max ≤ 1.0° (measured 0.31° / 0.82°): the jump
-    test sees the boom tip's acceleration start, settle and stop and opens the tip state each time; for 10 s after a
-    jump the tip state keeps tracking (while its estimate is not near 0), and takes noise across its own direction,
-    so the slew's tangential part can turn into the centripetal one. Without the tracking 0.49° / 1.23°, without the
-    noise across 0.39° / 0.92°, without either (and the slow test) 0.43° / 1.48°; with the boom-tip settings before
-    the jump test (tight, never opened: the squared-innovation test stayed below its gate) 0.80° / 2.36°."""
+    """Through a slewing move and 20 s after it, the default filter: Θ RMSE ≤ 0.5° and max ≤ 1.7° (measured 0.43° /
+    1.48°, most of it while the tangential acceleration turns into the centripetal one, too slowly to trip the jump
+    test); the jump test sees the boom tip's acceleration start, settle and stop and opens the tip state each time.
+    With the optional tracking (`TRACKING`: for 10 s after a jump the tip state keeps tracking while its estimate is
+    not near 0, and takes noise across its own direction, so the tangential part can turn into the centripetal one)
+    0.31° / 0.82°; without its tracking part 0.49° / 1.23°, without its noise across 0.39° / 0.92°. With the boom-tip
+    settings before the jump test (tight, never opened: the squared-innovation test stayed below its gate) 0.80° /
+    2.36°."""
     truth, gyr, acc, mag = slew_data(seed=41)
     assert truth.swing_rad.max() > math.radians(2.0)
     errors = []
-    for over in ({}, NO_TRACK, NO_TURN, BEFORE_TRACKING, BEFORE_TRACKING | OLD_TIP):
+    for over in (TRACKING, NO_TRACK, NO_TURN, {}, OLD_TIP):
         f = HookFilter(HookFilterSettings(rope_length_m=8.0, rope_length_known=True, **over), use_mag=False)
         f.start(gyr[:50], acc[:50], None, DT_S)
         q = f.run(gyr, acc, None, DT_S)
@@ -279,8 +276,9 @@ def test_a_slewing_move_is_followed_not_averaged_away():
     worst = [float(e.max()) for e in errors]
     assert rmse[0] <= 0.35 and worst[0] <= 1.0, (rmse[0], worst[0])
     assert rmse[1] > 1.3 * rmse[0] and rmse[2] > 1.15 * rmse[0], rmse
+    assert rmse[3] <= 0.5 and worst[3] <= 1.7, (rmse[3], worst[3])
     assert rmse[3] > 1.3 * rmse[0] and worst[3] > 1.5 * worst[0], (rmse, worst)
-    assert rmse[4] > 2.0 * rmse[0] and worst[4] > 2.0 * worst[0], (rmse, worst)
+    assert rmse[4] > 1.5 * rmse[3] and worst[4] > 1.4 * worst[3], (rmse, worst)
 
 
 def first_detection_s(bias: float, seed: int, duration_s: float) -> tuple[float, float]:
@@ -294,7 +292,7 @@ def first_detection_s(bias: float, seed: int, duration_s: float) -> tuple[float,
     noise = np.random.default_rng(seed).standard_normal((int(duration_s * RATE_HZ), 2))
     for i, w in enumerate(noise + np.array([bias, 0.0])):
         for k, (tau, gate, at) in enumerate(((s.move_mean_tau_s, s.move_mean_gate, 2),
-                                             (s.slow_mean_tau_s, s.slow_mean_gate, 6))):  # fmt: skip
+                                             (s.slow_mean_tau_s, TRACKING["slow_mean_gate"], 6))):  # fmt: skip
             if _mean_test(w[0], w[1], tau, gate, DT_S, monitor, at) and first[k] == math.inf:
                 first[k] = i * DT_S
     return first[0], first[1]
@@ -302,9 +300,9 @@ def first_detection_s(bias: float, seed: int, duration_s: float) -> tuple[float,
 
 def test_a_small_steady_innovation_bias_is_seen_by_the_slow_test_first():
     """A steady bias of 0.15 σ on the whitened swing-rate innovation (a boom-tip acceleration turning too slowly to
-    trip the jump test): the slow test (3 s mean, gate 20) fires after a median of under 12 s over 20 noise draws
-    (measured 7.8 s), the 0.5 s jump test after more than 15 s (measured 25 s). Without a bias neither fires in
-    60 s on at least 18 of 20 draws (false alarms)."""
+    trip the jump test): the optional slow test (`TRACKING`: 3 s mean, gate 20) fires after a median of under 12 s
+    over 20 noise draws (measured 7.8 s), the 0.5 s jump test after more than 15 s (measured 25 s). Without a bias
+    neither fires in 60 s on at least 18 of 20 draws (false alarms)."""
     biased = np.array([first_detection_s(0.15, seed, 40.0) for seed in range(20)])
     fast, slow = np.median(np.minimum(biased, 40.0), axis=0)
     assert slow < 12.0 and fast > 15.0, (fast, slow)
