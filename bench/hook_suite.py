@@ -5,6 +5,7 @@
     python -m bench.hook_suite --seeds 1-6 --duration 120   # the tuning seeds
     python -m bench.hook_suite --paper-ekf                  # also paper 001's EKF as published
     python -m bench.hook_suite --family windy --seeds 1-12  # light loads in a steady wind from the start
+    python -m bench.hook_suite --tracking                   # the hook filter with its optional boom-tip tracking
 
 Each seed draws a crane (issue 11): rope 2-30 m (log-uniform), hook + load 0.5-20 t, torsion stiffness and
 inertia (twist period 4-20 s), the IMU 0.1 ± 0.02 m off the rope axis (the filter assumes 0.1 m and learns the
@@ -52,7 +53,7 @@ from devices.hook_physics import (
     trolley_traverse,
 )
 from gateway.fusion import hook
-from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
+from gateway.fusion.hook_filter import TRACKING, HookFilter, HookFilterSettings
 
 RATE_HZ = 100.0
 WARMUP_S = 0.5
@@ -159,11 +160,13 @@ def make_case(seed: int, duration_s: float = 180.0, family: str = "crane") -> Su
     return SuiteCase(seed, physics, scenario, tuple(events))
 
 
-def hook_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rope_length_m: float | None
-                  ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """Hook filter quaternions (N, 4) and rope-length estimates (N,), started as the gateway starts it."""
-    settings = HookFilterSettings() if rope_length_m is None else HookFilterSettings(rope_length_m=rope_length_m,
-                                                                                     rope_length_known=True)
+def hook_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rope_length_m: float | None,
+                  tracking: bool = False) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Hook filter quaternions (N, 4) and rope-length estimates (N,), started as the gateway starts it (`tracking`:
+    with the optional boom-tip tracking, `hook_filter.TRACKING`)."""
+    extra = TRACKING if tracking else {}
+    settings = (HookFilterSettings(**extra) if rope_length_m is None
+                else HookFilterSettings(rope_length_m=rope_length_m, rope_length_known=True, **extra))  # fmt: skip
     f = HookFilter(settings, use_mag=mag is not None)
     n = int(WARMUP_S * RATE_HZ)
     f.start(gyr[:n], acc[:n], None if mag is None else mag[:n], 1.0 / RATE_HZ)
@@ -212,7 +215,7 @@ def score(q: np.ndarray, truth: HookTruth, keep: np.ndarray, absolute: bool) -> 
 
 
 def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length: bool, paper_ekf: bool = False,
-             family: str = "crane") -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+             family: str = "crane", tracking: bool = False) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed."""
     case = make_case(seed, duration_s, family)
     truth = simulate(case.physics, case.scenario)
@@ -222,7 +225,7 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
     scored = truth.t_s >= WARMUP_S
     phase = case.phase(truth.t_s)
     out: dict[str, dict[str, dict[str, float]]] = {}
-    q_hook, length = hook_estimate(gyr, acc, mag, case.physics.rope_length_m if tell_length else None)
+    q_hook, length = hook_estimate(gyr, acc, mag, case.physics.rope_length_m if tell_length else None, tracking)
     others = [("vqf", vqf_estimate(gyr, acc, mag))]
     if paper_ekf:
         others.append(("ekf001", paper_ekf_estimate(gyr, acc, mag)))
@@ -256,6 +259,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--phases", action="store_true", help="also print each seed's figures by phase")
     p.add_argument("--family", default="crane", choices=FAMILIES,
                    help="crane (default) or windy (light load, short rope, steady wind from the start)")
+    p.add_argument("--tracking", action="store_true", help="the hook filter with its optional boom-tip tracking")
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
@@ -267,7 +271,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     for seed in seeds:
         case = make_case(seed, args.duration, args.family)
-        r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family)
+        r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
+                     args.tracking)
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]
