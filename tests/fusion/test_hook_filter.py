@@ -329,3 +329,18 @@ def test_hard_iron_is_learnt_as_the_hook_twists():
         rmse.append(rmse_deg(err))
     assert rmse[0] < 1.0, rmse
     assert rmse[1] > 2.0 * rmse[0], rmse
+
+
+def test_the_windy_suite_family_is_light_short_and_windy_from_the_start():
+    """`bench.hook_suite.make_case(seed, family="windy")`: 0.5-1.5 t on 2-6 m in a 30-60 N steady wind (the character
+    of held-out seed 309), the same kinds of events as the default family's seed; an unknown family is refused."""
+    from bench.hook_suite import make_case
+
+    for seed in range(1, 21):
+        windy, crane = make_case(seed, 120.0, "windy"), make_case(seed, 120.0)
+        steady_n = math.hypot(*windy.scenario.wind_mean_m_s2) * windy.physics.hook_mass_kg
+        assert 2.0 <= windy.physics.rope_length_m <= 6.0 and 500.0 <= windy.physics.hook_mass_kg <= 1500.0
+        assert 30.0 <= steady_n <= 60.0, steady_n
+        assert windy.events[0][0] == crane.events[0][0]
+    with pytest.raises(ValueError, match="family"):
+        make_case(1, 60.0, "gusty")
