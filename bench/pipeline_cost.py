@@ -201,7 +201,8 @@ def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 
             await hist.stop()
             store.close()
         return {"devices": n, "packets": packets, "cpu_s": cpu, "ms_per_packet": 1e3 * cpu / packets,
-                "handle_ms_per_packet": 1e3 * handle_s / packets, "puts": bus.puts, "digest": f"{bus.digest:016x}"}  # fmt: skip
+                "handle_ms_per_packet": 1e3 * handle_s / packets, "puts": bus.puts,
+                "digest": f"{bus.digest:016x}"}  # fmt: skip
 
     return asyncio.run(run())
 

@@ -29,7 +29,7 @@ from gateway import schemas
 from gateway.api.deps import DeviceIdPath
 from gateway.hub import HubSink
 from gateway.ingest.runner import GatewayService
-from gateway.views import plot_point
+from gateway.views import PlotPoint
 
 router = APIRouter(prefix="/history", tags=["history"])
 Agg = Literal["mean", "max", "last"]
@@ -151,12 +151,15 @@ class History(HubSink):
             h = self.devices[device_id] = DeviceHistory(s.bucket_s, int(s.keep_s / s.bucket_s))
         return h
 
-    def on_hub(self, topic: str, model: schemas.WireModel) -> None:
-        """Hub listener (ingest task): fold attitude and swing in."""
-        point = plot_point(model)
+    wants_messages = False
+    wants_plot = True
+
+    def on_plot(self, points: list[PlotPoint]) -> None:
+        """Hub plot listener (ingest task): fold a batch's attitude and swing points in."""
         accept = self.service.accept
-        if point is not None and (accept is None or accept(point[0])):  # other shards keep their devices' own
-            self.device(point[0]).add(point[1], **point[2])
+        for device_id, t_s, values in points:
+            if accept is None or accept(device_id):  # other shards keep their devices' own
+                self.device(device_id).add(t_s, **values)
 
     def poll(self, now_s: float) -> None:
         """Sample reel tension and environment readings from the pipeline (event loop); only packets that are new
