@@ -75,14 +75,19 @@ class _CountingBus:
     two trees' outputs compare even if they publish in another order."""
 
     def __init__(self) -> None:
+        import threading
+
         self.puts = 0
         self.digest = 0
+        self._lock = threading.Lock()  # the blocking-put thread puts too
 
     def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None:
         import hashlib
 
-        self.puts += 1
-        self.digest ^= int.from_bytes(hashlib.blake2b(key.encode() + b"\0" + payload, digest_size=8).digest(), "big")
+        h = int.from_bytes(hashlib.blake2b(key.encode() + b"\0" + payload, digest_size=8).digest(), "big")
+        with self._lock:
+            self.puts += 1
+            self.digest ^= h
 
     def subscribe(self, selector: str, callback: Any) -> Any:
         return lambda: None

@@ -34,6 +34,7 @@ PlotListener = Callable[[list[PlotPoint]], None]
 for every such sink (history, live stream)."""
 PacketListener = Callable[[schemas.Packet], None]
 """A decoded device packet the ingest task accepted (after sequence and time checks), before the pipeline."""
+MAX_KEYS = 100_000  # cached output keys (a few topics per device)
 STATE_OF_CHANGE = {"raised": "raised", "updated": "raised", "cleared": "cleared", "acknowledged": "acknowledged"}
 
 
@@ -69,6 +70,7 @@ class Hub:
         self.packet_listeners: list[PacketListener] = []
         self._cmd_ids = itertools.count(int(clock()) % 1_000_000 * 1000)
         self.published = 0
+        self._keys: dict[tuple[str, str | None, str | None], str] = {}  # built and checked once per device and topic
 
     def _send(self, key: str, payload: bytes, encoding: str, block: bool) -> None:
         if block and self.publisher is not None:
@@ -79,7 +81,12 @@ class Hub:
     def _put(self, topic: schemas.Topic, model: schemas.WireModel, kind: str | None = None,
              device_id: str | None = None) -> None:  # fmt: skip
         """Publish on the topic's key with the row's encoding and congestion control (BLOCK or DROP)."""
-        self._send(topic.key(kind, device_id), model.to_json(), topic.encoding, topic.block)
+        key = self._keys.get((topic.name, kind, device_id))
+        if key is None:
+            if len(self._keys) >= MAX_KEYS:  # devices come and go: start over rather than grow for good
+                self._keys.clear()
+            key = self._keys[(topic.name, kind, device_id)] = topic.key(kind, device_id)
+        self._send(key, model.to_json(), topic.encoding, topic.block)
         self.published += 1
         for cb in self.listeners:
             try:
