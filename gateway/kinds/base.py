@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
@@ -166,10 +166,12 @@ class KindBatch:
         turns = np.array([f.dev.yaw_turns for f in self.items], dtype=np.int64)
         self.yaw_u, new_turns = unwrap_segments(self.euler[:, 2], self.start, prev, turns)
         last = self.stop - 1
+        quat, euler = self.q[last], self.euler[last]  # fresh arrays: each device keeps a row of them
+        yaw_last, yaw_u, turns_l = euler[:, 2].tolist(), self.yaw_u[last].tolist(), new_turns.tolist()
         for i, f in enumerate(self.items):
-            d, j = f.dev, int(last[i])
-            d.yaw_turns, d.yaw_last = int(new_turns[i]), float(self.euler[j, 2])
-            d.quat, d.euler, d.yaw_unwrapped = self.q[j].copy(), self.euler[j].copy(), float(self.yaw_u[j])
+            d = f.dev
+            d.yaw_turns, d.yaw_last, d.yaw_unwrapped = turns_l[i], yaw_last[i], yaw_u[i]
+            d.quat, d.euler = quat[i], euler[i]
 
     def rows(self, i: int) -> slice:
         """Rows of device i."""
@@ -208,12 +210,14 @@ def attitudes(kb: KindBatch, interval_s: float) -> list[schemas.Attitude]:
     """Attitude messages at packet ends, at most every `interval_s` of device time per device; the floats of all
     devices are converted in one `tolist` each."""
     picks: list[tuple[FusedDevice, int, int, int]] = []
-    for i, f in enumerate(kb.items):
-        dev, base, t_s = f.dev, int(kb.start[i]), f.t_s
+    t_all, gap_s = kb.t_s, interval_s - 1e-9
+    for f, base in zip(kb.items, kb.start.tolist(), strict=True):
+        dev = f.dev
         for j, seq, t_us in f.ends:
-            if t_s[j] - dev.last_attitude_t_s < interval_s - 1e-9:
+            t = float(t_all[base + j])
+            if t - dev.last_attitude_t_s < gap_s:
                 continue
-            dev.last_attitude_t_s = float(t_s[j])
+            dev.last_attitude_t_s = t
             picks.append((dev, base + j, seq, t_us))
     if not picks:
         return []
@@ -231,8 +235,8 @@ def attitudes(kb: KindBatch, interval_s: float) -> list[schemas.Attitude]:
 
 def timed(dev: FusedDevice, conds: Iterable[Condition]) -> list[Timed]:
     """Rule conditions with wall times (the engine and store work in wall time); device times go along."""
-    from dataclasses import replace
-
+    if not conds:
+        return []
     offset_s = dev.wall_offset_us * 1e-6
     out: list[Timed] = []
     for cond in conds:
