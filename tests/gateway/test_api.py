@@ -157,8 +157,8 @@ def test_config_queryable_answers_current_thresholds(running: Callable[[], Runni
     cfg = schemas.DeviceConfig.model_validate_json(replies[0][1])
     assert cfg.thresholds["swing_warn_deg"] == 4.0 and cfg.thresholds["swing_critical_deg"] == 10.0
     for warn in (3.0, 6.0, 2.5, 7.0, 4.5):  # a write that returned is what the queryable answers, every time
-        r = app.client.put("/api/devices/hook-1/settings", json={"kind": "hook", "thresholds": {"swing_warn_deg": warn}},
-                           headers=app.auth)  # fmt: skip
+        body = {"kind": "hook", "thresholds": {"swing_warn_deg": warn}}
+        r = app.client.put("/api/devices/hook-1/settings", json=body, headers=app.auth)
         assert r.status_code == 200, r.text
         answer = schemas.DeviceConfig.model_validate_json(app.bus.get("gw/config/hook/hook-1")[0][1])
         assert answer.thresholds["swing_warn_deg"] == warn
