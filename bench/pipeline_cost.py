@@ -1,7 +1,19 @@
-"""CPU per packet of `Pipeline.process` alone (no zenoh, no decode, no hub), at N simulated rods.
+"""CPU per packet of `Pipeline.process` alone (no zenoh, no decode, no hub), at N simulated rods; or, with
+`--stage ingest`, of `GatewayService.handle` all-in without zenoh.
 
     python -m bench.pipeline_cost                              # this tree, 10 and 100 rods
     python -m bench.pipeline_cost --compare /work/wt/before    # also an older tree, same packets: both and the ratio
+    python -m bench.pipeline_cost --stage ingest --rods 300 --seconds 8 --compare /work/main   # all-in, two trees
+    python -m bench.pipeline_cost --stage ingest --rods 300 --profile /tmp/ingest.prof        # where it goes
+
+`--stage ingest`: 80 % rods / 20 % hooks, JSON packets as `bench.fleet` sends them (its pooled simulator streams,
+`--spp` samples per packet), one batch per packet period holding every device's packet, through the service
+`gateway.app.compose` builds (decode, sequence and time checks, pipeline, hub with its blocking-put thread) with
+the sinks `create_app` wires (dashboard history, live stream without clients, metrics) and `runner.tune_gc` as the
+ingest task calls it. The bus only digests what is put, so zenoh's own cost is not in it (`bench.fleet` has it).
+The figure is process CPU (all threads) per packet over the timed batches; "handle" is the calling thread's.
+With `--compare` it also says whether both trees published the same messages, byte for byte (alarm ids made
+deterministic, the hub's clock set to the batch's time).
 
 Packets come from the rod simulator (`devices.sim_rod.RodFleet`, 5 samples per packet at 100 Hz, reel status at
 10 Hz, random bites/fights/wind on), are decoded once before timing, and go to the pipeline in batches as the
