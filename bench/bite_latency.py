@@ -91,6 +91,19 @@ def wait_http(port: int, timeout_s: float = 180.0) -> None:
     raise TimeoutError(f"gateway on port {port} did not answer within {timeout_s} s")
 
 
+def wait_caught_up(http_port: int, still_s: float = 0.5, timeout_s: float = 30.0) -> None:
+    """Return once the gateway's `received` count has not moved for `still_s` (a gateway that ran behind on a loaded
+    machine has taken in the last packets), at most `timeout_s`."""
+    deadline, last, since = time.monotonic() + timeout_s, None, time.monotonic()
+    while time.monotonic() < deadline:
+        n = _stats(http_port).get("received")
+        if n != last:
+            last, since = n, time.monotonic()
+        elif time.monotonic() - since >= still_s:
+            return
+        time.sleep(0.1)
+
+
 def _stats(http_port: int, timeout_s: float = 5.0) -> dict[str, Any]:
     """The gateway's /api/stats, {} if it does not answer within `timeout_s`."""
     import httpx
@@ -123,6 +136,17 @@ class Recorder:
         item = (t, str(sample.key_expr), sample.payload.to_bytes())
         with self.lock:
             self.samples.append(item)
+
+    def wait_quiet(self, quiet_s: float = 1.0, timeout_s: float = 30.0) -> None:
+        """Return once nothing has arrived for `quiet_s` (the device has stopped and a gateway that ran behind, on a
+        loaded machine, has caught up and published the rest), at most `timeout_s`."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with self.lock:
+                last = self.samples[-1][0] if self.samples else 0.0
+            if time.time() - last >= quiet_s:
+                return
+            time.sleep(0.1)
 
     def decoded(self, suffix: str) -> list[tuple[float, Any]]:
         with self.lock:
@@ -248,7 +272,8 @@ def run_session(script: list[dict[str, Any]], duration_s: float, seed: int, work
             subs = [session.declare_subscriber(sel, rec) for sel in ("gw/rod/*/alarm", "rig/rod/*/truth")]
             time.sleep(0.5)
             rod = run_rod(zport, script, duration_s, seed, rod_args, start_s)
-            time.sleep(1.0)
+            wait_caught_up(hport)
+            rec.wait_quiet(0.5)
             rec.gateway_stats = _stats(hport)
             for s in subs:
                 s.undeclare()  # type: ignore[no-untyped-call]

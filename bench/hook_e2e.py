@@ -284,7 +284,7 @@ def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenar
                  *device_args(scenario, duration_s, still_s, seed, twist_torque_n_m)],
                 cwd=REPO, capture_output=True, timeout=duration_s + 120,
             )  # fmt: skip
-            time.sleep(1.0)
+            rec.wait_quiet()
             for s in subs:
                 s.undeclare()  # type: ignore[no-untyped-call]
     finally:

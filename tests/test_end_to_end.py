@@ -24,7 +24,8 @@ def test_every_bite_alarms_and_no_distractor_does(tmp_path: Path) -> None:
     assert rod.returncode == 0, rod.stderr.decode()[-2000:]
     report = analyse(rec, math.radians(RodThresholds().effective_bite_deg))
     assert report.bites == n_bites, "the truth stream shows every scripted bite"
-    assert report.missed == 0, report
+    ingest = {k: rec.gateway_stats.get(k) for k in ("received", "queue_drops", "rejected", "devices")}
+    assert report.missed == 0, (report, ingest)
     assert report.false_alarms == [], report.false_alarms
     assert len(report.onset_ms) == n_bites
     assert all(0.0 < ms < 1000.0 for ms in report.onset_ms), report.onset_ms
