@@ -54,6 +54,10 @@ def build_parser() -> argparse.ArgumentParser:
     h.add_argument("--shard-id", metavar="ID", help="this shard's id (default: host name and REST port)")
     h.add_argument("--devices", dest="shard_devices", action="append", metavar="GLOB",
                    help="serve only device ids matching this pattern, e.g. 'site1-*'; repeatable (default: all)")
+    h.add_argument("--shard-subscribe", choices=("all", "own"),
+                   help="beside other shards, subscribe to every device's data (all, default) or only to the devices "
+                        "this shard serves (own: less traffic between machines; a new device's first packets may be "
+                        "missed)")  # fmt: skip
     h.add_argument("--shard-child", action="store_true", help=argparse.SUPPRESS)  # a local shard of --shards N
     p.add_argument("--max-devices", type=int, metavar="N",
                    help="devices the gateway keeps state for; further new ids are dropped and counted (default: 1000)")
@@ -90,7 +94,7 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
     names = ("data_dir", "http_host", "http_port", "zenoh_mode", "zenoh_listen", "zenoh_connect",
              "zenoh_multicast_scouting", "default_filter", "attitude_interval_s", "attitude_blocks",
              "warmup_bias_seed", "zenoh_config_file", "allowed_hosts", "allowed_origins",
-             "max_devices", "shards", "shard_id", "shard_devices")  # fmt: skip
+             "max_devices", "shards", "shard_id", "shard_devices", "shard_subscribe")  # fmt: skip
     overrides: dict[str, Any] = {n: getattr(args, n) for n in names if getattr(args, n) is not None}
     return Settings(**overrides)
 

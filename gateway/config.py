@@ -58,6 +58,12 @@ class Settings(BaseSettings):
                                  "(default: host name and REST port); the devices it serves follow from the ids.")
     shard_devices: list[str] = Field(default_factory=list, description="Device-id glob patterns this shard serves "
                                      "(`--devices 'site1-*'`, repeatable); empty: every device.")
+    shard_subscribe: Literal["all", "own"] = Field(default="all", description="`all`: a shard subscribes to every "
+                                                   "device's data and drops the others' (no packet of a new device is "
+                                                   "missed); `own`: beside other shards, only its own devices' keys, "
+                                                   "found by their liveliness tokens (the router sends it nothing "
+                                                   "else; a new device's first packets before its owner subscribes, "
+                                                   "a few ms, are not received). docs/gateway.md, Shards.")
     shard_lease_s: float = Field(default=1.0, gt=0.0, le=60.0, description="zenoh lease of the shard's links: a "
                                  "shard whose machine vanishes without closing its links leaves the live set then.")
     shard_mirror_hz: float = Field(default=10.0, ge=0.0, le=100.0, description="Other shards' attitude and swing "

@@ -33,7 +33,7 @@ QueryHandler = Callable[[str], list[tuple[str, bytes]]]
 class Bus(Protocol):
     """What the gateway needs from a pub/sub transport."""
 
-    def subscribe(self, selector: str, callback: SampleCallback) -> Unsubscribe: ...
+    def subscribe(self, selector: str, callback: SampleCallback, *, direct: bool = False) -> Unsubscribe: ...
 
     def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None: ...
 
@@ -98,11 +98,18 @@ class ZenohBus:
         """Open a session from Settings (the gateway listens on tcp/127.0.0.1:7447 by default)."""
         return cls(zenoh.open(zenoh_config(settings)))
 
-    def subscribe(self, selector: str, callback: SampleCallback) -> Unsubscribe:
+    def subscribe(self, selector: str, callback: SampleCallback, *, direct: bool = False) -> Unsubscribe:
+        """A callback subscriber. zenoh-python runs each callback subscriber's calls in a Python thread of its own
+        (`Callback(indirect=True)`, its default); `direct` runs them on zenoh's receive thread instead, for the many
+        per-device subscribers of a shard (gateway/shard/subscriptions.py): no thread each (creating one made a
+        declaration take ~1-2 ms), no hand-over. The callback must then be as short as `Inbox.offer`."""
+
         def on_sample(sample: zenoh.Sample) -> None:
             callback(str(sample.key_expr), sample.payload.to_bytes())
 
-        sub = self.session.declare_subscriber(selector, _guarded(selector, on_sample))
+        handler = _guarded(selector, on_sample)
+        sub = self.session.declare_subscriber(selector, zenoh.handlers.Callback(handler, indirect=False)
+                                              if direct else handler)  # fmt: skip
         with self._lock:
             self._handles.append(sub)
 
@@ -190,7 +197,7 @@ class MemoryBus:
         self.sent: list[tuple[str, bytes, bool]] = []
         self.closed = False
 
-    def subscribe(self, selector: str, callback: SampleCallback) -> Unsubscribe:
+    def subscribe(self, selector: str, callback: SampleCallback, *, direct: bool = False) -> Unsubscribe:
         entry = (selector, callback)
         self.subs.append(entry)
         return lambda: self.subs.remove(entry) if entry in self.subs else None

@@ -199,6 +199,9 @@ class GatewayService:
         # the key expressions of device data it subscribes to.
         self.accept: Callable[[str], bool] | None = None
         self.data_selectors: tuple[str, ...] = schemas.SEL_DEVICE_DATA
+        # given the inbox's `offer` at start, subscribes the device data itself (gateway.shard: per device beside
+        # other shards); None: the catch-all `data_selectors`
+        self.subscribe_data: Callable[[Callable[[str, bytes], None]], None] | None = None
 
     async def start(self, warm_up: bool = False) -> None:
         """Subscribe, watch presence, serve the config queryable and start the tasks. With `warm_up` the ingest
@@ -208,8 +211,11 @@ class GatewayService:
         loop = asyncio.get_running_loop()
         self.inbox = Inbox(loop, self.settings.ingest_queue_size, self.accept)
         self.commands.on_post = self.inbox.wake
-        for sel in self.data_selectors:
-            self.bus.subscribe(sel, self.inbox.offer)
+        if self.subscribe_data is not None:
+            self.subscribe_data(self.inbox.offer)
+        else:
+            for sel in self.data_selectors:
+                self.bus.subscribe(sel, self.inbox.offer)
 
         def on_token(key: str, alive: bool) -> None:  # bus thread: hand off only (a command for the owner)
             loop.call_soon_threadsafe(self.commands.post, lambda: self._on_presence(key, alive))

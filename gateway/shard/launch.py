@@ -21,10 +21,11 @@ from gateway.config import Settings
 
 # settings a local shard inherits (through RIG_* variables; the zenoh and REST options are its own)
 INHERITED = ("default_filter", "attitude_interval_s", "attitude_blocks", "warmup_bias_seed", "ingest_queue_size",
-             "max_devices", "shard_devices", "shard_lease_s", "shard_mirror_hz", "zenoh_config_file")  # fmt: skip
+             "max_devices", "shard_devices", "shard_subscribe", "shard_lease_s", "shard_mirror_hz",
+             "zenoh_config_file")  # fmt: skip
 
 
-DEFAULT_MAX_SHARDS = 4  # every shard still sees every packet (and drops the others'): more cost more than they give
+DEFAULT_MAX_SHARDS = 4  # each process costs ~250 MB and its own interpreter and kernels: more cost more than they give
 
 
 def shard_count(settings: Settings) -> int:

@@ -3,9 +3,12 @@
 A `ShardNode` is attached to a `GatewayService` (gateway/app.py) and, over the service's bus:
 
 - declares the liveliness token `gw/shard/{id}/{patterns}` and watches the others' (history included), so every
-  shard holds the same live set; `Ownership` (rendezvous hashing) then says which devices are this shard's. The
-  service's inbox drops the packets of other shards' devices before decoding them; presence, offline alarms, reel
-  watchdog stops and config replies only for its own devices.
+  shard holds the same live set; `Ownership` (rendezvous hashing) then says which devices are this shard's.
+  It subscribes to every device's data and its inbox drops the other shards' packets before decoding; with
+  `--shard-subscribe own`, beside other shards, to its own devices' data keys only (`DataSubscriptions`,
+  gateway/shard/subscriptions.py: from the device tokens, tokenless devices from periodic probes), so the router
+  does not send it the others' packets. Presence, offline
+  alarms, reel watchdog stops and config replies only for its own devices.
 - on a live-set change (on the event loop): devices that moved away lose their fusion and rules state here and their
   active alarms are released; devices that moved here start from a fresh warm-up (as after a restart) and resume
   the active alarms the store holds for them, so a condition still present updates that alarm instead of raising
@@ -55,6 +58,7 @@ from gateway.ingest.runner import GatewayService
 from gateway.shard import STARTED_S
 from gateway.shard.live import LivePeers
 from gateway.shard.ownership import SEL_SHARD_TOKENS, Ownership, ShardInfo, glob_to_key_chunk, owner_of
+from gateway.shard.subscriptions import DataSubscriptions, may_overlap
 from gateway.store import Store, StoreWriter
 
 log = logging.getLogger("gateway.shard")
@@ -134,6 +138,7 @@ class ShardNode:
         self.mirror_demand: Callable[[], bool] = lambda: False  # does anyone here look at other shards' attitudes?
         self._mirror_unsubs: list[Callable[[], None]] = []
         self._mirror_task: asyncio.Task[None] | None = None
+        self.data: DataSubscriptions | None = None  # this shard's device-data subscribers (set in `attach`)
 
     @property
     def shard_id(self) -> str:
@@ -149,7 +154,8 @@ class ShardNode:
         return self.writer
 
     def attach(self, service: GatewayService) -> None:
-        """Hook the service: the device filter and, for site partitions, narrower data subscriptions."""
+        """Hook the service: the device filter, its data subscriptions (`DataSubscriptions`) and, for site
+        partitions, narrower catch-all selectors."""
         self.service = service
         service.accept = self.ownership.owns
         service.counters.shard = self.shard_id
@@ -160,6 +166,15 @@ class ShardNode:
                 .replace("rig/rod/*/", f"rig/rod/{c}/")
                 for sel in schemas.SEL_DEVICE_DATA for c in chunks
             )  # fmt: skip
+
+        def last_packet_s(device_id: str) -> float | None:
+            dev = service.counters.devices.get(device_id)
+            return None if dev is None else dev.last_arrival_s
+
+        if self.settings.shard_subscribe == "own":  # else the catch-all `data_selectors`, as a single gateway
+            self.data = DataSubscriptions(self.bus, service.data_selectors, self.ownership.owns,
+                                          self.settings.max_devices, last_packet_s)  # fmt: skip
+            service.subscribe_data = self.data.start
 
     async def start(self, adopt_config: bool = False) -> None:
         """Join: watch the shard tokens, serve the queryables, take the running shards' configuration, then declare
@@ -185,6 +200,13 @@ class ShardNode:
                 loop.call_soon_threadsafe(self._schedule_reconcile)
 
         self.bus.watch_liveliness(SEL_SHARD_TOKENS, on_token)
+        data = self.data
+        if data is not None:  # which devices have tokens: a shard beside others subscribes to its own ones' data
+
+            def on_device_token(key: str, alive: bool) -> None:  # bus thread: hand off
+                loop.call_soon_threadsafe(data.token, key, alive)
+
+            self.bus.watch_liveliness(schemas.SEL_DEVICE_TOKENS, on_device_token)
         self.bus.declare_token(self.info.token_key)
         await self.reconcile()
 
@@ -219,12 +241,19 @@ class ShardNode:
                     pl.engine.release(a.device_id)
 
         await sv.call(hand_over)
+        if self.data is not None:
+            self.data.set_mode(alone=self.alone())
         if gained:
             t = time.time()
             self.takeovers = (self.takeovers + [(t, d) for d in sorted(gained)])[-1000:]
             rows = await asyncio.to_thread(sv.store.active_alarms)  # a read: the writer thread is for writes
             await sv.call(lambda: pl.engine.resume(
                 a for a in rows if a.device_id in gained and self.ownership.owns(a.device_id)))
+
+    def alone(self) -> bool:
+        """No other live shard could serve a device this one serves (then the catch-all subscriptions carry
+        only this shard's devices' data)."""
+        return not any(may_overlap(self.info, s) for sid, s in self.ownership.live.items() if sid != self.shard_id)
 
     # -- alarm history ----------------------------------------------------------------------------------------
 
@@ -296,6 +325,8 @@ class ShardNode:
                 await self._mirror_task
             self._mirror_task = None
         self._drop_mirror()
+        if self.data is not None:
+            await self.data.stop()
 
     def _feed_listeners(self) -> None:
         self._mirror_wake = False
@@ -496,6 +527,8 @@ class ShardNode:
         snap.update(shard=self.shard_id, patterns=list(self.info.patterns), owned=owned,
                     batches=sv.batches, published=sv.hub.published, live=sorted(self.ownership.live),
                     takeovers=self.takeovers[-20:])  # fmt: skip
+        if self.data is not None:
+            snap.update(self.data.stats())
         return snap
 
 

@@ -17,7 +17,7 @@ from hypothesis.extra.numpy import arrays
 from devices.common import EARTH_FIELD_ENU_UT, G_M_S2, ImuErrorModel, SensorModel
 from devices.hook_physics import HookPhysicsSettings, HookScenario, TrolleyMove, simulate
 from gateway.fusion import hook
-from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
+from gateway.fusion.hook_filter import TRACKING, HookFilter, HookFilterSettings
 
 RATE_HZ = 100.0
 DT_S = 1.0 / RATE_HZ
@@ -250,22 +250,64 @@ def slew_data(seed: int):
 OLD_TIP = {"move_mean_gate": 0.0, "tip_accel_tau_s": 5.0, "tip_accel_psd": 1e-3}
 
 
+# The optional boom-tip tracking (issue 11, second round), and it with one part switched off.
+NO_TRACK = TRACKING | {"move_track_s": 0.0}
+NO_TURN = TRACKING | {"tip_turn_psd": 0.0}
+
+
 def test_a_slewing_move_is_followed_not_averaged_away():
-    """Through a slewing move and 20 s after it, Θ RMSE ≤ 0.5° and max ≤ 1.7° (measured 0.43° / 1.48°, most of it
-    while the tangential acceleration turns into the centripetal one, too slowly to trip the jump test): the jump
-    test sees the boom tip's acceleration start, settle and stop, and opens the tip state each time. With the boom-tip
-    settings before it (tight, never opened: the squared-innovation test stayed below its gate) 0.79° / 2.36°."""
+    """Through a slewing move and 20 s after it, the default filter: Θ RMSE ≤ 0.5° and max ≤ 1.7° (measured 0.43° /
+    1.48°, most of it while the tangential acceleration turns into the centripetal one, too slowly to trip the jump
+    test); the jump test sees the boom tip's acceleration start, settle and stop and opens the tip state each time.
+    With the optional tracking (`TRACKING`: for 10 s after a jump the tip state keeps tracking while its estimate is
+    not near 0, and takes noise across its own direction, so the tangential part can turn into the centripetal one)
+    0.31° / 0.82°; without its tracking part 0.49° / 1.23°, without its noise across 0.39° / 0.92°. With the boom-tip
+    settings before the jump test (tight, never opened: the squared-innovation test stayed below its gate) 0.80° /
+    2.36°."""
     truth, gyr, acc, mag = slew_data(seed=41)
     assert truth.swing_rad.max() > math.radians(2.0)
     errors = []
-    for over in ({}, OLD_TIP):
+    for over in (TRACKING, NO_TRACK, NO_TURN, {}, OLD_TIP):
         f = HookFilter(HookFilterSettings(rope_length_m=8.0, rope_length_known=True, **over), use_mag=False)
         f.start(gyr[:50], acc[:50], None, DT_S)
         q = f.run(gyr, acc, None, DT_S)
         errors.append(np.abs(np.degrees(hook.swing_angle(q) - truth.swing_rad))[truth.t_s > 0.5])
     rmse = [float(np.sqrt(np.mean(e**2))) for e in errors]
-    assert rmse[0] <= 0.5 and errors[0].max() <= 1.7, (rmse[0], errors[0].max())
-    assert rmse[1] > 1.5 * rmse[0] and errors[1].max() > 1.4 * errors[0].max(), (rmse, errors[1].max())
+    worst = [float(e.max()) for e in errors]
+    assert rmse[0] <= 0.35 and worst[0] <= 1.0, (rmse[0], worst[0])
+    assert rmse[1] > 1.3 * rmse[0] and rmse[2] > 1.15 * rmse[0], rmse
+    assert rmse[3] <= 0.5 and worst[3] <= 1.7, (rmse[3], worst[3])
+    assert rmse[3] > 1.3 * rmse[0] and worst[3] > 1.5 * worst[0], (rmse, worst)
+    assert rmse[4] > 1.5 * rmse[3] and worst[4] > 1.4 * worst[3], (rmse, worst)
+
+
+def first_detection_s(bias: float, seed: int, duration_s: float) -> tuple[float, float]:
+    """Seconds until the jump test and the slow test first fire on whitened swing-rate innovations (unit white noise
+    plus `bias` on one axis, as a boom-tip acceleration the model lacks leaves); `inf` if never."""
+    from gateway.fusion.hook_filter import N_MONITOR, _mean_test
+
+    s = HookFilterSettings()
+    monitor = np.zeros(N_MONITOR)
+    first = [math.inf, math.inf]
+    noise = np.random.default_rng(seed).standard_normal((int(duration_s * RATE_HZ), 2))
+    for i, w in enumerate(noise + np.array([bias, 0.0])):
+        for k, (tau, gate, at) in enumerate(((s.move_mean_tau_s, s.move_mean_gate, 2),
+                                             (s.slow_mean_tau_s, TRACKING["slow_mean_gate"], 6))):  # fmt: skip
+            if _mean_test(w[0], w[1], tau, gate, DT_S, monitor, at) and first[k] == math.inf:
+                first[k] = i * DT_S
+    return first[0], first[1]
+
+
+def test_a_small_steady_innovation_bias_is_seen_by_the_slow_test_first():
+    """A steady bias of 0.15 σ on the whitened swing-rate innovation (a boom-tip acceleration turning too slowly to
+    trip the jump test): the optional slow test (`TRACKING`: 3 s mean, gate 20) fires after a median of under 12 s
+    over 20 noise draws (measured 7.8 s), the 0.5 s jump test after more than 15 s (measured 25 s). Without a bias
+    neither fires in 60 s on at least 18 of 20 draws (false alarms)."""
+    biased = np.array([first_detection_s(0.15, seed, 40.0) for seed in range(20)])
+    fast, slow = np.median(np.minimum(biased, 40.0), axis=0)
+    assert slow < 12.0 and fast > 15.0, (fast, slow)
+    quiet = [first_detection_s(0.0, seed, 60.0) for seed in range(20)]
+    assert sum(math.isinf(a) and math.isinf(b) for a, b in quiet) >= 18, quiet
 
 
 def test_hard_iron_is_learnt_as_the_hook_twists():
@@ -287,3 +329,18 @@ def test_hard_iron_is_learnt_as_the_hook_twists():
         rmse.append(rmse_deg(err))
     assert rmse[0] < 1.0, rmse
     assert rmse[1] > 2.0 * rmse[0], rmse
+
+
+def test_the_windy_suite_family_is_light_short_and_windy_from_the_start():
+    """`bench.hook_suite.make_case(seed, family="windy")`: 0.5-1.5 t on 2-6 m in a 30-60 N steady wind (the character
+    of held-out seed 309), the same kinds of events as the default family's seed; an unknown family is refused."""
+    from bench.hook_suite import make_case
+
+    for seed in range(1, 21):
+        windy, crane = make_case(seed, 120.0, "windy"), make_case(seed, 120.0)
+        steady_n = math.hypot(*windy.scenario.wind_mean_m_s2) * windy.physics.hook_mass_kg
+        assert 2.0 <= windy.physics.rope_length_m <= 6.0 and 500.0 <= windy.physics.hook_mass_kg <= 1500.0
+        assert 30.0 <= steady_n <= 60.0, steady_n
+        assert windy.events[0][0] == crane.events[0][0]
+    with pytest.raises(ValueError, match="family"):
+        make_case(1, 60.0, "gusty")
