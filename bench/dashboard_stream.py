@@ -28,7 +28,9 @@ def measure(n: int, clients: int, reps: int) -> dict[str, float]:
     svc = compose(settings, bus, store, blocking_thread=False)
     live = LiveStream(svc)
     svc.hub.listeners.append(live.on_hub)  # as HubSink.start_sink wires it (without the tick task)
+    svc.hub.plot_listeners.append(live.on_plot)
     svc.hub.packet_listeners.append(live.on_packet)
+    live.clients.add(ClientQueue(256))  # the stream buffers only while someone reads it
     fleet = RodFleet(FleetSettings(count=n, seed=1, samples_per_packet=5, progress=False, id_prefix="rod"))
     now = time.time()
     for k in tqdm(range(20), desc=f"{n} rods: 1 s of packets", leave=False):

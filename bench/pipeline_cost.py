@@ -1,7 +1,19 @@
-"""CPU per packet of `Pipeline.process` alone (no zenoh, no decode, no hub), at N simulated rods.
+"""CPU per packet of `Pipeline.process` alone (no zenoh, no decode, no hub), at N simulated rods; or, with
+`--stage ingest`, of `GatewayService.handle` all-in without zenoh.
 
     python -m bench.pipeline_cost                              # this tree, 10 and 100 rods
     python -m bench.pipeline_cost --compare /work/wt/before    # also an older tree, same packets: both and the ratio
+    python -m bench.pipeline_cost --stage ingest --rods 300 --seconds 8 --compare /work/main   # all-in, two trees
+    python -m bench.pipeline_cost --stage ingest --rods 300 --profile /tmp/ingest.prof        # where it goes
+
+`--stage ingest`: 80 % rods / 20 % hooks, JSON packets as `bench.fleet` sends them (its pooled simulator streams,
+`--spp` samples per packet), one batch per packet period holding every device's packet, through the service
+`gateway.app.compose` builds (decode, sequence and time checks, pipeline, hub with its blocking-put thread) with
+the sinks `create_app` wires (dashboard history, live stream without clients, metrics) and `runner.tune_gc` as the
+ingest task calls it. The bus only digests what is put, so zenoh's own cost is not in it (`bench.fleet` has it).
+The figure is process CPU (all threads) per packet over the timed batches; "handle" is the calling thread's.
+With `--compare` it also says whether both trees published the same messages, byte for byte (alarm ids made
+deterministic, the hub's clock set to the batch's time).
 
 Packets come from the rod simulator (`devices.sim_rod.RodFleet`, 5 samples per packet at 100 Hz, reel status at
 10 Hz, random bites/fights/wind on), are decoded once before timing, and go to the pipeline in batches as the
@@ -68,8 +80,156 @@ def measure(rods: int, seconds: float, skip_s: float, seed: int) -> dict[str, An
             "alarms": sorted(alarms), "attitudes": atts}
 
 
+# -- all-in: GatewayService.handle (decode, checks, pipeline, hub, dashboard sinks), no zenoh ----------------------
+
+class _CountingBus:
+    """A bus that only counts and digests what is put (zenoh's own cost is not in the figure); order-free digest so
+    two trees' outputs compare even if they publish in another order."""
+
+    def __init__(self) -> None:
+        import threading
+
+        self.puts = 0
+        self.digest = 0
+        self._lock = threading.Lock()  # the blocking-put thread puts too
+
+    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None:
+        import hashlib
+
+        h = int.from_bytes(hashlib.blake2b(key.encode() + b"\0" + payload, digest_size=8).digest(), "big")
+        with self._lock:
+            self.puts += 1
+            self.digest ^= h
+
+    def subscribe(self, selector: str, callback: Any) -> Any:
+        return lambda: None
+
+    def watch_liveliness(self, selector: str, callback: Any) -> None:
+        return None
+
+    def declare_token(self, key: str) -> None:
+        return None
+
+    def declare_queryable(self, selector: str, handler: Any, *, encoding: str) -> None:
+        return None
+
+    def close(self) -> None:
+        return None
+
+
+def ingest_payloads(n: int, hook_share: float, seconds: float, spp: int, seed: int, wall0_s: float
+                    ) -> list[list[tuple[str, bytes]]]:  # fmt: skip
+    """Per packet period, every device's encoded IMU packet (JSON, as `bench.fleet` sends them: pooled simulated
+    streams of rods and hooks, 16 per kind, header fields patched per device). Cached in the temp directory: the
+    simulators take a minute, and two trees compared must get the same bytes."""
+    import pickle
+    import tempfile
+
+    from bench.fleet import RATE_HZ, build_pool
+
+    cache = Path(tempfile.gettempdir()) / f"pipeline_cost-{n}-{hook_share}-{seconds}-{spp}-{seed}-{wall0_s}.pkl"
+    if cache.is_file():
+        with cache.open("rb") as f:
+            cached: list[list[tuple[str, bytes]]] = pickle.load(f)
+        return cached
+
+    hooks = int(round(n * hook_share))
+    kinds = ["rod"] * (n - hooks) + ["hook"] * hooks
+    period_s = spp / RATE_HZ
+    pools = {k: build_pool(k, 16, seconds, spp, seed) for k in sorted(set(kinds))}
+    out = []
+    for k in range(int(round(seconds / period_s))):
+        batch = []
+        for j, kind in enumerate(kinds):
+            body = pools[kind][j % 16]
+            t0_us = k * round(period_s * 1e6)
+            wall_t0_us = int((wall0_s + k * period_s) * 1e6)
+            dev = f"{kind}{j:04d}"
+            batch.append((f"rig/{kind}/{dev}/imu", (
+                f'{{"v":1,"device_id":"{dev}","kind":"{kind}","boot_id":{1000 + j},"seq":{k},"t0_us":{t0_us},'
+                f'"wall_t0_us":{wall_t0_us},{body[k % len(body)]}}}').encode()))  # fmt: skip
+        out.append(batch)
+    tmp = cache.with_suffix(f".{os.getpid()}")
+    with tmp.open("wb") as f:
+        pickle.dump(out, f)
+    tmp.replace(cache)
+    return out
+
+
+def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 10, hook_share: float = 0.2,
+                   profile: Path | None = None) -> dict[str, Any]:  # fmt: skip
+    """CPU seconds per packet of `GatewayService.handle` at `n` devices, with the sinks `create_app` wires (dashboard
+    history, live stream without clients, metrics) and the blocking-put thread; the bus only digests the puts."""
+    import asyncio
+    import tempfile
+
+    from bench.fleet import RATE_HZ
+    from gateway.api import ws
+    from gateway.api.routes import history, metrics
+    from gateway.app import compose
+    from gateway.config import Settings
+    from gateway.ingest import runner
+    from gateway.store import Store
+
+    wall0_s = 1.8e9  # a fixed wall clock (as `measure`): two trees' runs compare output for output
+    batches = ingest_payloads(n, hook_share, seconds, spp, seed, wall0_s)
+    period_s = spp / RATE_HZ
+    skip = int(round(skip_s / period_s))
+
+    async def run() -> dict[str, Any]:
+        bus = _CountingBus()
+        with tempfile.TemporaryDirectory() as tmp:
+            store = Store(Path(tmp) / "gw.db")
+            service = compose(Settings(data_dir=Path(tmp), zenoh_listen=[]), bus, store)  # type: ignore[arg-type]
+            service.pipeline.warm_up()
+            tune_gc = getattr(runner, "tune_gc", None)  # as the ingest task does after the warm-up (if the tree has it)
+            if tune_gc is not None:
+                tune_gc()
+            ids = iter(range(10**9))
+            service.pipeline.engine._new_id = lambda: f"a{next(ids)}"  # type: ignore[method-assign]
+            app = type("App", (), {"state": type("State", (), {})()})()
+            live, hist = ws.start_live(app, service), history.start_history(app, service)
+            metrics.start_metrics(app, service)
+            cpu0, packets, prof, handle_s = 0.0, 0, None, 0.0
+            for k, batch in enumerate(batches):
+                now = wall0_s + (k + 1) * period_s
+                service.hub.clock = lambda now=now: now  # type: ignore[misc]
+                mono = time.monotonic()
+                items = [(key, payload, mono) for key, payload in batch]
+                if k == skip:
+                    cpu0 = time.process_time()
+                    if profile is not None:
+                        import cProfile
+
+                        prof = cProfile.Profile()
+                        prof.enable()
+                t0 = time.thread_time()
+                service.handle(items, now)
+                if k >= skip:
+                    handle_s += time.thread_time() - t0
+                    packets += len(batch)
+            assert service.hub.publisher is not None
+            service.hub.publisher.close()  # its thread's puts are in the process CPU
+            cpu = time.process_time() - cpu0
+            if prof is not None:
+                prof.disable()
+                prof.dump_stats(str(profile))
+            await live.stop()
+            await hist.stop()
+            store.close()
+        return {"devices": n, "packets": packets, "cpu_s": cpu, "ms_per_packet": 1e3 * cpu / packets,
+                "handle_ms_per_packet": 1e3 * handle_s / packets, "puts": bus.puts,
+                "digest": f"{bus.digest:016x}"}  # fmt: skip
+
+    return asyncio.run(run())
+
+
 def same_outputs(a: dict[str, Any], b: dict[str, Any]) -> str:
-    """Whether two runs on the same packets gave the same alarms and attitudes (largest difference)."""
+    """Whether two runs on the same packets gave the same alarms and attitudes (largest difference), or (all-in
+    stage) the same published messages, byte for byte."""
+    if "digest" in a:
+        same = a["digest"] == b["digest"] and a["puts"] == b["puts"]
+        return f"{'same' if same else 'DIFFERENT'} {a['puts']} / {b['puts']} published messages"
     if a["alarms"] != b["alarms"]:
         return f"ALARMS DIFFER ({len(a['alarms'])} vs {len(b['alarms'])})"
     if a["attitudes"].keys() != b["attitudes"].keys():
@@ -80,46 +240,71 @@ def same_outputs(a: dict[str, Any], b: dict[str, Any]) -> str:
 
 
 def _child(tree: Path, rods: int, args: argparse.Namespace) -> dict[str, Any]:
-    """`measure` in a fresh interpreter running this file with PYTHONPATH=`tree`, so `gateway` is that tree's."""
+    """`measure` (or `measure_ingest`) in a fresh interpreter running this file with PYTHONPATH=`tree`, so
+    `gateway` is that tree's (the bench module is this one)."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", str(rods), "--seconds", str(args.seconds),
-           "--skip-s", str(args.skip_s), "--seed", str(args.seed)]  # fmt: skip
-    res = subprocess.run(cmd, env=dict(os.environ, PYTHONPATH=str(tree)), check=True, capture_output=True, text=True)
+           "--skip-s", str(args.skip_s), "--seed", str(args.seed), "--stage", args.stage, "--spp", str(args.spp)]
+    here = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{here}" if args.stage == "ingest" else str(tree))
+    res = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True)
     return json.loads(res.stdout.strip().splitlines()[-1])  # type: ignore[no-any-return]
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.pipeline_cost", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--rods", type=int, nargs="+", default=[10, 100], help="fleet sizes (default: 10 100)")
+    p.add_argument("--rods", type=int, nargs="+", default=[10, 100],
+                   help="fleet sizes (default: 10 100; with --stage ingest: devices, 20 %% of them hooks)")
     p.add_argument("--seconds", type=float, default=20.0, help="simulated seconds per fleet (default: 20)")
     p.add_argument("--skip-s", type=float, default=2.0, help="untimed start, s (default: 2)")
     p.add_argument("--seed", type=int, default=7)
+    p.add_argument("--stage", choices=("pipeline", "ingest"), default="pipeline",
+                   help="pipeline: Pipeline.process alone (default); ingest: GatewayService.handle all-in")
+    p.add_argument("--spp", type=int, default=10, help="with --stage ingest: samples per packet (default 10)")
+    p.add_argument("--profile", type=Path, default=None, help="with --stage ingest: cProfile of the timed part here")
     p.add_argument("--compare", type=Path, default=None, help="another source tree (e.g. a worktree of main)")
     p.add_argument("--repeat", type=int, default=3, help="with --compare: runs per tree, interleaved; the least CPU "
                    "per packet is shown (the one least disturbed by other load; default: 3)")
     p.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+
+    def run(n: int) -> dict[str, Any]:
+        if args.stage == "ingest":
+            return measure_ingest(n, args.seconds, args.skip_s, args.seed, args.spp, profile=args.profile)
+        return measure(n, args.seconds, args.skip_s, args.seed)
+
     if args.child is not None:
-        print(json.dumps(measure(args.child, args.seconds, args.skip_s, args.seed)))
+        print(json.dumps(run(args.child)))
         return 0
     here = Path(__file__).resolve().parents[1]
-    print(f"Pipeline.process CPU per packet: rods at 100 Hz, 5 samples/packet, {args.seconds:g} s simulated "
-          f"(first {args.skip_s:g} s untimed), seed {args.seed}")
+    if args.stage == "ingest":
+        print(f"GatewayService.handle all-in CPU per packet (process CPU incl. the blocking-put thread; handle = the "
+              f"ingest thread): 80 % rods / 20 % hooks at 100 Hz, {args.spp} samples/packet, JSON, one batch per "
+              f"packet period, {args.seconds:g} s (first {args.skip_s:g} s untimed), seed {args.seed}")
+    else:
+        print(f"Pipeline.process CPU per packet: rods at 100 Hz, 5 samples/packet, {args.seconds:g} s simulated "
+              f"(first {args.skip_s:g} s untimed), seed {args.seed}")
     if args.compare is None:
         for n in args.rods:
-            r = measure(n, args.seconds, args.skip_s, args.seed)
-            print(f"{n:5d} rods: {r['ms_per_packet']:.4f} ms/packet ({r['packets']} packets, {r['cpu_s']:.2f} CPU s)")
+            r = run(n)
+            extra = f", handle {r['handle_ms_per_packet']:.4f} ms, {r['puts']} puts" if "puts" in r else ""
+            print(f"{n:5d} devices: {r['ms_per_packet']:.4f} ms/packet ({r['packets']} packets, {r['cpu_s']:.2f} CPU s"
+                  f"{extra})")
         return 0
-    print(f"{'rods':>5}  {'before ms/pkt':>13}  {'after ms/pkt':>12}  {'before/after':>12}   (before: {args.compare})")
+    print(f"{'n':>5}  {'before ms/pkt':>13}  {'after ms/pkt':>12}  {'before/after':>12}   (before: {args.compare})")
     for n in args.rods:
         runs: dict[str, list[dict[str, Any]]] = {"before": [], "after": []}
         for _ in range(args.repeat):  # interleaved, so a burst of load on the shared machine hits both
             runs["before"].append(_child(args.compare.resolve(), n, args))
             runs["after"].append(_child(here, n, args))
         before, after = (min(runs[k], key=lambda r: r["ms_per_packet"]) for k in ("before", "after"))
+        handle = ""
+        if "handle_ms_per_packet" in after:
+            hb, ha = (min(r["handle_ms_per_packet"] for r in runs[k]) for k in ("before", "after"))
+            handle = f"; handle thread {hb:.4f} -> {ha:.4f} ms ({hb / ha:.2f}x)"
         print(f"{n:5d}  {before['ms_per_packet']:13.4f}  {after['ms_per_packet']:12.4f}  "
               f"{before['ms_per_packet'] / after['ms_per_packet']:12.2f}   "
-              f"({after['packets']} packets; {same_outputs(before, after)})")
+              f"({after['packets']} packets; {same_outputs(before, after)}{handle})")
     return 0
 
 

@@ -23,13 +23,18 @@ from gateway.ingest.bus import Bus
 from gateway.ingest.publisher import BlockingPublisher
 from gateway.pipeline import AlarmOut, Output
 from gateway.store import StoreWriter
+from gateway.views import PlotPoint, plot_points
 
 log = logging.getLogger("gateway.hub")
 
 Listener = Callable[[str, schemas.WireModel], None]
 """(topic, model): topic is `attitude`, `attitude_block`, `swing`, `height`, `alarm`, `spots` or `reel_cmd`."""
+PlotListener = Callable[[list[PlotPoint]], None]
+"""The dashboard points (`gateway.views.plot_point`) of the attitudes and swings one `emit` published, computed once
+for every such sink (history, live stream)."""
 PacketListener = Callable[[schemas.Packet], None]
 """A decoded device packet the ingest task accepted (after sequence and time checks), before the pipeline."""
+MAX_KEYS = 100_000  # cached output keys (a few topics per device)
 STATE_OF_CHANGE = {"raised": "raised", "updated": "raised", "cleared": "cleared", "acknowledged": "acknowledged"}
 
 
@@ -61,9 +66,11 @@ class Hub:
         self.publisher = publisher
         self.clock = clock
         self.listeners: list[Listener] = []
+        self.plot_listeners: list[PlotListener] = []
         self.packet_listeners: list[PacketListener] = []
         self._cmd_ids = itertools.count(int(clock()) % 1_000_000 * 1000)
         self.published = 0
+        self._keys: dict[tuple[str, str | None, str | None], str] = {}  # built and checked once per device and topic
 
     def _send(self, key: str, payload: bytes, encoding: str, block: bool) -> None:
         if block and self.publisher is not None:
@@ -74,7 +81,12 @@ class Hub:
     def _put(self, topic: schemas.Topic, model: schemas.WireModel, kind: str | None = None,
              device_id: str | None = None) -> None:  # fmt: skip
         """Publish on the topic's key with the row's encoding and congestion control (BLOCK or DROP)."""
-        self._send(topic.key(kind, device_id), model.to_json(), topic.encoding, topic.block)
+        key = self._keys.get((topic.name, kind, device_id))
+        if key is None:
+            if len(self._keys) >= MAX_KEYS:  # devices come and go: start over rather than grow for good
+                self._keys.clear()
+            key = self._keys[(topic.name, kind, device_id)] = topic.key(kind, device_id)
+        self._send(key, model.to_json(), topic.encoding, topic.block)
         self.published += 1
         for cb in self.listeners:
             try:
@@ -98,12 +110,20 @@ class Hub:
             self.writer.upsert_alarm(al.change.alarm)
         for device_id, fields in out.reel_commands:
             self.send_reel(device_id, sender="auto", **fields)
-        for a in _newest_per_device(out.attitudes):
+        newest = _newest_per_device(out.attitudes)
+        for a in newest:
             self._put(schemas.T_ATTITUDE, a, a.kind, a.device_id)
         for b in out.attitude_blocks:
             self._put(schemas.T_ATTITUDE_BLOCK, b, b.kind, b.device_id)
         for s in out.swings:  # BLOCK (its row): at <= 20 Hz per hook, a crane app must not lose any
             self._put(schemas.T_SWING, s, "hook", s.device_id)
+        if self.plot_listeners and (newest or out.swings):
+            points = plot_points([*newest, *out.swings])
+            for plot in self.plot_listeners:
+                try:
+                    plot(points)
+                except Exception:
+                    log.exception("plot listener failed")
         for h in _newest_per_device(out.heights):
             self._put(schemas.T_HEIGHT, h, h.kind, h.device_id)
         if out.spots is not None:
@@ -152,13 +172,19 @@ def _newest_per_device(models: list[_M]) -> list[_M]:
 
 class HubSink:
     """An in-process consumer of the hub's typed outputs with a periodic task of its own (the dashboard's history
-    and live stream): `on_hub` is called on the ingest task for every output, `run` is the task. `start_sink` and
-    `stop` register/unregister and start/cancel both, on the event loop."""
+    and live stream): `on_hub` is called on the ingest task for every output, `on_plot` once per batch with the
+    plotted points of its attitudes and swings, `run` is the task. `start_sink` and `stop` register/unregister and
+    start/cancel them, on the event loop."""
 
     _task: asyncio.Task[None] | None = None
+    wants_messages = True  # True: `on_hub` gets every published model (and other shards' mirrored ones)
+    wants_plot = False  # True: `on_plot` gets each batch's plot points
     wants_packets = False  # True: `on_packet` gets every accepted device packet too
 
     def on_hub(self, topic: str, model: schemas.WireModel) -> None:
+        raise NotImplementedError
+
+    def on_plot(self, points: list[PlotPoint]) -> None:
         raise NotImplementedError
 
     def on_packet(self, packet: schemas.Packet) -> None:
@@ -169,7 +195,10 @@ class HubSink:
 
     def start_sink(self, hub: Hub) -> None:
         self._hub = hub
-        hub.listeners.append(self.on_hub)
+        if self.wants_messages:
+            hub.listeners.append(self.on_hub)
+        if self.wants_plot:
+            hub.plot_listeners.append(self.on_plot)
         if self.wants_packets:
             hub.packet_listeners.append(self.on_packet)
         self._task = asyncio.get_running_loop().create_task(self.run())
@@ -178,6 +207,8 @@ class HubSink:
         hub: Hub | None = getattr(self, "_hub", None)
         if hub is not None and self.on_hub in hub.listeners:
             hub.listeners.remove(self.on_hub)
+        if hub is not None and self.wants_plot and self.on_plot in hub.plot_listeners:
+            hub.plot_listeners.remove(self.on_plot)
         if hub is not None and self.wants_packets and self.on_packet in hub.packet_listeners:
             hub.packet_listeners.remove(self.on_packet)
         if self._task is not None:

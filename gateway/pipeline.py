@@ -37,7 +37,7 @@ from gateway.control.auto_reel import AutoReel, controller_class
 from gateway.errors import BadSettings
 from gateway.fusion.bank import DEFAULT_FILTER, HOOK_FILTER, FusionBank, known_filters
 from gateway.fusion.base import FloatArray
-from gateway.fusion.heave import HeaveEstimator
+from gateway.fusion.heave import HeaveEstimator, heave_run_segments
 from gateway.kinds import KINDS, KindRow, KindServices
 from gateway.kinds.ball import BallKind
 from gateway.kinds.base import (
@@ -53,6 +53,8 @@ from gateway.kinds.base import (
     Timed,
     attitude_blocks,
     attitudes,
+    heave_rows,
+    height_messages,
     heights,
 )
 from gateway.kinds.rod import RodKind
@@ -269,7 +271,11 @@ class Pipeline:
         self.bank.warm_up({self.settings.hook_filter, self.settings.default_filter})
         if self.settings.height_interval_s > 0:
             n, acc = 5, np.array([0.0, 0.0, 9.80665])
-            HeaveEstimator().update(np.tile([1.0, 0, 0, 0], (n, 1)), np.zeros((n, 3)), np.tile(acc, (n, 1)), 0.01)
+            q, gyr, accs = np.tile([1.0, 0, 0, 0], (n, 1)), np.zeros((n, 3)), np.tile(acc, (n, 1))
+            h = HeaveEstimator()
+            h.update(q, gyr, accs, 0.01)
+            heave_run_segments(h.state[None].copy(), q, gyr, accs, np.zeros(0), np.array([0]), np.array([n]),
+                               np.array([0.01]), h.params[None].copy())  # fmt: skip
 
     # -- processing -----------------------------------------------------------------------------------------
 
@@ -320,16 +326,31 @@ class Pipeline:
                 for f in items:
                     self._post_failed(f.dev, exc, out)
                 continue
-            for f in items if handler.imu_outputs else ():
-                if self.devices.get(f.dev.device_id) is not f.dev:  # failed in `post`: restarting
-                    continue
-                try:
-                    if s.height_interval_s > 0:
-                        out.heights += heights(f, self.bank.bias(f.dev), s.height_interval_s, s.rest_acc_tol_m_s2)
-                    if s.attitude_blocks:
-                        out.attitude_blocks += attitude_blocks(f)
-                except Exception as exc:  # e.g. an output time out of range: only this device restarts
-                    self._post_failed(f.dev, exc, out)
+            if handler.imu_outputs:
+                self._imu_outputs(kb, out)
+
+    def _imu_outputs(self, kb: KindBatch, out: Output) -> None:
+        """Heights (one heave kernel call for all devices of the kind) and attitude blocks of the devices whose
+        post succeeded; a failure costs only its device (a kernel failure: every device tries alone)."""
+        s = self.settings
+        live = [i for i, f in enumerate(kb.items) if self.devices.get(f.dev.device_id) is f.dev]  # not failed in post
+        rows: FloatArray | None = None
+        if s.height_interval_s > 0 and live:
+            try:
+                rows = heave_rows(kb, live, [self.bank.bias(kb.items[i].dev) for i in live], s.rest_acc_tol_m_s2)
+            except Exception:
+                rows = None
+        for i in live:
+            f = kb.items[i]
+            try:
+                if s.height_interval_s > 0:
+                    out.heights += (height_messages(f, rows[kb.rows(i)], s.height_interval_s) if rows is not None
+                                    else heights(f, self.bank.bias(f.dev), s.height_interval_s,
+                                                 s.rest_acc_tol_m_s2))  # fmt: skip
+                if s.attitude_blocks:
+                    out.attitude_blocks += attitude_blocks(f)
+            except Exception as exc:  # e.g. an output time out of range: only this device restarts
+                self._post_failed(f.dev, exc, out)
 
     def _post_failed(self, dev: FusedDevice, exc: Exception, out: Output) -> None:
         if self.devices.get(dev.device_id) is dev:

@@ -889,15 +889,16 @@ class _Builder:
         if self.names != wire.__struct_fields__:
             raise TypeError(f"{wire.__name__} must list {model.__name__}'s fields in its order")
         self.optional = tuple((n, f.default) for n, f in model.model_fields.items() if not f.is_required())
+        self._all = frozenset(self.names)
 
     def __call__(self, wire: msgspec.Struct) -> Any:
         values = dict(zip(self.names, msgspec.structs.astuple(wire)))  # noqa: B905 (lengths checked in __init__)
-        fields_set = set(self.names)
+        unset = []
         for name, default in self.optional:
             if values[name] is msgspec.UNSET:
                 values[name] = default
-                fields_set.discard(name)
-        return _construct(self.model, values, fields_set)
+                unset.append(name)
+        return _construct(self.model, values, set(self._all.difference(unset)))
 
 
 def _construct(model: type[WireModel], values: dict[str, Any], fields_set: set[str]) -> Any:

@@ -171,6 +171,9 @@ class View3D:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.updates = 0
+        # A browser is connected (set by the drawing thread every frame; True until it runs): without one, the hub's
+        # outputs and packets are not kept and the scene is not redrawn.
+        self.watched = True
         self.server.initial_camera.position = (-6.0, -9.0, 6.0)
         self.server.initial_camera.look_at = (1.0, 3.0, 0.5)
         s = self.server.scene
@@ -190,6 +193,8 @@ class View3D:
 
     # callbacks: hub (event loop) and bus (zenoh threads) only store values
     def on_hub(self, topic: str, model: schemas.WireModel) -> None:
+        if not self.watched:
+            return
         if isinstance(model, schemas.Attitude):
             d = self.devices.get(model.device_id)
             q = np.asarray(model.quat_wxyz, dtype=np.float64)
@@ -208,7 +213,7 @@ class View3D:
 
     def on_packet(self, packet: schemas.Packet) -> None:
         """Hub packet sink: the newest IMU packet of each device with a fused attitude (for the raw layer)."""
-        if isinstance(packet, schemas.ImuPacket) and packet.device_id in self.devices:
+        if self.watched and isinstance(packet, schemas.ImuPacket) and packet.device_id in self.devices:
             self._imu[packet.device_id] = packet
 
     def on_truth(self, key: str, payload: bytes) -> None:
@@ -370,7 +375,9 @@ class View3D:
         period = 1.0 / self.rate_hz
         while not self._stop.wait(period):
             try:
-                self.step()
+                self.watched = bool(self.server.get_clients())
+                if self.watched:
+                    self.step()
             except Exception:
                 log.exception("3-D view update failed")
 

@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from gateway import schemas
-from gateway.ingest.runner import GatewayService
+
+if TYPE_CHECKING:  # the hub imports this module, and the runner imports the hub
+    from gateway.ingest.runner import GatewayService
 
 
 def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dict[str, Any]:
@@ -55,7 +57,11 @@ def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dic
     return out
 
 
-def plot_point(model: schemas.WireModel) -> tuple[str, float, dict[str, float]] | None:
+PlotPoint = tuple[str, float, dict[str, float]]
+"""(device id, wall time s, plotted values in degrees): one point of the dashboard's series."""
+
+
+def plot_point(model: schemas.WireModel) -> PlotPoint | None:
     """(device id, wall time s, plotted values in degrees) of an Attitude or Swing output, else None: the one place
     that turns hub outputs into the dashboard's series (history and the live stream)."""
     if isinstance(model, schemas.Attitude):
@@ -68,3 +74,8 @@ def plot_point(model: schemas.WireModel) -> tuple[str, float, dict[str, float]] 
     else:
         return None
     return model.device_id, (model.wall_t_us or time.time() * 1e6) / 1e6, values
+
+
+def plot_points(models: list[schemas.WireModel]) -> list[PlotPoint]:
+    """`plot_point` of each Attitude or Swing of a batch, in order (the hub computes them once for every sink)."""
+    return [pt for m in models if (pt := plot_point(m)) is not None]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import socket
+import time
 from pathlib import Path
 
 import numpy as np
@@ -331,3 +332,25 @@ def test_replay_of_a_simulated_hook_uses_the_hook_filter_and_model(tmp_path: Pat
     assert (data.kind, data.reference) == ("hook", "simulator truth")
     tilt = np.abs(data.euler_est_deg[400:, :2] - data.euler_ref_deg[400:, :2])
     assert np.median(tilt, axis=0) == pytest.approx([0.0, 0.0], abs=2.0)  # after 4 s the hook follows the truth
+
+
+def test_view_keeps_nothing_while_no_browser_watches(tmp_path: Path) -> None:
+    """Started without a client, the drawing thread marks the view unwatched within a frame: the hub's outputs
+    and packets then cost nothing there (before, every attitude was converted and kept whether or not anyone
+    looked); once watched they are kept again."""
+    view = View3D(Settings(viser_port=_free_port(), data_dir=tmp_path), rate_hz=50.0)
+    view.start()
+    try:
+        deadline = time.monotonic() + 5.0
+        while view.watched and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert not view.watched
+        att = schemas.Attitude(device_id="rod-1", kind="rod", seq=1, t_us=1, quat_wxyz=(1.0, 0.0, 0.0, 0.0),
+                               roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0, yaw_unwrapped_rad=0.0)  # fmt: skip
+        view.on_hub("attitude", att)
+        assert view.devices == {}
+        view.watched = True  # as the thread sets it when a browser connects
+        view.on_hub("attitude", att)
+        assert list(view.devices) == ["rod-1"]
+    finally:
+        view.stop()

@@ -32,7 +32,7 @@ from gateway.api.security import origin_allowed
 from gateway.hub import HubSink
 from gateway.ingest.runner import GatewayService
 from gateway.store import ApiToken
-from gateway.views import device_view, plot_point
+from gateway.views import PlotPoint, device_view
 
 log = logging.getLogger("gateway.ws")
 router = APIRouter()
@@ -152,6 +152,7 @@ class Peers(Protocol):
 class LiveStream(HubSink):
     """Fans pipeline results and sampled device state out to dashboard clients (see module docstring)."""
 
+    wants_plot = True
     wants_packets = True
 
     def __init__(self, service: GatewayService, settings: LiveSettings | None = None) -> None:
@@ -166,6 +167,7 @@ class LiveStream(HubSink):
         self.entry_failures = 0
         self._entry_fail_logged_s = -math.inf
         self.peers: Peers | None = None  # set by a shard (gateway/shard): devices served by other shards
+        self.remote = False  # another endpoint's clients want this shard's frames (from `peers`, every tick)
 
     def _served(self, device_id: str) -> bool:
         accept = self.service.accept
@@ -173,17 +175,28 @@ class LiveStream(HubSink):
 
     # -- producers --------------------------------------------------------------------------------------------
 
+    @property
+    def active(self) -> bool:
+        """Someone reads the stream (a client here, or another shard's): else nothing is buffered at all, so a
+        gateway without a dashboard open pays nothing per output or packet here."""
+        return bool(self.clients) or self.remote
+
     def on_hub(self, topic: str, model: schemas.WireModel) -> None:
-        """Hub listener (ingest task): buffer attitude/swing; broadcast alarms and reel commands at once."""
-        point = plot_point(model)
-        if point is not None:
-            if self._served(point[0]):  # other shards' devices come with their tick frames (`peers`)
-                self._buf(point[0]).add(point[1], **point[2])
-        elif topic == "alarm":
+        """Hub listener (ingest task): broadcast alarms and reel commands at once (attitude and swing come as
+        points, `on_plot`; another shard's mirrored ones are its own stream's)."""
+        if topic == "alarm":
             self.alarm_seq += 1
             self.broadcast({"type": "alarm", "alarm_seq": self.alarm_seq, "event": model.model_dump()})
         elif topic == "reel_cmd":
             self.broadcast({"type": "reel_cmd", "command": model.model_dump()})
+
+    def on_plot(self, points: list[PlotPoint]) -> None:
+        """Hub plot listener (ingest task): buffer a batch's attitude/swing points while someone reads."""
+        if not self.active:
+            return
+        for device_id, t_s, values in points:
+            if self._served(device_id):  # other shards' devices come with their tick frames (`peers`)
+                self._buf(device_id).add(t_s, **values)
 
     def _buf(self, device_id: str) -> _Series:
         s = self._series.get(device_id)
@@ -193,7 +206,10 @@ class LiveStream(HubSink):
 
     def on_packet(self, packet: schemas.Packet) -> None:
         """Hub packet sink (ingest task): keep a reference to the newest IMU packets / environment reading of the
-        device (already decoded and accepted: a device ingest knows); at most `max_raw_keys` devices."""
+        device (already decoded and accepted: a device ingest knows); at most `max_raw_keys` devices. Nothing while
+        nobody reads the stream."""
+        if not self.active:
+            return
         if isinstance(packet, schemas.ImuPacket):
             q = self._imu.get(packet.device_id)
             if q is None:
@@ -281,7 +297,7 @@ class LiveStream(HubSink):
             await asyncio.sleep(self.settings.tick_s)
             self.prune_raw()
             peers = self.peers
-            remote = peers is not None and peers.wanted()
+            remote = self.remote = peers is not None and peers.wanted()
             if peers is not None:
                 peers.listening(bool(self.clients))  # asks the others for their frames while clients are here
             if not self.clients and not remote:

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
+from itertools import chain
 from typing import Any
 
 import numpy as np
@@ -73,14 +74,22 @@ def gather(pkts: list[schemas.ImuPacket]) -> Block:
     return gyr, acc, mag, t_s
 
 
+def _rows3(blocks: Iterable[Sequence[tuple[float, float, float]]], rows: int) -> FloatArray:
+    """(rows, 3) float64 of the packets' sample triples, concatenated: one pass over the floats (`np.fromiter`),
+    half the time of `np.array` on a list of tuples; raises ValueError when the count is not `rows`."""
+    flat = np.fromiter(chain.from_iterable(chain.from_iterable(blocks)), dtype=np.float64, count=3 * rows)
+    return flat.reshape(rows, 3)
+
+
 def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
     """`gather` of many devices with one array conversion per sensor for all of them (the same values)."""
     pk = [p for g in groups for p in g]
     sizes = [sum(p.n for p in g) for g in groups]
     stop = np.cumsum(sizes).tolist()
     cuts = list(zip([0, *stop[:-1]], stop, strict=True))  # rows of each device (slices: np.split is slow)
-    gyr_all = np.array([s for p in pk for s in p.gyr_rad_s], dtype=np.float64)
-    acc_all = np.array([s for p in pk for s in p.acc_m_s2], dtype=np.float64)
+    total = stop[-1] if stop else 0
+    gyr_all = _rows3((p.gyr_rad_s for p in pk), total)
+    acc_all = _rows3((p.acc_m_s2 for p in pk), total)
     n = np.array([p.n for p in pk], dtype=np.int64)
     first = np.repeat(np.cumsum(n) - n, n)
     t0 = np.repeat(np.array([p.t0_us for p in pk], dtype=np.int64) * 1e-6, n)
@@ -89,7 +98,7 @@ def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
     mags: list[FloatArray | None] = [None] * len(groups)
     sel = [i for i, g in enumerate(groups) if all(p.mag_uT is not None for p in g)]
     if sel:
-        m_all = np.array([s for i in sel for p in groups[i] for s in p.mag_uT or ()], dtype=np.float64)
+        m_all = _rows3((p.mag_uT or () for i in sel for p in groups[i]), sum(sizes[i] for i in sel))
         at = 0
         for i in sel:
             mags[i], at = m_all[at : at + sizes[i]], at + sizes[i]

@@ -191,6 +191,28 @@ def heave_run(state: FloatArray, q: FloatArray, gyr_rad_s: FloatArray, acc_m_s2:
     return out
 
 
+@njit
+def heave_run_segments(states: FloatArray, q: FloatArray, gyr_rad_s: FloatArray, acc_m_s2: FloatArray,
+                       depth_m: FloatArray, start: np.ndarray, stop: np.ndarray, dt_s: FloatArray,
+                       params: FloatArray) -> FloatArray:  # fmt: skip
+    """`heave_run` of several devices' blocks in one call: rows `start[k]:stop[k]` of the concatenated arrays are
+    device k's, stepped with its own state row `states[k]` (advanced in place), `dt_s[k]` and `params[k]`; rows of
+    no segment are left unset. The same arithmetic per sample as `heave_run`, so each device gets the same values."""
+    out = np.empty((acc_m_s2.shape[0], 4))
+    for k in range(start.shape[0]):
+        state, par, dt = states[k], params[k], dt_s[k]
+        for i in range(start[k], stop[k]):
+            w, x, y, z = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+            ax, ay, az = acc_m_s2[i, 0], acc_m_s2[i, 1], acc_m_s2[i, 2]
+            f_up = 2.0 * (x * z - w * y) * ax + 2.0 * (y * z + w * x) * ay + (1.0 - 2.0 * (x * x + y * y)) * az
+            g_norm = np.sqrt(gyr_rad_s[i, 0] ** 2 + gyr_rad_s[i, 1] ** 2 + gyr_rad_s[i, 2] ** 2)
+            a_norm = np.sqrt(ax * ax + ay * ay + az * az)
+            d = depth_m[i] if depth_m.shape[0] > 0 else np.nan
+            h, v, r, a = heave_step(state, f_up, g_norm, a_norm, d, dt, par)
+            out[i, 0], out[i, 1], out[i, 2], out[i, 3] = h, v, r, a
+    return out
+
+
 def run_heave(q: ArrayLike, gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float,
               settings: HeaveSettings | None = None, depth_m: ArrayLike | None = None,
               state: FloatArray | None = None) -> FloatArray:  # fmt: skip
@@ -226,6 +248,11 @@ class HeaveEstimator:
                depth_m: ArrayLike | None = None) -> FloatArray:  # fmt: skip
         """(N, 4) rows of H, V_z, at rest, aided for the block's samples."""
         return _run(self.state, q, gyr_rad_s, acc_m_s2, dt_s, depth_m, self._params)
+
+    @property
+    def params(self) -> FloatArray:
+        """The settings as the kernels take them (`HeaveSettings.as_array`)."""
+        return self._params
 
     @property
     def gravity_m_s2(self) -> float:

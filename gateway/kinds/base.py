@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
@@ -159,16 +159,19 @@ class KindBatch:
         self.start = self.stop - sizes
         self.q = np.concatenate([f.q for f in self.items])
         self.acc = np.concatenate([f.acc for f in self.items])
+        self.gyr = np.concatenate([f.gyr for f in self.items])
         self.t_s = np.concatenate([f.t_s for f in self.items])
         self.euler = to_euler(self.q)
         prev = np.array([f.dev.yaw_last for f in self.items])
         turns = np.array([f.dev.yaw_turns for f in self.items], dtype=np.int64)
         self.yaw_u, new_turns = unwrap_segments(self.euler[:, 2], self.start, prev, turns)
         last = self.stop - 1
+        quat, euler = self.q[last], self.euler[last]  # fresh arrays: each device keeps a row of them
+        yaw_last, yaw_u, turns_l = euler[:, 2].tolist(), self.yaw_u[last].tolist(), new_turns.tolist()
         for i, f in enumerate(self.items):
-            d, j = f.dev, int(last[i])
-            d.yaw_turns, d.yaw_last = int(new_turns[i]), float(self.euler[j, 2])
-            d.quat, d.euler, d.yaw_unwrapped = self.q[j].copy(), self.euler[j].copy(), float(self.yaw_u[j])
+            d = f.dev
+            d.yaw_turns, d.yaw_last, d.yaw_unwrapped = turns_l[i], yaw_last[i], yaw_u[i]
+            d.quat, d.euler = quat[i], euler[i]
 
     def rows(self, i: int) -> slice:
         """Rows of device i."""
@@ -207,12 +210,14 @@ def attitudes(kb: KindBatch, interval_s: float) -> list[schemas.Attitude]:
     """Attitude messages at packet ends, at most every `interval_s` of device time per device; the floats of all
     devices are converted in one `tolist` each."""
     picks: list[tuple[FusedDevice, int, int, int]] = []
-    for i, f in enumerate(kb.items):
-        dev, base, t_s = f.dev, int(kb.start[i]), f.t_s
+    t_all, gap_s = kb.t_s, interval_s - 1e-9
+    for f, base in zip(kb.items, kb.start.tolist(), strict=True):
+        dev = f.dev
         for j, seq, t_us in f.ends:
-            if t_s[j] - dev.last_attitude_t_s < interval_s - 1e-9:
+            t = float(t_all[base + j])
+            if t - dev.last_attitude_t_s < gap_s:
                 continue
-            dev.last_attitude_t_s = float(t_s[j])
+            dev.last_attitude_t_s = t
             picks.append((dev, base + j, seq, t_us))
     if not picks:
         return []
@@ -230,8 +235,8 @@ def attitudes(kb: KindBatch, interval_s: float) -> list[schemas.Attitude]:
 
 def timed(dev: FusedDevice, conds: Iterable[Condition]) -> list[Timed]:
     """Rule conditions with wall times (the engine and store work in wall time); device times go along."""
-    from dataclasses import replace
-
+    if not conds:
+        return []
     offset_s = dev.wall_offset_us * 1e-6
     out: list[Timed] = []
     for cond in conds:
@@ -330,25 +335,73 @@ class KindBase:
         return None
 
 
-def heights(f: Fused, bias_rad_s: FloatArray | None, interval_s: float, rest_acc_tol_m_s2: float
-            ) -> list[schemas.Height]:  # fmt: skip
-    """Height / heave of a fused block (gateway.fusion.heave) at packet ends, at most every `interval_s`."""
-    from gateway.fusion.heave import AIDED_NAMES, HeaveEstimator
+def _heave_of(f: Fused, rest_acc_tol_m_s2: float) -> Any:
+    """The device's HeaveEstimator, made on its first fused block (g from that block's start when level)."""
+    from gateway.fusion.heave import HeaveEstimator
 
-    dev, q, gyr, acc, t_s = f.dev, f.q, f.gyr, f.acc, f.t_s
+    dev, acc = f.dev, f.acc
     if dev.heave is None:
         g0 = float(np.linalg.norm(acc[: min(acc.shape[0], 50)].mean(axis=0)))
         level = abs(g0 - G_M_S2) < rest_acc_tol_m_s2
         dev.heave = HeaveEstimator(gravity_m_s2=g0 if level else G_M_S2)
-    depth = None
+    return dev.heave
+
+
+def _depth_into(f: Fused, depth: FloatArray, base: int) -> None:
+    """Each packet's depth at its first sample, rows from `base` (NaN elsewhere, as initialised)."""
+    for (i, _, _), p in zip(f.ends, f.packets, strict=True):
+        if p.depth_m is not None:
+            depth[base + i - p.n + 1] = p.depth_m
+
+
+def heights(f: Fused, bias_rad_s: FloatArray | None, interval_s: float, rest_acc_tol_m_s2: float
+            ) -> list[schemas.Height]:  # fmt: skip
+    """Height / heave of one fused block (gateway.fusion.heave) at packet ends, at most every `interval_s`."""
+    heave, depth = _heave_of(f, rest_acc_tol_m_s2), None
     if any(p.depth_m is not None for p in f.packets):
-        depth = np.full(t_s.shape[0], np.nan)
-        for (i, _, _), p in zip(f.ends, f.packets, strict=True):
-            if p.depth_m is not None:
-                depth[i - p.n + 1] = p.depth_m
+        depth = np.full(f.t_s.shape[0], np.nan)
+        _depth_into(f, depth, 0)
     # the rest detector sees the rate without the filter's bias estimate
-    rows = dev.heave.update(q, gyr if bias_rad_s is None else gyr - bias_rad_s, acc, dev.dt_s, depth)
-    out = []
+    rows = heave.update(f.q, f.gyr if bias_rad_s is None else f.gyr - bias_rad_s, f.acc, f.dev.dt_s, depth)
+    return height_messages(f, rows, interval_s)
+
+
+def heave_rows(kb: KindBatch, live: Sequence[int], bias_rad_s: Sequence[FloatArray | None],
+               rest_acc_tol_m_s2: float) -> FloatArray:  # fmt: skip
+    """`heights`' heave rows (H, V_z, at rest, aided) of the devices `live` of a batch in one kernel call
+    (`heave_run_segments`), each with its own state, rate and settings; rows of other devices are unset."""
+    from gateway.fusion.heave import heave_run_segments
+
+    items = [kb.items[i] for i in live]
+    heaves = [_heave_of(f, rest_acc_tol_m_s2) for f in items]
+    sizes = kb.stop - kb.start
+    bias = np.zeros((len(kb.items), 3))
+    for i, b in zip(live, bias_rad_s, strict=True):
+        if b is not None:
+            bias[i] = b
+    gyr = kb.gyr - np.repeat(bias, sizes, axis=0)  # minus 0.0 where a filter has no bias: the same floats
+    depth = np.zeros(0)
+    if any(p.depth_m is not None for f in items for p in f.packets):
+        depth = np.full(kb.q.shape[0], np.nan)
+        for i, f in zip(live, items, strict=True):
+            _depth_into(f, depth, int(kb.start[i]))
+    states = np.array([h.state for h in heaves]).reshape(len(items), -1)
+    params = np.array([h.params for h in heaves]).reshape(len(items), -1)
+    dt_s = np.array([f.dev.dt_s for f in items], dtype=np.float64)
+    sel = np.asarray(live, dtype=np.int64)
+    rows: FloatArray = heave_run_segments(states, kb.q, gyr, kb.acc, depth, kb.start[sel], kb.stop[sel], dt_s,
+                                          params)  # fmt: skip
+    for h, st in zip(heaves, states, strict=True):
+        h.state[:] = st
+    return rows
+
+
+def height_messages(f: Fused, rows: FloatArray, interval_s: float) -> list[schemas.Height]:
+    """Height messages at the block's packet ends from its heave rows (`rows[j]`: sample j of the block), at
+    most every `interval_s` of device time; the device keeps the last one."""
+    from gateway.fusion.heave import AIDED_NAMES
+
+    dev, t_s, out = f.dev, f.t_s, []
     for i, seq, t_us in f.ends:
         if t_s[i] - dev.last_height_t_s < interval_s - 1e-9:
             continue

@@ -101,3 +101,31 @@ def test_a_device_that_never_rests_becomes_heave_about_its_rest_height() -> None
     assert np.abs(out[late, 0] - z[late]).max() < 0.45
     assert set(out[t > 10.5, 3]) == {heave.AIDED_NAMES.index("highpass")} and not out[:, 2].any()
     assert np.abs(never[late, 0] - z[late]).max() > 20.0
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.integers(1, 40), st.integers(0, 2**31), st.booleans(), st.sampled_from([0.01, 0.02])),
+                min_size=1, max_size=5))
+def test_segments_kernel_is_each_device_alone(devices: list[tuple[int, int, bool, float]]) -> None:
+    """`heave_run_segments` over concatenated blocks (the gateway's one call per batch) gives every device, bit for
+    bit, what `heave_run` gives its block alone, state included; with depth rows where a device has them."""
+    blocks, alone, states = [], [], []
+    for n, seed, has_depth, dt in devices:
+        rng = np.random.default_rng(seed)
+        q = rng.normal(size=(n, 4))
+        q /= np.linalg.norm(q, axis=1, keepdims=True)
+        gyr = rng.normal(0.0, 0.05, (n, 3))
+        acc = np.array([0.0, 0.0, GRAVITY_M_S2]) + rng.normal(0.0, 0.5, (n, 3))
+        depth = np.where(rng.random(n) < 0.3, rng.uniform(0.0, 5.0, n), np.nan) if has_depth else np.full(n, np.nan)
+        est = heave.HeaveEstimator(gravity_m_s2=9.7 + 0.1 * rng.random())
+        states.append(est.state.copy())
+        alone.append((est.update(q, gyr, acc, dt, depth if has_depth else None), est.state.copy()))
+        blocks.append((q, gyr, acc, depth, dt, est.params))
+    sizes = np.array([b[0].shape[0] for b in blocks])
+    stop = np.cumsum(sizes)
+    st_all = np.array(states)
+    rows = heave.heave_run_segments(st_all, *(np.concatenate([b[k] for b in blocks]) for k in range(4)), stop - sizes,
+                                    stop, np.array([b[4] for b in blocks]), np.array([b[5] for b in blocks]))
+    for k, (want_rows, want_state) in enumerate(alone):
+        assert np.array_equal(rows[stop[k] - sizes[k] : stop[k]], want_rows)
+        assert np.array_equal(st_all[k], want_state, equal_nan=True)

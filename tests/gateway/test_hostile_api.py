@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import pytest
 
 from gateway import schemas
-from gateway.api.ws import LiveSettings, LiveStream
+from gateway.api.ws import ClientQueue, LiveSettings, LiveStream
 from gateway.config import DeviceSettings, Settings
 from gateway.store import Store
 from tests.gateway.conftest import Running, rod_messages
@@ -25,6 +25,7 @@ def test_raw_buffers_are_bounded_and_only_for_known_devices() -> None:
     kinds: dict[str, str] = {}
     live = LiveStream(SimpleNamespace(pipeline=SimpleNamespace(kinds=kinds), accept=None),  # type: ignore[arg-type]
                       LiveSettings(max_raw_keys=40, raw_packets=8))  # fmt: skip
+    live.clients.add(ClientQueue(4))  # the stream keeps packets only while someone reads it
     for i in range(100):
         kinds[f"rod-{i}"] = "rod"
         for seq in range(20):

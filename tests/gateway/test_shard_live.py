@@ -118,15 +118,19 @@ def test_a_shards_stream_carries_only_the_devices_it_serves() -> None:
     from types import SimpleNamespace
 
     from gateway import schemas
-    from gateway.api.ws import LiveStream
+    from gateway.api.ws import ClientQueue, LiveStream
+    from gateway.views import plot_points
 
     kinds = {"rod-a": "rod", "rod-b": "rod"}
     svc = SimpleNamespace(pipeline=SimpleNamespace(kinds=kinds), accept=lambda d: d == "rod-a")
     live = LiveStream(svc)  # type: ignore[arg-type]
-    for d in kinds:
-        live.on_hub("attitude", schemas.Attitude(v=1, device_id=d, kind="rod", seq=1, t_us=1, wall_t_us=10**15,
-                                                 quat_wxyz=(1.0, 0.0, 0.0, 0.0), roll_rad=0.0, pitch_rad=0.1,
-                                                 yaw_rad=0.0, yaw_unwrapped_rad=0.0))  # fmt: skip
+    live.clients.add(ClientQueue(8))
+    atts = [schemas.Attitude(v=1, device_id=d, kind="rod", seq=1, t_us=1, wall_t_us=10**15,
+                             quat_wxyz=(1.0, 0.0, 0.0, 0.0), roll_rad=0.0, pitch_rad=0.1, yaw_rad=0.0,
+                             yaw_unwrapped_rad=0.0) for d in kinds]  # fmt: skip
+    for a in atts:
+        live.on_hub("attitude", a)  # the other shard's, mirrored for the 3-D view: not plotted here
+    live.on_plot(plot_points(atts))  # this shard's hub outputs (rod-b: ownership moved away mid-batch)
     frame = live.tick_frame(1.0, full=False)
     assert [e["device_id"] for e in frame["devices"]] == ["rod-a"]
     assert len(frame["devices"][0]["series"]["t_s"]) == 1

@@ -29,7 +29,7 @@ from gateway import schemas
 from gateway.api.deps import DeviceIdPath
 from gateway.hub import HubSink
 from gateway.ingest.runner import GatewayService
-from gateway.views import plot_point
+from gateway.views import PlotPoint
 
 router = APIRouter(prefix="/history", tags=["history"])
 Agg = Literal["mean", "max", "last"]
@@ -59,19 +59,24 @@ class _Bucket:
     value: dict[str, float] = field(default_factory=dict)
 
     def add(self, t_s: float, vals: dict[str, float]) -> None:
-        self.t_s = max(self.t_s, t_s)
+        if t_s > self.t_s:
+            self.t_s = t_s
+        count, value = self.n, self.value
         for k, v in vals.items():
             if not math.isfinite(v):
                 continue
-            n = self.n.get(k, 0)
-            agg = FIELDS.get(k, "mean")
-            if n == 0 or agg == "last":
-                self.value[k] = v
-            elif agg == "max":
-                self.value[k] = max(self.value[k], v)
+            n = count.get(k, 0)
+            if n == 0:
+                value[k] = v
             else:
-                self.value[k] += (v - self.value[k]) / (n + 1)
-            self.n[k] = n + 1
+                agg = FIELDS.get(k, "mean")
+                if agg == "last":
+                    value[k] = v
+                elif agg == "max":
+                    value[k] = max(value[k], v)
+                else:
+                    value[k] += (v - value[k]) / (n + 1)
+            count[k] = n + 1
 
 
 class DeviceHistory:
@@ -89,6 +94,10 @@ class DeviceHistory:
         self._open: _Bucket | None = None
 
     def add(self, t_s: float, **vals: float) -> None:
+        self.add_values(t_s, vals)
+
+    def add_values(self, t_s: float, vals: dict[str, float]) -> None:
+        """`add` with the values as one dict (the hub's plot points carry one)."""
         b = self._open
         if b is not None and t_s < b.t0_s:  # late sample of a closed bucket: dropped (histories are monotonic)
             return
@@ -151,12 +160,16 @@ class History(HubSink):
             h = self.devices[device_id] = DeviceHistory(s.bucket_s, int(s.keep_s / s.bucket_s))
         return h
 
-    def on_hub(self, topic: str, model: schemas.WireModel) -> None:
-        """Hub listener (ingest task): fold attitude and swing in."""
-        point = plot_point(model)
-        accept = self.service.accept
-        if point is not None and (accept is None or accept(point[0])):  # other shards keep their devices' own
-            self.device(point[0]).add(point[1], **point[2])
+    wants_messages = False
+    wants_plot = True
+
+    def on_plot(self, points: list[PlotPoint]) -> None:
+        """Hub plot listener (ingest task): fold a batch's attitude and swing points in."""
+        accept, devices = self.service.accept, self.devices
+        for device_id, t_s, values in points:
+            if accept is None or accept(device_id):  # other shards keep their devices' own
+                h = devices.get(device_id)
+                (h if h is not None else self.device(device_id)).add_values(t_s, values)
 
     def poll(self, now_s: float) -> None:
         """Sample reel tension and environment readings from the pipeline (event loop); only packets that are new

@@ -106,15 +106,21 @@ class Metrics:
         self.latency = Histogram("rig_sample_to_publish_seconds", "Device wall time of a sample -> gateway publish",
                                  ["kind", "topic"], buckets=LATENCY_BUCKETS_S, registry=self.registry)  # fmt: skip
         self.clock = clock
+        self._latency: dict[tuple[str, str], Any] = {}  # (kind, topic) -> its histogram child (`labels` is slow)
         service.hub.listeners.append(self.on_hub)
+
+    def _observe(self, kind: str, topic: str, delay_s: float) -> None:
+        child = self._latency.get((kind, topic))
+        if child is None:
+            child = self._latency[(kind, topic)] = self.latency.labels(kind, topic)
+        child.observe(max(0.0, delay_s))
 
     def on_hub(self, topic: str, model: schemas.WireModel) -> None:
         """Hub listener (ingest task): one observation per attitude / alarm with a device wall time."""
         if isinstance(model, schemas.Attitude) and model.wall_t_us is not None:
-            self.latency.labels(model.kind, "attitude").observe(max(0.0, self.clock() - model.wall_t_us / 1e6))
+            self._observe(model.kind, "attitude", self.clock() - model.wall_t_us / 1e6)
         elif isinstance(model, schemas.AlarmEvent) and model.source_wall_us is not None:
-            delay_s = (model.wall_t_us - model.source_wall_us) / 1e6
-            self.latency.labels(model.kind, "alarm").observe(max(0.0, delay_s))
+            self._observe(model.kind, "alarm", (model.wall_t_us - model.source_wall_us) / 1e6)
 
 
 def start_metrics(app: Any, service: GatewayService) -> Metrics:
