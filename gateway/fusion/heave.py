@@ -173,21 +173,27 @@ def heave_step(state: FloatArray, f_up_m_s2: float, gyr_norm_rad_s: float, acc_n
 
 
 @njit
+def _heave_row(state: FloatArray, q: FloatArray, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, depth_m: FloatArray,
+               i: int, dt_s: float, params: FloatArray, out: FloatArray) -> None:  # fmt: skip
+    """`heave_step` on row i of the blocks (the vertical specific force from the attitude), written to `out[i]`."""
+    w, x, y, z = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+    ax, ay, az = acc_m_s2[i, 0], acc_m_s2[i, 1], acc_m_s2[i, 2]
+    f_up = 2.0 * (x * z - w * y) * ax + 2.0 * (y * z + w * x) * ay + (1.0 - 2.0 * (x * x + y * y)) * az
+    g_norm = np.sqrt(gyr_rad_s[i, 0] ** 2 + gyr_rad_s[i, 1] ** 2 + gyr_rad_s[i, 2] ** 2)
+    a_norm = np.sqrt(ax * ax + ay * ay + az * az)
+    d = depth_m[i] if depth_m.shape[0] > 0 else np.nan
+    h, v, r, a = heave_step(state, f_up, g_norm, a_norm, d, dt_s, params)
+    out[i, 0], out[i, 1], out[i, 2], out[i, 3] = h, v, r, a
+
+
+@njit
 def heave_run(state: FloatArray, q: FloatArray, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, depth_m: FloatArray,
               dt_s: float, params: FloatArray) -> FloatArray:  # fmt: skip
     """`heave_step` over a block: q (N, 4), gyro and specific force (N, 3), depth (N,) with NaN where none, or (0,)
     for no depth sensor. Returns (N, 4): H, V_z, at rest, aided. One call per block, no temporaries."""
-    n = acc_m_s2.shape[0]
-    out = np.empty((n, 4))
-    for i in range(n):
-        w, x, y, z = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
-        ax, ay, az = acc_m_s2[i, 0], acc_m_s2[i, 1], acc_m_s2[i, 2]
-        f_up = 2.0 * (x * z - w * y) * ax + 2.0 * (y * z + w * x) * ay + (1.0 - 2.0 * (x * x + y * y)) * az
-        g_norm = np.sqrt(gyr_rad_s[i, 0] ** 2 + gyr_rad_s[i, 1] ** 2 + gyr_rad_s[i, 2] ** 2)
-        a_norm = np.sqrt(ax * ax + ay * ay + az * az)
-        d = depth_m[i] if depth_m.shape[0] > 0 else np.nan
-        h, v, r, a = heave_step(state, f_up, g_norm, a_norm, d, dt_s, params)
-        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = h, v, r, a
+    out = np.empty((acc_m_s2.shape[0], 4))
+    for i in range(acc_m_s2.shape[0]):
+        _heave_row(state, q, gyr_rad_s, acc_m_s2, depth_m, i, dt_s, params, out)
     return out
 
 
@@ -200,16 +206,8 @@ def heave_run_segments(states: FloatArray, q: FloatArray, gyr_rad_s: FloatArray,
     no segment are left unset. The same arithmetic per sample as `heave_run`, so each device gets the same values."""
     out = np.empty((acc_m_s2.shape[0], 4))
     for k in range(start.shape[0]):
-        state, par, dt = states[k], params[k], dt_s[k]
         for i in range(start[k], stop[k]):
-            w, x, y, z = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
-            ax, ay, az = acc_m_s2[i, 0], acc_m_s2[i, 1], acc_m_s2[i, 2]
-            f_up = 2.0 * (x * z - w * y) * ax + 2.0 * (y * z + w * x) * ay + (1.0 - 2.0 * (x * x + y * y)) * az
-            g_norm = np.sqrt(gyr_rad_s[i, 0] ** 2 + gyr_rad_s[i, 1] ** 2 + gyr_rad_s[i, 2] ** 2)
-            a_norm = np.sqrt(ax * ax + ay * ay + az * az)
-            d = depth_m[i] if depth_m.shape[0] > 0 else np.nan
-            h, v, r, a = heave_step(state, f_up, g_norm, a_norm, d, dt, par)
-            out[i, 0], out[i, 1], out[i, 2], out[i, 3] = h, v, r, a
+            _heave_row(states[k], q, gyr_rad_s, acc_m_s2, depth_m, i, dt_s[k], params[k], out)
     return out
 
 
