@@ -72,6 +72,11 @@ class Hub:
         self.published = 0
         self._keys: dict[tuple[str, str | None, str | None], str] = {}  # built and checked once per device and topic
 
+    def put_diag(self, topic: schemas.Topic, model: schemas.WireModel) -> None:
+        """Publish a gateway-wide diagnostics message with its topic's congestion control (BLOCK through the publisher
+        thread), without the listeners (they take device outputs)."""
+        self._send(topic.key(), model.to_json(), topic.encoding, topic.block)
+
     def _send(self, key: str, payload: bytes, encoding: str, block: bool) -> None:
         if block and self.publisher is not None:
             self.publisher.put(key, payload, encoding)

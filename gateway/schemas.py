@@ -644,7 +644,7 @@ T_SPOTS: Final = Topic("spots", "gw/spots", (), SpotRanking, ENCODING_GW, "outpu
 T_DIAG_INGEST: Final = Topic("diag_ingest", "gw/diag/ingest", (), IngestStats, ENCODING_GW, "output", express=True,
                              note="about 1 Hz")
 T_DIAG_REJECTED: Final = Topic("diag_rejected", "gw/diag/rejected", (), RejectedPacket, ENCODING_GW, "output",
-                               express=True, note="one per rejected packet, at most 20 a second")
+                               block=True, express=True, note="one per rejected packet, at most 20 a second")
 T_CONFIG: Final = Topic("config", "gw/config/{kind}/{id}", KINDS, DeviceConfig, ENCODING_GW, "queryable",
                         note="replies with the thresholds in effect")
 T_GW_ALIVE: Final = Topic("gw_alive", "gw/alive", (), None, "", "token", note="liveliness token of the gateway")

@@ -442,7 +442,7 @@ class GatewayService:
         if n < REJECTED_PER_S:
             msg = schemas.RejectedPacket(wall_t_us=int(now * 1e6), key=key[:300], reason=err.reason,
                                          detail=err.detail[:500], size_bytes=size)  # fmt: skip
-            self.bus.put(schemas.DIAG_REJECTED_KEY, msg.to_json(), encoding=schemas.ENCODING_GW)
+            self.hub.put_diag(schemas.T_DIAG_REJECTED, msg)  # BLOCK: rate-bounded, so a reader loses none
         self._rejected_window = (second, n + 1)
 
     def _diag_tick(self) -> bytes:

@@ -164,3 +164,4 @@ def test_rejected_packets_are_published_at_most_20_a_second_but_all_counted(tmp_
         assert len(published()) == REJECTED_PER_S + 5
         assert {p["reason"] for p in published()} == {"bad_json"}
         assert [p["wall_t_us"] for p in published()][-1] == 1_001_000_000
+        assert all(block for k, _, block in bus.sent if k == schemas.DIAG_REJECTED_KEY), "BLOCK: a reader loses none"
