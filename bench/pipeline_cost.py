@@ -2,8 +2,8 @@
 `--stage ingest`, of `GatewayService.handle` all-in without zenoh.
 
     python -m bench.pipeline_cost                              # this tree, 10 and 100 rods
-    python -m bench.pipeline_cost --compare /work/wt/before    # also an older tree, same packets: both and the ratio
-    python -m bench.pipeline_cost --stage ingest --rods 300 --seconds 8 --compare /work/main   # all-in, two trees
+    python -m bench.pipeline_cost --compare <tree>             # also an older tree, same packets: both and the ratio
+    python -m bench.pipeline_cost --stage ingest --rods 300 --seconds 8 --compare <tree>   # all-in, two trees
     python -m bench.pipeline_cost --stage ingest --rods 300 --profile /tmp/ingest.prof        # where it goes
 
 `--stage ingest`: 80 % rods / 20 % hooks, JSON packets as `bench.fleet` sends them (its pooled simulator streams,

@@ -11,6 +11,15 @@ from dataclasses import dataclass
 from gateway import schemas
 
 
+def token_device(key: str) -> tuple[str, str] | None:
+    """(kind, device id) of a device token key `rig/{kind}/{id}` with a known kind, else None; the id is not checked
+    (`schemas.valid_device_id`)."""
+    parts = key.split("/")
+    if len(parts) != 3 or parts[0] != "rig" or parts[1] not in schemas.KINDS:
+        return None
+    return parts[1], parts[2]
+
+
 @dataclass
 class DevicePresence:
     """Online flag and when it last changed (wall seconds)."""
@@ -29,13 +38,13 @@ class Presence:
         self.invalid_tokens = 0  # tokens whose key is not `rig/{kind}/{valid device id}` (ignored)
 
     def update(self, token_key: str, alive: bool, now_s: float) -> DevicePresence | None:
-        parts = token_key.split("/")
-        if len(parts) != 3 or parts[0] != "rig" or parts[1] not in schemas.KINDS:
+        dev = token_device(token_key)
+        if dev is None:
             return None
-        if not schemas.valid_device_id(parts[2]):  # e.g. `rig/rod/evil.tok`: it would break key building later
+        kind, device_id = dev
+        if not schemas.valid_device_id(device_id):  # e.g. `rig/rod/evil.tok`: it would break key building later
             self.invalid_tokens += 1
             return None
-        kind, device_id = parts[1], parts[2]
         cur = self.devices.get(device_id)
         if cur is not None and cur.online == alive:
             return None

@@ -79,36 +79,35 @@ class HookKind(KindBase):
         swing = hook_geo.swing_angle(kb.q)
         tors = hook_geo.torsion(kb.q, np.repeat(refs, kb.stop - kb.start))
         interval_s = ctx.settings.swing_interval_s
-        rules: dict[int, list[Condition]] = {}  # device index -> its new conditions (devices whose rules ran)
+        ran: list[tuple[int, list[Condition], int, int]] = []  # (device index, its new conditions, its picks [a, b))
         picks: list[tuple[int, int, int, int]] = []  # (device index, row in kb, seq, t_us) of each Swing to send
         for i, f in enumerate(kb.items):
             dev, rows, st = f.dev, kb.rows(i), f.dev.state
             try:
-                rules[i] = st.rules.update(f.t_s, swing[rows], tors[rows])
+                new = st.rules.update(f.t_s, swing[rows], tors[rows])
             except Exception as exc:  # only this hook restarts
                 ctx.fail(dev, exc, out)
                 continue
+            first = len(picks)
             for j, seq, t_us in f.ends:
                 if f.t_s[j] - st.last_swing_t_s < interval_s - 1e-9:
                     continue
                 st.last_swing_t_s = float(f.t_s[j])
                 picks.append((i, rows.start + j, seq, t_us))
+            ran.append((i, new, first, len(picks)))
         # bearing and Φ of every Swing of the batch in one call each (they were one call per message)
         k_rows = np.fromiter((k for _, k, _, _ in picks), dtype=np.int64, count=len(picks))
         q_picked = kb.q[k_rows]
         bearing = hook_geo.displacement_bearing(q_picked).tolist()
         phi = hook_geo.swing_direction_paper(q_picked, refs[[i for i, _, _, _ in picks]]).tolist()
         angle, twist = swing[k_rows].tolist(), tors[k_rows].tolist()
-        sent: dict[int, list[int]] = {}
-        for m, (i, _, _, _) in enumerate(picks):
-            sent.setdefault(i, []).append(m)
         conds: list[Timed] = []
-        for i, new in rules.items():
+        for i, new, first, stop in ran:
             dev, st = kb.items[i].dev, kb.items[i].dev.state
             try:
                 rope = getattr(dev.filt, "rope_length_m", None)  # the hook filter's estimate at the batch's end
                 ref = float(refs[i])
-                for m in sent.get(i, ()):
+                for m in range(first, stop):
                     _, _, seq, t_us = picks[m]
                     st.swing = schemas.Swing(
                         device_id=dev.device_id, seq=seq, t_us=t_us, wall_t_us=t_us + dev.wall_offset_us,

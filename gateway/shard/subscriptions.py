@@ -30,6 +30,7 @@ from typing import Literal
 
 from gateway import schemas
 from gateway.ingest.bus import Bus, SampleCallback, Unsubscribe
+from gateway.ingest.presence import token_device
 from gateway.shard.ownership import ShardInfo
 
 log = logging.getLogger("gateway.shard")
@@ -81,14 +82,6 @@ def wanted_selectors(
     if mode == "all":
         return set(catch_all)
     return {k for d, kind in devices.items() if owns(d) for k in device_keys(kind, d)}
-
-
-def token_device(key: str) -> tuple[str, str] | None:
-    """(kind, id) of a device token key `rig/{kind}/{id}`; None for any other key."""
-    parts = key.split("/")
-    if len(parts) != 3 or parts[0] != "rig" or parts[1] not in schemas.KINDS or not schemas.valid_device_id(parts[2]):
-        return None
-    return parts[1], parts[2]
 
 
 class DataSubscriptions:
@@ -150,7 +143,7 @@ class DataSubscriptions:
         """A device token appeared or vanished. A device whose token goes is kept as tokenless for `IDLE_S`, so one
         that keeps sending stays subscribed."""
         dev = token_device(key)
-        if dev is None:
+        if dev is None or not schemas.valid_device_id(dev[1]):
             return
         kind, device_id = dev
         if alive:
