@@ -239,9 +239,17 @@ def force_input(u: FloatArray, rx: float, ry: float, rz: float) -> tuple[float, 
 
 @njit
 def process(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray) -> FloatArray:
-    """State (21,) after `dt_s` with the process input row `u` (see `force_input`): RK4 of the
+    """State (24,) after `dt_s` with the process input row `u` (see `force_input`): RK4 of the
     pendulum (`_pendulum_accel`, rope length held at its mid-step value), α integrates α', the rope length
     integrates its rate and acceleration, the hoist acceleration decays."""
+    out = np.empty(N_STATE)
+    _process_into(x, dt_s, u, params, out)
+    return out
+
+
+@njit
+def _process_into(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray, out: FloatArray) -> None:
+    """`process` written into `out` (N_STATE,): no allocation, it runs 15 times per sample in the Jacobian."""
     px, py, vx, vy = x[0], x[1], x[2], x[3]
     g = params[_G]
     l0 = math.exp(x[_LOG_L])
@@ -259,7 +267,7 @@ def process(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray) -> Fl
                                ld, wx, wy)  # fmt: skip
     a4x, a4y = _pendulum_accel(px + dt_s * (vx + h * a2x), py + dt_s * (vy + h * a2y), vx + dt_s * a3x,
                                vy + dt_s * a3y, g, l, ld, wx, wy)  # fmt: skip
-    out = x.copy()
+    out[:] = x
     out[0] = px + dt_s / 6.0 * (vx + 2.0 * (vx + h * a1x) + 2.0 * (vx + h * a2x) + (vx + dt_s * a3x))
     out[1] = py + dt_s / 6.0 * (vy + 2.0 * (vy + h * a1y) + 2.0 * (vy + h * a2y) + (vy + dt_s * a3y))
     out[2] = vx + dt_s / 6.0 * (a1x + 2.0 * a2x + 2.0 * a3x + a4x)
@@ -270,7 +278,6 @@ def process(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray) -> Fl
     out[_L_ACC] = ldd * math.exp(-dt_s / params[_HOIST_TAU])
     decay = math.exp(-dt_s / params[_TIP_TAU])
     out[17], out[18] = x[17] * decay, x[18] * decay
-    return out
 
 
 @njit
@@ -279,8 +286,17 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
 
     acc_z is the tension `l |n'|² + g n_z - l''` plus the lever-arm terms `[ω' × r + ω × (ω × r)]_z`, with `ω'` the
     body-rate derivative along the free pendulum's own motion (central difference over ±1 ms, twist
-    acceleration 0). Scalar code (no temporary arrays): it runs ~10 times per sample inside the Jacobian.
+    acceleration 0).
     """
+    out = np.empty(7)
+    _measurement_into(x, params, out)
+    return out
+
+
+@njit
+def _measurement_into(x: FloatArray, params: FloatArray, out: FloatArray) -> None:
+    """`measurement` written into `out` (7,): scalar code, no allocation (it runs 9 times per sample in the
+    Jacobian)."""
     g, l = params[_G], math.exp(x[_LOG_L])
     rx, ry, rz = params[_RX], params[_RY], params[_RZ]
     px, py, vx, vy, alpha, alpha_rate = x[0], x[1], x[2], x[3], x[4], x[5]
@@ -295,7 +311,6 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
                                                alpha - h * alpha_rate, alpha_rate)  # fmt: skip
     dwx, dwy = (px_ - mx_) / (2.0 * h), (py_ - my_) / (2.0 * h)
     lever_z = dwx * ry - dwy * rx + wz * (wx * rx + wy * ry + wz * rz) - rz * (wx * wx + wy * wy + wz * wz)
-    out = np.zeros(7)
     out[0], out[1], out[2] = wx + x[6] + x[12] * wz, wy + x[7] + x[13] * wz, wz + x[8]
     out[3] = l * (vx * vx + vy * vy + vz * vz) + g * nz - x[_L_ACC] + lever_z + x[9]
     if params[_USE_MAG] > 0.0:  # Rᵀ m_ref + hard iron
@@ -305,36 +320,68 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
         out[4] = (1.0 - 2.0 * (yy + zz)) * mx + 2.0 * (xy + wz_) * my + 2.0 * (xz - wy_) * mz + x[21]
         out[5] = 2.0 * (xy - wz_) * mx + (1.0 - 2.0 * (xx + zz)) * my + 2.0 * (yz + wx_) * mz + x[22]
         out[6] = 2.0 * (xz + wy_) * mx + 2.0 * (yz - wx_) * my + (1.0 - 2.0 * (xx + yy)) * mz + x[23]
-    return out
+    else:
+        out[4] = out[5] = out[6] = 0.0
+
+
+# Columns `process_jacobian` differentiates (the rest of F is the identity, with F[4, 5] = dt) and columns
+# `measurement_jacobian` differentiates (the linear bias, offset and hoist columns are set exactly).
+_F_COLS = (0, 1, 2, 3, 4, 10, 11, 14, 15, 16, 17, 18, 19, 20)
+_H_COLS = (0, 1, 2, 3, 4, 5, 14, 15)
 
 
 @njit
 def process_jacobian(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray) -> FloatArray:
-    """Jacobian (21, 21) of `process` at `x`: forward differences (step 1e-7) in the columns the pendulum and the
+    """Jacobian (24, 24) of `process` at `x`: forward differences (step 1e-7) in the columns the pendulum and the
     rope length depend on; the rest is exact (α integrates α'; rates, biases and offsets random-walk)."""
-    eps = 1e-7
-    f0 = process(x, dt_s, u, params)
-    f_jac = np.eye(N_STATE)
-    f_jac[4, 5] = dt_s
-    xp = x.copy()
-    for j in (0, 1, 2, 3, 4, 10, 11, 14, 15, 16, 17, 18, 19, 20):
-        xp[j] += eps
-        f_jac[:, j] = (process(xp, dt_s, u, params) - f0) / eps
-        xp[j] = x[j]
+    f_jac = np.empty((N_STATE, N_STATE))
+    _process_jacobian_into(x, dt_s, u, params, np.empty(N_STATE), f_jac, np.empty(N_STATE), np.empty(N_STATE))
     return f_jac
 
 
 @njit
-def measurement_jacobian(x: FloatArray, params: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """`(h(x), ∂h/∂x)` (7,), (7, 21) by forward differences (exact in the linear bias, offset and hoist columns);
-    the magnetometer rows only see the heading α."""
+def _process_jacobian_into(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray, f0: FloatArray,
+                           f_jac: FloatArray, xp: FloatArray, buf: FloatArray) -> None:  # fmt: skip
+    """`process_jacobian` into `f_jac`, with `process(x)` into `f0` (the predicted state); `xp`, `buf` (N_STATE,)
+    are scratch."""
     eps = 1e-7
-    h0 = measurement(x, params)
-    h_jac = np.zeros((7, N_STATE))
-    xp = x.copy()
-    for j in (0, 1, 2, 3, 4, 5, 14, 15):
+    _process_into(x, dt_s, u, params, f0)
+    f_jac[:, :] = 0.0
+    for i in range(N_STATE):
+        f_jac[i, i] = 1.0
+    f_jac[4, 5] = dt_s
+    xp[:] = x
+    for j in _F_COLS:
         xp[j] += eps
-        h_jac[:, j] = (measurement(xp, params) - h0) / eps
+        _process_into(xp, dt_s, u, params, buf)
+        for i in range(N_STATE):
+            f_jac[i, j] = (buf[i] - f0[i]) / eps
+        xp[j] = x[j]
+
+
+@njit
+def measurement_jacobian(x: FloatArray, params: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """`(h(x), ∂h/∂x)` (7,), (7, 24) by forward differences (exact in the linear bias, offset and hoist columns);
+    the magnetometer rows only see the heading α."""
+    h0, h_jac = np.empty(7), np.empty((7, N_STATE))
+    _measurement_jacobian_into(x, params, h0, h_jac, np.empty(N_STATE), np.empty(7))
+    return h0, h_jac
+
+
+@njit
+def _measurement_jacobian_into(x: FloatArray, params: FloatArray, h0: FloatArray, h_jac: FloatArray,
+                               xp: FloatArray, buf: FloatArray) -> None:  # fmt: skip
+    """`measurement_jacobian` into `h0` (7,) and `h_jac` (7, N_STATE); `xp` (N_STATE,) and `buf` (7,) are
+    scratch."""
+    eps = 1e-7
+    _measurement_into(x, params, h0)
+    h_jac[:, :] = 0.0
+    xp[:] = x
+    for j in _H_COLS:
+        xp[j] += eps
+        _measurement_into(xp, params, buf)
+        for i in range(7):
+            h_jac[i, j] = (buf[i] - h0[i]) / eps
         xp[j] = x[j]
     for j in range(3):  # the gyroscope bias and the tension offset enter linearly
         h_jac[j, 6 + j] = 1.0
@@ -350,7 +397,6 @@ def measurement_jacobian(x: FloatArray, params: FloatArray) -> tuple[FloatArray,
             h_jac[4 + i, 21 + i] = 1.0
         if 4 <= j <= 8:  # tension informs swing, rope and its own offset only; lever terms must not steer twist/bias
             h_jac[3, j] = 0.0
-    return h0, h_jac
 
 
 @njit
@@ -365,22 +411,27 @@ def _post_update(x: FloatArray, params: FloatArray) -> None:
 
 
 @njit
-def inflate_on_surprise(p_pred: FloatArray, h_jac: FloatArray, hx: FloatArray, z: FloatArray, params: FloatArray,
-                        r_diag: FloatArray) -> FloatArray:
-    """Adaptive process noise: if the swing-rate innovation fails a χ² gate (an unmodelled trolley move or gust
-    accelerated the rope), add its square to the rope-rate variance, so the estimate follows the gyroscope
-    instead of bending the bias and tilt states. Returns the (possibly) inflated covariance."""
-    y = z[:2] - hx[:2]
-    hs = h_jac[:2]
-    s = hs @ p_pred @ hs.T + np.diag(r_diag[:2])
-    d2 = y @ np.linalg.solve(s, y)
-    out = p_pred.copy()
+def inflate_on_surprise(p_pred: FloatArray, hp: FloatArray, s: FloatArray, h_jac: FloatArray, m: int, y: FloatArray,
+                        params: FloatArray) -> bool:  # fmt: skip
+    """Adaptive process noise: if the swing-rate innovation `y[:2]` fails a χ² gate (an unmodelled trolley move or
+    gust accelerated the rope), add its square to the rope-rate variance, so the estimate follows the gyroscope
+    instead of bending the bias and tilt states. Inflates `p_pred` in place and keeps `hp` = H P and `s` =
+    H P Hᵀ + R (first `m` rows) in step with it; True if the variance grew."""
+    det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+    d2 = (s[1, 1] * y[0] * y[0] - (s[0, 1] + s[1, 0]) * y[0] * y[1] + s[0, 0] * y[1] * y[1]) / det
     gate = params[_GATE]
-    if d2 > gate:
-        extra = (y[0] * y[0] + y[1] * y[1]) * (1.0 - gate / d2)
-        out[2, 2] += extra
-        out[3, 3] += extra
-    return out
+    if not d2 > gate:
+        return False
+    extra = (y[0] * y[0] + y[1] * y[1]) * (1.0 - gate / d2)
+    before = p_pred[2, 2]
+    for i in (2, 3):
+        p_pred[i, i] += extra
+        for r in range(m):
+            hp[r, i] += extra * h_jac[r, i]
+    for r in range(m):
+        for c in range(m):
+            s[r, c] += extra * (h_jac[r, 2] * h_jac[c, 2] + h_jac[r, 3] * h_jac[c, 3])
+    return bool(p_pred[2, 2] > before)
 
 
 @njit
@@ -398,13 +449,151 @@ def _restrict_gain(k: FloatArray, surprised: bool) -> None:
 
 @njit
 def process_noise(x: FloatArray, dt_s: float, q_psd: FloatArray, params: FloatArray) -> FloatArray:
-    """Diagonal process noise (21,) for one step: `q_psd dt`, and on the rope rate the boom tip's acceleration
+    """Diagonal process noise (24,) for one step: `q_psd dt`, and on the rope rate the boom tip's acceleration
     and the force input's noise, both divided by the rope length."""
-    q = q_psd * dt_s
+    q = np.empty(N_STATE)
+    _process_noise_into(x, dt_s, q_psd, params, q)
+    return q
+
+
+@njit
+def _process_noise_into(x: FloatArray, dt_s: float, q_psd: FloatArray, params: FloatArray, q: FloatArray) -> None:
+    """`process_noise` written into `q` (N_STATE,)."""
+    for i in range(N_STATE):
+        q[i] = q_psd[i] * dt_s
     l = math.exp(x[_LOG_L])
     f = params[_FORCE_STD] * dt_s / l
     q[2] = q[3] = params[_TIP_PSD] * dt_s / (l * l) + f * f
-    return q
+
+
+# --- covariance arithmetic: F and H are sparse (F is the identity but for the pendulum, heading and rope rows; H
+# sees 15 of the 24 states), so the products run over their non-zero entries only, in preallocated buffers ---------
+
+
+@njit
+def _nonzero_columns(a: FloatArray, rows: int, idx: NDArray[np.int64], cnt: NDArray[np.int64]) -> None:
+    """For each of the first `rows` rows of `a`: its non-zero columns in `idx[i, :cnt[i]]`."""
+    for i in range(rows):
+        c = 0
+        for j in range(a.shape[1]):
+            if a[i, j] != 0.0:
+                idx[i, c] = j
+                c += 1
+        cnt[i] = c
+
+
+@njit
+def _predict_covariance(f_jac: FloatArray, p: FloatArray, q: FloatArray, idx: NDArray[np.int64],
+                        cnt: NDArray[np.int64], fp: FloatArray, out: FloatArray) -> None:  # fmt: skip
+    """`out = F P Fᵀ + diag(q)`: F P row by row over F's non-zeros (an identity row copies P's row), then the upper
+    triangle of (F P) Fᵀ, mirrored so `out` is exactly symmetric. `fp` (N, N) is scratch."""
+    n = p.shape[0]
+    _nonzero_columns(f_jac, n, idx, cnt)
+    for i in range(n):
+        fp[i, :] = 0.0
+        for t in range(cnt[i]):
+            j = idx[i, t]
+            f = f_jac[i, j]
+            for c in range(n):
+                fp[i, c] += f * p[j, c]
+    for i in range(n):
+        for k in range(i, n):
+            acc = 0.0
+            for t in range(cnt[k]):
+                j = idx[k, t]
+                acc += fp[i, j] * f_jac[k, j]
+            out[i, k] = acc
+            out[k, i] = acc
+        out[i, i] += q[i]
+
+
+@njit
+def _innovation_covariance(p: FloatArray, h_jac: FloatArray, m: int, r_diag: FloatArray, idx: NDArray[np.int64],
+                           cnt: NDArray[np.int64], hp: FloatArray, s: FloatArray) -> None:  # fmt: skip
+    """For the first `m` rows of H: `hp[:m] = H P` (= (P Hᵀ)ᵀ, P symmetric) and `s[:m, :m] = H P Hᵀ + diag(r)`
+    (upper triangle, mirrored), over H's non-zero columns."""
+    n = p.shape[0]
+    _nonzero_columns(h_jac, m, idx, cnt)
+    for r in range(m):
+        hp[r, :] = 0.0
+        for t in range(cnt[r]):
+            j = idx[r, t]
+            h = h_jac[r, j]
+            for c in range(n):
+                hp[r, c] += h * p[j, c]
+    for r in range(m):
+        for c in range(r, m):
+            acc = 0.0
+            for t in range(cnt[c]):
+                j = idx[c, t]
+                acc += hp[r, j] * h_jac[c, j]
+            s[r, c] = acc
+            s[c, r] = acc
+        s[r, r] += r_diag[r]
+
+
+@njit
+def _kalman_gain(hp: FloatArray, s: FloatArray, m: int, chol: FloatArray, kt: FloatArray) -> None:
+    """`kt[:m] = (P Hᵀ S⁻¹)ᵀ = S⁻¹ H P` by a Cholesky factor `chol` of S (m ≤ 7): one forward and one back
+    substitution per state."""
+    n = hp.shape[1]
+    for j in range(m):
+        d = s[j, j]
+        for t in range(j):
+            d -= chol[j, t] * chol[j, t]
+        chol[j, j] = math.sqrt(d)
+        for i in range(j + 1, m):
+            v = s[i, j]
+            for t in range(j):
+                v -= chol[i, t] * chol[j, t]
+            chol[i, j] = v / chol[j, j]
+    for c in range(n):
+        for r in range(m):  # L w = (H P)[:, c]
+            v = hp[r, c]
+            for t in range(r):
+                v -= chol[r, t] * kt[t, c]
+            kt[r, c] = v / chol[r, r]
+        for r in range(m - 1, -1, -1):  # Lᵀ k = w
+            v = kt[r, c]
+            for t in range(r + 1, m):
+                v -= chol[t, r] * kt[t, c]
+            kt[r, c] = v / chol[r, r]
+
+
+@njit
+def _joseph_update(p: FloatArray, hp: FloatArray, kt: FloatArray, h_jac: FloatArray, m: int, r_diag: FloatArray,
+                   idx: NDArray[np.int64], cnt: NDArray[np.int64], b: FloatArray, bh: FloatArray,
+                   out: FloatArray) -> None:  # fmt: skip
+    """`out = (I - K H) P (I - K H)ᵀ + K R Kᵀ` (Joseph form: right for the restricted, non-optimal gain too) as
+    `B = P - K (H P)`, then `B - (B Hᵀ) Kᵀ + K R Kᵀ`, symmetrised (`out` may be `p`); `idx`/`cnt` hold H's
+    non-zero columns (`_innovation_covariance`), `b` (N, N) and `bh` (7, N) are scratch."""
+    n = p.shape[0]
+    for i in range(n):
+        b[i, :] = p[i, :]
+        for r in range(m):
+            k = kt[r, i]
+            if k != 0.0:
+                for c in range(n):
+                    b[i, c] -= k * hp[r, c]
+    for r in range(m):
+        for i in range(n):
+            acc = 0.0
+            for t in range(cnt[r]):
+                j = idx[r, t]
+                acc += b[i, j] * h_jac[r, j]
+            bh[r, i] = acc
+    for i in range(n):
+        out[i, :] = b[i, :]
+        for r in range(m):
+            w = kt[r, i] * r_diag[r] - bh[r, i]
+            if w != 0.0:
+                for c in range(n):
+                    out[i, c] += w * kt[r, c]
+    for i in range(n):
+        for c in range(i + 1, n):
+            v = 0.5 * (out[i, c] + out[c, i])
+            out[i, c] = v
+            out[c, i] = v
 
 
 @njit
@@ -430,12 +619,37 @@ def _mean_test(w0: float, w1: float, tau_s: float, gate: float, dt_s: float, mon
     return stat > gate
 
 
+_Work = tuple[FloatArray, FloatArray, FloatArray, FloatArray, NDArray[np.int64], NDArray[np.int64]]
+
+
+@njit
+def _workspace() -> _Work:
+    """Buffers of `_ekf_step_into`: vectors (7, N), N × N matrices (3), 7 × N matrices (4), 7 × 7 matrices (2), and
+    the non-zero column lists of F or H (N, N) with their counts (N,)."""
+    return (np.zeros((7, N_STATE)), np.zeros((3, N_STATE, N_STATE)), np.zeros((4, 7, N_STATE)), np.zeros((2, 7, 7)),
+            np.zeros((N_STATE, N_STATE), dtype=np.int64), np.zeros(N_STATE, dtype=np.int64))  # fmt: skip
+
+
 @njit
 def ekf_step(
     x: FloatArray, p: FloatArray, z: FloatArray, u: FloatArray, dt_s: float, params: FloatArray, q_psd: FloatArray,
     r_diag: FloatArray, monitor: FloatArray,
 ) -> tuple[FloatArray, FloatArray]:
-    """One predict + update in filterpy's operation order (Joseph form); `z` and `r_diag` are (4,) or (7,).
+    """One predict + update (`_ekf_step_into` on copies of `x`, `p`): the new state and covariance."""
+    x_new, p_new = x.copy(), p.copy()
+    vecs, mats, hm, ss, idx, cnt = _workspace()
+    _ekf_step_into(x_new, p_new, z, u, dt_s, params, q_psd, r_diag, monitor, vecs, mats, hm, ss, idx, cnt)
+    return x_new, p_new
+
+
+@njit
+def _ekf_step_into(
+    x: FloatArray, p: FloatArray, z: FloatArray, u: FloatArray, dt_s: float, params: FloatArray, q_psd: FloatArray,
+    r_diag: FloatArray, monitor: FloatArray, vecs: FloatArray, mats: FloatArray, hm: FloatArray, ss: FloatArray,
+    idx: NDArray[np.int64], cnt: NDArray[np.int64],
+) -> None:
+    """One predict + update of `x`, `p` in place, in filterpy's operation order (Joseph form); `z` and `r_diag`
+    are (4,) or (7,); `vecs` ... `cnt` are the buffers of `_workspace()`.
 
     `monitor` (N_MONITOR,) is updated in place: [0] a running mean (time constant `params[_NIS_TAU]`) of the
     swing-rate innovation's normalised square (2 on average when the model holds), [1] the seconds a detected move
@@ -450,17 +664,22 @@ def ekf_step(
     predicted tip acceleration exceeds `params[_TIP_GATE]` times its stationary variance, the tip state's variance
     is held at `params[_TIP_MOVE]`² (NIS) or `params[_TIP_GATE_STD]`² (tip)."""
     m = z.shape[0]
-    f_jac = process_jacobian(x, dt_s, u, params)
-    x_pred = process(x, dt_s, u, params)
-    p_pred = f_jac @ p @ f_jac.T + np.diag(process_noise(x, dt_s, q_psd, params))
-    h_full, h_jac_full = measurement_jacobian(x_pred, params)
-    hx, h_jac = h_full[:m], h_jac_full[:m]
-    y = z[:2] - hx[:2]
-    s2 = h_jac[:2] @ p_pred @ h_jac[:2].T + np.diag(r_diag[:2])
-    monitor[0] += (y @ np.linalg.solve(s2, y) - monitor[0]) * min(1.0, dt_s / params[_NIS_TAU])
+    x_pred, xp, buf, q, hx, hbuf, y = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4, :7], vecs[5, :7], vecs[6, :7]
+    f_jac, scratch, p_pred = mats[0], mats[1], mats[2]
+    h_jac, hp, kt, bh = hm[0], hm[1], hm[2], hm[3]
+    s, chol = ss[0], ss[1]
+    _process_jacobian_into(x, dt_s, u, params, x_pred, f_jac, xp, buf)
+    _process_noise_into(x, dt_s, q_psd, params, q)
+    _predict_covariance(f_jac, p, q, idx, cnt, scratch, p_pred)
+    _measurement_jacobian_into(x_pred, params, hx, h_jac, xp, hbuf)
+    for i in range(m):
+        y[i] = z[i] - hx[i]
+    _innovation_covariance(p_pred, h_jac, 2, r_diag, idx, cnt, hp, s)
+    s2 = s[:2, :2]
+    w0, w1 = _whiten(y, s2)
+    monitor[0] += (w0 * w0 + w1 * w1 - monitor[0]) * min(1.0, dt_s / params[_NIS_TAU])
     moving = monitor[0] > params[_NIS_GATE]
     monitor[5] = 0.0
-    w0, w1 = _whiten(y, s2)
     if params[_MEAN_GATE] > 0.0 and _mean_test(w0, w1, params[_MEAN_TAU], params[_MEAN_GATE], dt_s, monitor, 2):
         monitor[2] = monitor[3] = 0.0  # a jump of the boom-tip acceleration: open its state once, test afresh
         monitor[6] = monitor[7] = 0.0
@@ -501,12 +720,10 @@ def ekf_step(
     if moving:
         for i in (17, 18):
             p_pred[i, i] = max(p_pred[i, i], move_std**2)
-    p_inflated = inflate_on_surprise(p_pred, h_jac, hx, z, params, r_diag)
-    surprised = p_inflated[2, 2] > p_pred[2, 2]
-    p_pred = p_inflated
-    rmat = np.diag(r_diag)
-    pht = p_pred @ h_jac.T
-    k = pht @ np.linalg.inv(h_jac @ pht + rmat)
+    _innovation_covariance(p_pred, h_jac, m, r_diag, idx, cnt, hp, s)
+    surprised = inflate_on_surprise(p_pred, hp, s, h_jac, m, y, params)
+    _kalman_gain(hp, s, m, chol, kt)
+    k = kt[:m].T
     _restrict_gain(k, surprised)
     if (moving or jump) and params[_MOVE_FREEZE] > 0.0:
         for j in range(k.shape[1]):
@@ -515,11 +732,13 @@ def ekf_step(
             if params[_MOVE_FREEZE] < 1.5:
                 for i in (6, 7):
                     k[i, j] = 0.0
-    x_new = x_pred + k @ (z - hx)
-    i_kh = np.eye(N_STATE) - k @ h_jac
-    p_new = i_kh @ p_pred @ i_kh.T + k @ rmat @ k.T
-    _post_update(x_new, params)
-    return x_new, p_new
+    for i in range(N_STATE):
+        v = x_pred[i]
+        for r in range(m):
+            v += kt[r, i] * y[r]
+        x[i] = v
+    _joseph_update(p_pred, hp, kt, h_jac, m, r_diag, idx, cnt, scratch, bh, p)
+    _post_update(x, params)
 
 
 @njit
@@ -541,6 +760,7 @@ def ekf_run(
     out = np.empty((n, 4))
     lengths = np.empty(n)
     x, p = x0.copy(), p0.copy()
+    vecs, mats, hm, ss, idx, cnt = _workspace()
     if hist_n[1] != m:
         hist_n[0], hist_n[1] = 0, m
     quiet = params.copy()
@@ -550,20 +770,22 @@ def ekf_run(
         hist_x[k], hist_p[k], hist_mon[k] = x, p, monitor
         hist_z[k, :m], hist_u[k] = z[i], u[i]
         hist_n[0] += 1
-        x, p = ekf_step(x, p, z[i], u[i], dt_s, params, q_psd, r_diag, monitor)
+        _ekf_step_into(x, p, z[i], u[i], dt_s, params, q_psd, r_diag, monitor, vecs, mats, hm, ss, idx, cnt)
         if monitor[5] > 0.0 and b > 1:
             j0 = hist_n[0] - min(hist_n[0], b)
-            x, p = hist_x[j0 % b].copy(), hist_p[j0 % b].copy()
+            x[:] = hist_x[j0 % b]
+            p[:, :] = hist_p[j0 % b]
             mon = hist_mon[j0 % b].copy()
             mon[8] = params[_TRACK_S]
             for t in (17, 18):
                 p[t, t] += params[_TIP_MOVE] * params[_TIP_MOVE]
             p[_LOG_L, _LOG_L] += params[_JUMP_ROPE] * params[_JUMP_ROPE]
             for j in range(j0, hist_n[0]):
-                x, p = ekf_step(x, p, hist_z[j % b, :m], hist_u[j % b], dt_s, quiet, q_psd, r_diag, mon)
+                _ekf_step_into(x, p, hist_z[j % b, :m], hist_u[j % b], dt_s, quiet, q_psd, r_diag, mon, vecs, mats, hm,
+                               ss, idx, cnt)
             monitor[0], monitor[1] = mon[0], mon[1]
             hist_n[0] = 0  # a later jump goes back no further than this one
-        out[i] = attitude_and_rate(x)[0]
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3], _, _, _ = _attitude_rate(x[0], x[1], x[2], x[3], x[4], x[5])
         lengths[i] = math.exp(x[_LOG_L])
     return out, lengths, x, p
 
