@@ -533,9 +533,9 @@ def _innovation_covariance(p: FloatArray, h_jac: FloatArray, m: int, r_diag: Flo
 
 
 @njit
-def _kalman_gain(hp: FloatArray, s: FloatArray, m: int, chol: FloatArray, kt: FloatArray) -> None:
-    """`kt[:m] = (P Hᵀ S⁻¹)ᵀ = S⁻¹ H P` by a Cholesky factor `chol` of S (m ≤ 7): one forward and one back
-    substitution per state."""
+def _kalman_gain(hp: FloatArray, s: FloatArray, m: int, chol: FloatArray, wt: FloatArray, kt: FloatArray) -> None:
+    """`kt[:m] = (P Hᵀ S⁻¹)ᵀ = S⁻¹ H P` by the Cholesky factor `chol` = L of S (m ≤ 7): `wt[:m] = L⁻¹ H P` by
+    forward substitution (then P Hᵀ S⁻¹ H P = Wᵀ W), `kt` = L⁻ᵀ W by back substitution, a state per lane."""
     n = hp.shape[1]
     for j in range(m):
         d = s[j, j]
@@ -547,53 +547,66 @@ def _kalman_gain(hp: FloatArray, s: FloatArray, m: int, chol: FloatArray, kt: Fl
             for t in range(j):
                 v -= chol[i, t] * chol[j, t]
             chol[i, j] = v / chol[j, j]
-    for c in range(n):
-        for r in range(m):  # L w = (H P)[:, c]
-            v = hp[r, c]
-            for t in range(r):
-                v -= chol[r, t] * kt[t, c]
-            kt[r, c] = v / chol[r, r]
-        for r in range(m - 1, -1, -1):  # Lᵀ k = w
-            v = kt[r, c]
-            for t in range(r + 1, m):
-                v -= chol[t, r] * kt[t, c]
-            kt[r, c] = v / chol[r, r]
+    for r in range(m):
+        wt[r, :] = hp[r, :]
+        for t in range(r):
+            c = chol[r, t]
+            for i in range(n):
+                wt[r, i] -= c * wt[t, i]
+        d = chol[r, r]
+        for i in range(n):
+            wt[r, i] /= d
+    for r in range(m - 1, -1, -1):
+        kt[r, :] = wt[r, :]
+        for t in range(r + 1, m):
+            c = chol[t, r]
+            for i in range(n):
+                kt[r, i] -= c * kt[t, i]
+        d = chol[r, r]
+        for i in range(n):
+            kt[r, i] /= d
 
 
 @njit
-def _joseph_update(p: FloatArray, hp: FloatArray, kt: FloatArray, h_jac: FloatArray, m: int, r_diag: FloatArray,
-                   idx: NDArray[np.int64], cnt: NDArray[np.int64], b: FloatArray, bh: FloatArray,
-                   out: FloatArray) -> None:  # fmt: skip
-    """`out = (I - K H) P (I - K H)ᵀ + K R Kᵀ` (Joseph form: right for the restricted, non-optimal gain too) as
-    `B = P - K (H P)`, then `B - (B Hᵀ) Kᵀ + K R Kᵀ`, symmetrised (`out` may be `p`); `idx`/`cnt` hold H's
-    non-zero columns (`_innovation_covariance`), `b` (N, N) and `bh` (7, N) are scratch."""
+def _covariance_update(p: FloatArray, wt: FloatArray, kt: FloatArray, k_opt: FloatArray, s: FloatArray, m: int,
+                       rows: NDArray[np.int64], ds: FloatArray) -> None:  # fmt: skip
+    """`p ← (I - K H) P (I - K H)ᵀ + K R Kᵀ` (Joseph's form, right for any gain) in place, for a gain `kt` (m, N)
+    that differs from the optimal `k_opt` = S⁻¹ H P in a few rows (`_restrict_gain` and the move freeze zero some):
+    with D = K - K_opt, Joseph's form is exactly `P - P Hᵀ S⁻¹ H P + D S Dᵀ` = `P - Wᵀ W + D S Dᵀ` (`wt` = L⁻¹ H P,
+    `_kalman_gain`), the first part on the upper triangle (mirrored: exactly symmetric), the second on the rows
+    where D is not 0 only. `rows` (N,) and `ds` (N, ≥ 7) are scratch."""
     n = p.shape[0]
     for i in range(n):
-        b[i, :] = p[i, :]
         for r in range(m):
-            k = kt[r, i]
-            if k != 0.0:
-                for c in range(n):
-                    b[i, c] -= k * hp[r, c]
-    for r in range(m):
-        for i in range(n):
-            acc = 0.0
-            for t in range(cnt[r]):
-                j = idx[r, t]
-                acc += b[i, j] * h_jac[r, j]
-            bh[r, i] = acc
-    for i in range(n):
-        out[i, :] = b[i, :]
-        for r in range(m):
-            w = kt[r, i] * r_diag[r] - bh[r, i]
+            w = wt[r, i]
             if w != 0.0:
-                for c in range(n):
-                    out[i, c] += w * kt[r, c]
+                for c in range(i, n):
+                    p[i, c] -= w * wt[r, c]
+    nd = 0
+    for i in range(n):
+        for r in range(m):
+            if kt[r, i] != k_opt[r, i]:
+                rows[nd] = i
+                nd += 1
+                break
+    for a in range(nd):  # D S on the rows of D that are not 0
+        i = rows[a]
+        for c in range(m):
+            v = 0.0
+            for r in range(m):
+                v += (kt[r, i] - k_opt[r, i]) * s[r, c]
+            ds[a, c] = v
+    for a in range(nd):
+        i = rows[a]
+        for b in range(a, nd):
+            k = rows[b]
+            v = 0.0
+            for c in range(m):
+                v += ds[a, c] * (kt[c, k] - k_opt[c, k])
+            p[i, k] += v
     for i in range(n):
         for c in range(i + 1, n):
-            v = 0.5 * (out[i, c] + out[c, i])
-            out[i, c] = v
-            out[c, i] = v
+            p[c, i] = p[i, c]
 
 
 @njit
@@ -624,9 +637,9 @@ _Work = tuple[FloatArray, FloatArray, FloatArray, FloatArray, NDArray[np.int64],
 
 @njit
 def _workspace() -> _Work:
-    """Buffers of `_ekf_step_into`: vectors (7, N), N × N matrices (3), 7 × N matrices (4), 7 × 7 matrices (2), and
+    """Buffers of `_ekf_step_into`: vectors (7, N), N × N matrices (3), 7 × N matrices (5), 7 × 7 matrices (2), and
     the non-zero column lists of F or H (N, N) with their counts (N,)."""
-    return (np.zeros((7, N_STATE)), np.zeros((3, N_STATE, N_STATE)), np.zeros((4, 7, N_STATE)), np.zeros((2, 7, 7)),
+    return (np.zeros((7, N_STATE)), np.zeros((3, N_STATE, N_STATE)), np.zeros((5, 7, N_STATE)), np.zeros((2, 7, 7)),
             np.zeros((N_STATE, N_STATE), dtype=np.int64), np.zeros(N_STATE, dtype=np.int64))  # fmt: skip
 
 
@@ -666,7 +679,7 @@ def _ekf_step_into(
     m = z.shape[0]
     x_pred, xp, buf, q, hx, hbuf, y = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4, :7], vecs[5, :7], vecs[6, :7]
     f_jac, scratch, p_pred = mats[0], mats[1], mats[2]
-    h_jac, hp, kt, bh = hm[0], hm[1], hm[2], hm[3]
+    h_jac, hp, kt, wt, k_opt = hm[0], hm[1], hm[2], hm[3], hm[4]
     s, chol = ss[0], ss[1]
     _process_jacobian_into(x, dt_s, u, params, x_pred, f_jac, xp, buf)
     _process_noise_into(x, dt_s, q_psd, params, q)
@@ -722,7 +735,8 @@ def _ekf_step_into(
             p_pred[i, i] = max(p_pred[i, i], move_std**2)
     _innovation_covariance(p_pred, h_jac, m, r_diag, idx, cnt, hp, s)
     surprised = inflate_on_surprise(p_pred, hp, s, h_jac, m, y, params)
-    _kalman_gain(hp, s, m, chol, kt)
+    _kalman_gain(hp, s, m, chol, wt, kt)
+    k_opt[:m] = kt[:m]
     k = kt[:m].T
     _restrict_gain(k, surprised)
     if (moving or jump) and params[_MOVE_FREEZE] > 0.0:
@@ -737,7 +751,8 @@ def _ekf_step_into(
         for r in range(m):
             v += kt[r, i] * y[r]
         x[i] = v
-    _joseph_update(p_pred, hp, kt, h_jac, m, r_diag, idx, cnt, scratch, bh, p)
+    _covariance_update(p_pred, wt, kt, k_opt, s, m, cnt, scratch)
+    p[:, :] = p_pred
     _post_update(x, params)
 
 
