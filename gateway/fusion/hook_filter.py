@@ -485,26 +485,31 @@ def _nonzero_columns(a: FloatArray, rows: int, idx: NDArray[np.int64], cnt: NDAr
 @njit
 def _predict_covariance(f_jac: FloatArray, p: FloatArray, q: FloatArray, idx: NDArray[np.int64],
                         cnt: NDArray[np.int64], fp: FloatArray, out: FloatArray) -> None:  # fmt: skip
-    """`out = F P Fᵀ + diag(q)`: F P row by row over F's non-zeros (an identity row copies P's row), then the upper
-    triangle of (F P) Fᵀ, mirrored so `out` is exactly symmetric. `fp` (N, N) is scratch."""
+    """`out = F P Fᵀ + diag(q)`: `fp = (F P)ᵀ` = P Fᵀ row by row over F's non-zeros (an identity row copies P's
+    row), then `out = F fp` the same way; the upper triangle is mirrored so `out` is exactly symmetric. `fp`
+    (N, N) is scratch."""
     n = p.shape[0]
     _nonzero_columns(f_jac, n, idx, cnt)
     for i in range(n):
-        fp[i, :] = 0.0
+        out[i, :] = 0.0
         for t in range(cnt[i]):
             j = idx[i, t]
             f = f_jac[i, j]
             for c in range(n):
-                fp[i, c] += f * p[j, c]
+                out[i, c] += f * p[j, c]
     for i in range(n):
-        for k in range(i, n):
-            acc = 0.0
-            for t in range(cnt[k]):
-                j = idx[k, t]
-                acc += fp[i, j] * f_jac[k, j]
-            out[i, k] = acc
-            out[k, i] = acc
+        for c in range(n):
+            fp[c, i] = out[i, c]
+    for i in range(n):
+        out[i, i:] = 0.0
+        for t in range(cnt[i]):
+            j = idx[i, t]
+            f = f_jac[i, j]
+            for c in range(i, n):
+                out[i, c] += f * fp[j, c]
         out[i, i] += q[i]
+        for c in range(i + 1, n):
+            out[c, i] = out[i, c]
 
 
 @njit
@@ -573,15 +578,14 @@ def _covariance_update(p: FloatArray, wt: FloatArray, kt: FloatArray, k_opt: Flo
     """`p ← (I - K H) P (I - K H)ᵀ + K R Kᵀ` (Joseph's form, right for any gain) in place, for a gain `kt` (m, N)
     that differs from the optimal `k_opt` = S⁻¹ H P in a few rows (`_restrict_gain` and the move freeze zero some):
     with D = K - K_opt, Joseph's form is exactly `P - P Hᵀ S⁻¹ H P + D S Dᵀ` = `P - Wᵀ W + D S Dᵀ` (`wt` = L⁻¹ H P,
-    `_kalman_gain`), the first part on the upper triangle (mirrored: exactly symmetric), the second on the rows
-    where D is not 0 only. `rows` (N,) and `ds` (N, ≥ 7) are scratch."""
+    `_kalman_gain`), the second part on the rows where D is not 0 only; P stays exactly symmetric. `rows` (N,) and
+    `ds` (N, ≥ 7) are scratch."""
     n = p.shape[0]
-    for i in range(n):
+    for i in range(n):  # all of Wᵀ W, in the same order for (i, c) and (c, i): P stays exactly symmetric
         for r in range(m):
             w = wt[r, i]
-            if w != 0.0:
-                for c in range(i, n):
-                    p[i, c] -= w * wt[r, c]
+            for c in range(n):
+                p[i, c] -= w * wt[r, c]
     nd = 0
     for i in range(n):
         for r in range(m):
@@ -604,9 +608,8 @@ def _covariance_update(p: FloatArray, wt: FloatArray, kt: FloatArray, k_opt: Flo
             for c in range(m):
                 v += ds[a, c] * (kt[c, k] - k_opt[c, k])
             p[i, k] += v
-    for i in range(n):
-        for c in range(i + 1, n):
-            p[c, i] = p[i, c]
+            if k != i:
+                p[k, i] += v
 
 
 @njit
