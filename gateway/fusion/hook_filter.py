@@ -254,17 +254,39 @@ def process(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray) -> Fl
 
 @njit
 def _process_into(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray, out: FloatArray) -> None:
-    """`process` written into `out` (N_STATE,): no allocation, it runs 15 times per sample in the Jacobian."""
+    """`process` written into `out` (N_STATE,), no allocation. Built from the pieces `_process_jacobian_into`
+    re-runs for one perturbed state at a time (`_horizontal_force`, `_swing_rk4`, `_rope_step`): a state that feeds
+    a piece here must feed it there too (tests/fusion/test_hook_kernel.py checks the two Jacobians agree)."""
     px, py, vx, vy = x[0], x[1], x[2], x[3]
-    g = params[_G]
     l0 = math.exp(x[_LOG_L])
     ld, ldd = x[_L_RATE], x[_L_ACC]
     l = max(l0 + 0.5 * dt_s * ld, params[_L_MIN])
     qw, qx, qy, qz, _, _, _ = _attitude_rate(px, py, vx, vy, x[4], x[5])
     fx, fy = force_input(u, x[19], x[20], params[_RZ])
-    fx, fy = (fx - x[10]) * params[_FORCE_ON], (fy - x[11]) * params[_FORCE_ON]
-    wx = (1.0 - 2.0 * (qy * qy + qz * qz)) * fx + 2.0 * (qx * qy - qw * qz) * fy - x[17]
-    wy = 2.0 * (qx * qy + qw * qz) * fx + (1.0 - 2.0 * (qx * qx + qz * qz)) * fy - x[18]
+    wx, wy = _horizontal_force(qw, qx, qy, qz, fx - x[10], fy - x[11], x[17], x[18], params)
+    out[:] = x
+    out[0], out[1], out[2], out[3] = _swing_rk4(px, py, vx, vy, params[_G], l, ld, wx, wy, dt_s)
+    out[4] = x[4] + dt_s * x[5]
+    out[_LOG_L], out[_L_RATE], out[_L_ACC] = _rope_step(l0, ld, ldd, dt_s, params)
+    decay = math.exp(-dt_s / params[_TIP_TAU])
+    out[17], out[18] = x[17] * decay, x[18] * decay
+
+
+@njit
+def _horizontal_force(qw: float, qx: float, qy: float, qz: float, fx: float, fy: float, tip_x: float, tip_y: float,
+                      params: FloatArray) -> tuple[float, float]:  # fmt: skip
+    """`W`: the body x/y non-tension force `(fx, fy)` (bias removed; 0 unless `params[_FORCE_ON]`) turned to ENU by
+    `q`, minus the boom tip's acceleration."""
+    fx, fy = fx * params[_FORCE_ON], fy * params[_FORCE_ON]
+    wx = (1.0 - 2.0 * (qy * qy + qz * qz)) * fx + 2.0 * (qx * qy - qw * qz) * fy - tip_x
+    wy = 2.0 * (qx * qy + qw * qz) * fx + (1.0 - 2.0 * (qx * qx + qz * qz)) * fy - tip_y
+    return wx, wy
+
+
+@njit
+def _swing_rk4(px: float, py: float, vx: float, vy: float, g: float, l: float, ld: float, wx: float, wy: float,
+               dt_s: float) -> tuple[float, float, float, float]:  # fmt: skip
+    """`(p, v)` after `dt_s`: one RK4 step of `_pendulum_accel` with the rope length `l`, its rate and `W` held."""
     a1x, a1y = _pendulum_accel(px, py, vx, vy, g, l, ld, wx, wy)
     h = 0.5 * dt_s
     a2x, a2y = _pendulum_accel(px + h * vx, py + h * vy, vx + h * a1x, vy + h * a1y, g, l, ld, wx, wy)
@@ -272,17 +294,19 @@ def _process_into(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray,
                                ld, wx, wy)  # fmt: skip
     a4x, a4y = _pendulum_accel(px + dt_s * (vx + h * a2x), py + dt_s * (vy + h * a2y), vx + dt_s * a3x,
                                vy + dt_s * a3y, g, l, ld, wx, wy)  # fmt: skip
-    out[:] = x
-    out[0] = px + dt_s / 6.0 * (vx + 2.0 * (vx + h * a1x) + 2.0 * (vx + h * a2x) + (vx + dt_s * a3x))
-    out[1] = py + dt_s / 6.0 * (vy + 2.0 * (vy + h * a1y) + 2.0 * (vy + h * a2y) + (vy + dt_s * a3y))
-    out[2] = vx + dt_s / 6.0 * (a1x + 2.0 * a2x + 2.0 * a3x + a4x)
-    out[3] = vy + dt_s / 6.0 * (a1y + 2.0 * a2y + 2.0 * a3y + a4y)
-    out[4] = x[4] + dt_s * x[5]
-    out[_LOG_L] = math.log(max(l0 + dt_s * ld + 0.5 * dt_s * dt_s * ldd, params[_L_MIN]))
-    out[_L_RATE] = (ld + dt_s * ldd) * (math.exp(-dt_s / params[_L_RATE_TAU]) if params[_L_RATE_TAU] > 0.0 else 1.0)
-    out[_L_ACC] = ldd * math.exp(-dt_s / params[_HOIST_TAU])
-    decay = math.exp(-dt_s / params[_TIP_TAU])
-    out[17], out[18] = x[17] * decay, x[18] * decay
+    return (px + dt_s / 6.0 * (vx + 2.0 * (vx + h * a1x) + 2.0 * (vx + h * a2x) + (vx + dt_s * a3x)),
+            py + dt_s / 6.0 * (vy + 2.0 * (vy + h * a1y) + 2.0 * (vy + h * a2y) + (vy + dt_s * a3y)),
+            vx + dt_s / 6.0 * (a1x + 2.0 * a2x + 2.0 * a3x + a4x),
+            vy + dt_s / 6.0 * (a1y + 2.0 * a2y + 2.0 * a3y + a4y))  # fmt: skip
+
+
+@njit
+def _rope_step(l0: float, ld: float, ldd: float, dt_s: float, params: FloatArray) -> tuple[float, float, float]:
+    """`(ln l, l', l'')` after `dt_s` from the length `l0` (m), its rate and acceleration: the length integrates
+    both, the rate reverts to 0 (`params[_L_RATE_TAU]`, 0: not), the hoist acceleration decays."""
+    log_l = math.log(max(l0 + dt_s * ld + 0.5 * dt_s * dt_s * ldd, params[_L_MIN]))
+    rate = (ld + dt_s * ldd) * (math.exp(-dt_s / params[_L_RATE_TAU]) if params[_L_RATE_TAU] > 0.0 else 1.0)
+    return log_l, rate, ldd * math.exp(-dt_s / params[_HOIST_TAU])
 
 
 @njit
@@ -338,30 +362,81 @@ _H_COLS = (0, 1, 2, 3, 4, 5, 14, 15)
 @njit
 def process_jacobian(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray) -> FloatArray:
     """Jacobian (24, 24) of `process` at `x`: forward differences (step 1e-7) in the columns the pendulum and the
-    rope length depend on; the rest is exact (α integrates α'; rates, biases and offsets random-walk)."""
-    f_jac = np.empty((N_STATE, N_STATE))
-    _process_jacobian_into(x, dt_s, u, params, np.empty(N_STATE), f_jac, np.empty(N_STATE), np.empty(N_STATE))
+    rope length depend on (`_F_COLS`); the rest is exact (α integrates α'; rates, biases and offsets random-walk).
+    The plain definition, one `process` per column; `ekf_step` runs `_process_jacobian_into`, the same numbers."""
+    eps = 1e-7
+    f0 = process(x, dt_s, u, params)
+    f_jac = np.eye(N_STATE)
+    f_jac[4, 5] = dt_s
+    xp = x.copy()
+    for j in _F_COLS:
+        xp[j] += eps
+        f_jac[:, j] = (process(xp, dt_s, u, params) - f0) / eps
+        xp[j] = x[j]
     return f_jac
 
 
 @njit
 def _process_jacobian_into(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray, f0: FloatArray,
-                           f_jac: FloatArray, xp: FloatArray, buf: FloatArray) -> None:  # fmt: skip
-    """`process_jacobian` into `f_jac`, with `process(x)` into `f0` (the predicted state); `xp`, `buf` (N_STATE,)
-    are scratch."""
+                           f_jac: FloatArray) -> None:  # fmt: skip
+    """`process_jacobian` into `f_jac` and `process(x)` into `f0` (the predicted state), bit for bit, but each
+    perturbed column re-runs only the pieces of `process` its state feeds (the pendulum's RK4 for all but l'', the
+    rotation for the swing and heading, the rope step for the rope), and the entries it cannot change are 0 (as the
+    plain differences give them exactly)."""
     eps = 1e-7
     _process_into(x, dt_s, u, params, f0)
     f_jac[:, :] = 0.0
     for i in range(N_STATE):
         f_jac[i, i] = 1.0
     f_jac[4, 5] = dt_s
-    xp[:] = x
+    px, py, vx, vy, alpha = x[0], x[1], x[2], x[3], x[4]
+    g = params[_G]
+    l0 = math.exp(x[_LOG_L])
+    ld, ldd = x[_L_RATE], x[_L_ACC]
+    l = max(l0 + 0.5 * dt_s * ld, params[_L_MIN])
+    qw, qx, qy, qz, _, _, _ = _attitude_rate(px, py, vx, vy, alpha, x[5])
+    fx, fy = force_input(u, x[19], x[20], params[_RZ])
+    bx, by = fx - x[10], fy - x[11]
+    wx, wy = _horizontal_force(qw, qx, qy, qz, bx, by, x[17], x[18], params)
     for j in _F_COLS:
-        xp[j] += eps
-        _process_into(xp, dt_s, u, params, buf)
-        for i in range(N_STATE):
-            f_jac[i, j] = (buf[i] - f0[i]) / eps
-        xp[j] = x[j]
+        xj = x[j] + eps
+        if j <= 4:  # the swing and the heading: the rotation of the force changes with them
+            s = (xj if j == 0 else px, xj if j == 1 else py, xj if j == 2 else vx, xj if j == 3 else vy,
+                 xj if j == 4 else alpha)  # fmt: skip
+            rw, rx, ry, rz, _, _, _ = _attitude_rate(s[0], s[1], s[2], s[3], s[4], x[5])
+            wxj, wyj = _horizontal_force(rw, rx, ry, rz, bx, by, x[17], x[18], params)
+            sw = _swing_rk4(s[0], s[1], s[2], s[3], g, l, ld, wxj, wyj, dt_s)
+            if j == 4:
+                f_jac[4, 4] = (xj + dt_s * x[5] - f0[4]) / eps
+        elif j == _LOG_L or j == _L_RATE or j == _L_ACC:  # the rope: its step, and the pendulum but for l''
+            l0j = math.exp(xj) if j == _LOG_L else l0
+            ldj = xj if j == _L_RATE else ld
+            lddj = xj if j == _L_ACC else ldd
+            rope = _rope_step(l0j, ldj, lddj, dt_s, params)
+            for i in range(3):
+                f_jac[_LOG_L + i, j] = (rope[i] - f0[_LOG_L + i]) / eps
+            if j == _L_ACC:
+                continue
+            lj = max(l0j + 0.5 * dt_s * ldj, params[_L_MIN])
+            sw = _swing_rk4(px, py, vx, vy, g, lj, ldj, wx, wy, dt_s)
+        else:  # the force's bias, the boom tip, the lever arm: the force only
+            bxj, byj = bx, by
+            if j == 10:
+                bxj = fx - xj
+            elif j == 11:
+                byj = fy - xj
+            elif j == 19 or j == 20:
+                fxj, fyj = force_input(u, xj if j == 19 else x[19], xj if j == 20 else x[20], params[_RZ])
+                bxj, byj = fxj - x[10], fyj - x[11]
+            wxj, wyj = _horizontal_force(qw, qx, qy, qz, bxj, byj, xj if j == 17 else x[17], xj if j == 18 else x[18],
+                                         params)  # fmt: skip
+            sw = _swing_rk4(px, py, vx, vy, g, l, ld, wxj, wyj, dt_s)
+            if j == 17 or j == 18:
+                f_jac[j, j] = (xj * math.exp(-dt_s / params[_TIP_TAU]) - f0[j]) / eps
+            else:  # a random walk: `process` copies it
+                f_jac[j, j] = (xj - x[j]) / eps
+        for i in range(4):
+            f_jac[i, j] = (sw[i] - f0[i]) / eps
 
 
 @njit
@@ -685,11 +760,11 @@ def _ekf_step_into(
     predicted tip acceleration exceeds `params[_TIP_GATE]` times its stationary variance, the tip state's variance
     is held at `params[_TIP_MOVE]`² (NIS) or `params[_TIP_GATE_STD]`² (tip)."""
     m = z.shape[0]
-    x_pred, xp, buf, q, hx, hbuf, y = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4, :7], vecs[5, :7], vecs[6, :7]
+    x_pred, xp, q, hx, hbuf, y = vecs[0], vecs[1], vecs[3], vecs[4, :7], vecs[5, :7], vecs[6, :7]
     f_jac, scratch, p_pred = mats[0], mats[1], mats[2]
     h_jac, hp, kt, wt, k_opt = hm[0], hm[1], hm[2], hm[3], hm[4]
     s, chol = ss[0], ss[1]
-    _process_jacobian_into(x, dt_s, u, params, x_pred, f_jac, xp, buf)
+    _process_jacobian_into(x, dt_s, u, params, x_pred, f_jac)
     _process_noise_into(x, dt_s, q_psd, params, q)
     _predict_covariance(f_jac, p, q, idx, cnt, scratch, p_pred)
     _measurement_jacobian_into(x_pred, params, hx, h_jac, xp, hbuf)
