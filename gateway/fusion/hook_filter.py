@@ -198,6 +198,19 @@ def _attitude_rate(
     With `q_swing = (a, b, c, 0)` and its rate `(a', b', c', 0)`, the swing part of the body rate is
     `2 vec(q_swing* ⊗ q_swing') = 2 (a b' - b a', a c' - c a', c b' - b c')`; the twist `q_z(α)` turns it by `-α`
     about z and adds `α'` on z."""
+    return _attitude_rate_trig(px, py, vx, vy, _twist_trig(alpha), alpha_rate)
+
+
+@njit
+def _twist_trig(alpha: float) -> tuple[float, float, float, float]:
+    """`(cos α/2, sin α/2, cos α, sin α)` for `_attitude_rate_trig`."""
+    return math.cos(0.5 * alpha), math.sin(0.5 * alpha), math.cos(alpha), math.sin(alpha)
+
+
+@njit
+def _attitude_rate_trig(px: float, py: float, vx: float, vy: float, trig: tuple[float, float, float, float],
+                        alpha_rate: float) -> tuple[float, float, float, float, float, float, float]:  # fmt: skip
+    """`_attitude_rate` with the heading's `_twist_trig` given (the measurement Jacobian reuses it)."""
     nz = math.sqrt(max(1.0 - px * px - py * py, 1e-6))
     vz = -(px * vx + py * vy) / nz
     s = math.sqrt(2.0 * (1.0 + nz))
@@ -205,8 +218,7 @@ def _attitude_rate(
     a, b, c = 0.5 * s, -py / s, px / s
     ad, bd, cd = 0.5 * sd, -vy / s + py * sd / (s * s), vx / s - px * sd / (s * s)
     wx, wy, wz = 2.0 * (a * bd - b * ad), 2.0 * (a * cd - c * ad), 2.0 * (c * bd - b * cd)
-    ct, st = math.cos(0.5 * alpha), math.sin(0.5 * alpha)
-    ca, sa = math.cos(alpha), math.sin(alpha)
+    ct, st, ca, sa = trig
     return (a * ct, b * ct + c * st, c * ct - b * st, a * st,
             ca * wx + sa * wy, -sa * wx + ca * wy, wz + alpha_rate)  # fmt: skip
 
@@ -324,25 +336,38 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
 
 @njit
 def _measurement_into(x: FloatArray, params: FloatArray, out: FloatArray) -> None:
-    """`measurement` written into `out` (7,): scalar code, no allocation (it runs 9 times per sample in the
-    Jacobian)."""
+    """`measurement` written into `out` (7,): scalar code, no allocation."""
+    alpha, alpha_rate = x[4], x[5]
+    _measurement_trig(x, params, _twist_trig(alpha), _twist_trig(alpha + _DW_STEP_S * alpha_rate),
+                      _twist_trig(alpha - _DW_STEP_S * alpha_rate), True, out)  # fmt: skip
+
+
+_DW_STEP_S = 1e-3  # `measurement`'s central difference of the body rate
+
+
+@njit
+def _measurement_trig(x: FloatArray, params: FloatArray, trig: tuple[float, float, float, float],
+                      trig_ahead: tuple[float, float, float, float], trig_back: tuple[float, float, float, float],
+                      with_mag: bool, out: FloatArray) -> None:  # fmt: skip
+    """`measurement` with the heading's `_twist_trig` at α and at α ± `_DW_STEP_S` α' given (the Jacobian perturbs
+    α and α' only in two of its eight columns); without `with_mag` the magnetometer rows are 0."""
     g, l = params[_G], math.exp(x[_LOG_L])
     rx, ry, rz = params[_RX], params[_RY], params[_RZ]
-    px, py, vx, vy, alpha, alpha_rate = x[0], x[1], x[2], x[3], x[4], x[5]
-    qw, qx, qy, qz, wx, wy, wz = _attitude_rate(px, py, vx, vy, alpha, alpha_rate)
+    px, py, vx, vy, alpha_rate = x[0], x[1], x[2], x[3], x[5]
+    qw, qx, qy, qz, wx, wy, wz = _attitude_rate_trig(px, py, vx, vy, trig, alpha_rate)
     nz = math.sqrt(max(1.0 - px * px - py * py, 1e-6))
     vz = -(px * vx + py * vy) / nz
     ax, ay = _pendulum_accel(px, py, vx, vy, g, l, x[_L_RATE], 0.0, 0.0)
-    h = 1e-3
-    _, _, _, _, px_, py_, pz_ = _attitude_rate(px + h * vx, py + h * vy, vx + h * ax, vy + h * ay,
-                                               alpha + h * alpha_rate, alpha_rate)  # fmt: skip
-    _, _, _, _, mx_, my_, mz_ = _attitude_rate(px - h * vx, py - h * vy, vx - h * ax, vy - h * ay,
-                                               alpha - h * alpha_rate, alpha_rate)  # fmt: skip
+    h = _DW_STEP_S
+    _, _, _, _, px_, py_, pz_ = _attitude_rate_trig(px + h * vx, py + h * vy, vx + h * ax, vy + h * ay, trig_ahead,
+                                                    alpha_rate)  # fmt: skip
+    _, _, _, _, mx_, my_, mz_ = _attitude_rate_trig(px - h * vx, py - h * vy, vx - h * ax, vy - h * ay, trig_back,
+                                                    alpha_rate)  # fmt: skip
     dwx, dwy = (px_ - mx_) / (2.0 * h), (py_ - my_) / (2.0 * h)
     lever_z = dwx * ry - dwy * rx + wz * (wx * rx + wy * ry + wz * rz) - rz * (wx * wx + wy * wy + wz * wz)
     out[0], out[1], out[2] = wx + x[6] + x[12] * wz, wy + x[7] + x[13] * wz, wz + x[8]
     out[3] = l * (vx * vx + vy * vy + vz * vz) + g * nz - x[_L_ACC] + lever_z + x[9]
-    if params[_USE_MAG] > 0.0:  # Rᵀ m_ref + hard iron
+    if with_mag and params[_USE_MAG] > 0.0:  # Rᵀ m_ref + hard iron
         mx, my, mz = params[_MX], params[_MY], params[_MZ]
         xx, yy, zz, xy, xz, yz = qx * qx, qy * qy, qz * qz, qx * qy, qx * qz, qy * qz
         wx_, wy_, wz_ = qw * qx, qw * qy, qw * qz
@@ -442,27 +467,51 @@ def _process_jacobian_into(x: FloatArray, dt_s: float, u: FloatArray, params: Fl
 @njit
 def measurement_jacobian(x: FloatArray, params: FloatArray) -> tuple[FloatArray, FloatArray]:
     """`(h(x), ∂h/∂x)` (7,), (7, 24) by forward differences (exact in the linear bias, offset and hoist columns);
-    the magnetometer rows only see the heading α."""
-    h0, h_jac = np.empty(7), np.empty((7, N_STATE))
-    _measurement_jacobian_into(x, params, h0, h_jac, np.empty(N_STATE), np.empty(7))
+    the magnetometer rows only see the heading α. The plain definition, one `measurement` per column; `ekf_step`
+    runs `_measurement_jacobian_into`, the same numbers."""
+    eps = 1e-7
+    h0 = measurement(x, params)
+    h_jac = np.zeros((7, N_STATE))
+    xp = x.copy()
+    for j in _H_COLS:
+        xp[j] += eps
+        h_jac[:, j] = (measurement(xp, params) - h0) / eps
+        xp[j] = x[j]
+    _measurement_jacobian_exact(x, params, h0, h_jac)
     return h0, h_jac
 
 
 @njit
 def _measurement_jacobian_into(x: FloatArray, params: FloatArray, h0: FloatArray, h_jac: FloatArray,
                                xp: FloatArray, buf: FloatArray) -> None:  # fmt: skip
-    """`measurement_jacobian` into `h0` (7,) and `h_jac` (7, N_STATE); `xp` (N_STATE,) and `buf` (7,) are
-    scratch."""
+    """`measurement_jacobian` into `h0` (7,) and `h_jac` (7, N_STATE), bit for bit, with the heading's sines and
+    cosines reused where α and α' are not perturbed and the magnetometer rows (heading-only) differentiated in
+    the α column only; `xp` (N_STATE,) and `buf` (7,) are scratch."""
     eps = 1e-7
-    _measurement_into(x, params, h0)
+    alpha, alpha_rate = x[4], x[5]
+    trig = _twist_trig(alpha)
+    ahead, back = _twist_trig(alpha + _DW_STEP_S * alpha_rate), _twist_trig(alpha - _DW_STEP_S * alpha_rate)
+    _measurement_trig(x, params, trig, ahead, back, True, h0)
     h_jac[:, :] = 0.0
     xp[:] = x
     for j in _H_COLS:
         xp[j] += eps
-        _measurement_into(xp, params, buf)
-        for i in range(7):
+        if j == 4 or j == 5:
+            a, ar = xp[4], xp[5]
+            _measurement_trig(xp, params, _twist_trig(a), _twist_trig(a + _DW_STEP_S * ar),
+                              _twist_trig(a - _DW_STEP_S * ar), j == 4, buf)  # fmt: skip
+        else:
+            _measurement_trig(xp, params, trig, ahead, back, False, buf)
+        for i in range(7 if j == 4 else 4):
             h_jac[i, j] = (buf[i] - h0[i]) / eps
         xp[j] = x[j]
+    _measurement_jacobian_exact(x, params, h0, h_jac)
+
+
+@njit
+def _measurement_jacobian_exact(x: FloatArray, params: FloatArray, h0: FloatArray, h_jac: FloatArray) -> None:
+    """The exact columns of `measurement_jacobian` (linear biases, offsets, hoist, cross-axis, hard iron) and its
+    heading-only magnetometer rows, over the forward differences in `h_jac`."""
     for j in range(3):  # the gyroscope bias and the tension offset enter linearly
         h_jac[j, 6 + j] = 1.0
     h_jac[3, 9] = 1.0
@@ -555,10 +604,9 @@ def _nonzero_columns(a: FloatArray, rows: int, idx: NDArray[np.int64], cnt: NDAr
     """For each of the first `rows` rows of `a`: its non-zero columns in `idx[i, :cnt[i]]`."""
     for i in range(rows):
         c = 0
-        for j in range(a.shape[1]):
-            if a[i, j] != 0.0:
-                idx[i, c] = j
-                c += 1
+        for j in range(a.shape[1]):  # branch-free: the pattern is irregular
+            idx[i, c] = j
+            c += a[i, j] != 0.0
         cnt[i] = c
 
 
@@ -580,14 +628,15 @@ def _predict_covariance(f_jac: FloatArray, p: FloatArray, q: FloatArray, idx: ND
     for i in range(n):
         for c in range(n):
             fp[c, i] = out[i, c]
-    for i in range(n):
-        out[i, i:] = 0.0
+    for i in range(n):  # whole rows (a triangle's ragged rows vectorise worse), then the upper one mirrored
+        out[i, :] = 0.0
         for t in range(cnt[i]):
             j = idx[i, t]
             f = f_jac[i, j]
-            for c in range(i, n):
+            for c in range(n):
                 out[i, c] += f * fp[j, c]
         out[i, i] += q[i]
+    for i in range(n):
         for c in range(i + 1, n):
             out[c, i] = out[i, c]
 
