@@ -703,18 +703,19 @@ def _kalman_gain(hp: FloatArray, s: FloatArray, m: int, chol: FloatArray, wt: Fl
 
 @njit
 def _covariance_update(p: FloatArray, wt: FloatArray, kt: FloatArray, k_opt: FloatArray, s: FloatArray, m: int,
-                       rows: NDArray[np.int64], ds: FloatArray) -> None:  # fmt: skip
-    """`p ← (I - K H) P (I - K H)ᵀ + K R Kᵀ` (Joseph's form, right for any gain) in place, for a gain `kt` (m, N)
-    that differs from the optimal `k_opt` = S⁻¹ H P in a few rows (`_restrict_gain` and the move freeze zero some):
-    with D = K - K_opt, Joseph's form is exactly `P - P Hᵀ S⁻¹ H P + D S Dᵀ` = `P - Wᵀ W + D S Dᵀ` (`wt` = L⁻¹ H P,
-    `_kalman_gain`), the second part on the rows where D is not 0 only; P stays exactly symmetric. `rows` (N,) and
-    `ds` (N, ≥ 7) are scratch."""
+                       rows: NDArray[np.int64], ds: FloatArray, out: FloatArray) -> None:  # fmt: skip
+    """`out = (I - K H) P (I - K H)ᵀ + K R Kᵀ` (Joseph's form, right for any gain; `out` may be `p`) for a gain
+    `kt` (m, N) that differs from the optimal `k_opt` = S⁻¹ H P in a few rows (`_restrict_gain` and the move freeze
+    zero some): with D = K - K_opt, Joseph's form is exactly `P - P Hᵀ S⁻¹ H P + D S Dᵀ` = `P - Wᵀ W + D S Dᵀ`
+    (`wt` = L⁻¹ H P, `_kalman_gain`), the second part on the rows where D is not 0 only; a symmetric P stays
+    exactly symmetric. `rows` (N,) and `ds` (N, ≥ 7) are scratch."""
     n = p.shape[0]
     for i in range(n):  # all of Wᵀ W, in the same order for (i, c) and (c, i): P stays exactly symmetric
+        out[i, :] = p[i, :]
         for r in range(m):
             w = wt[r, i]
             for c in range(n):
-                p[i, c] -= w * wt[r, c]
+                out[i, c] -= w * wt[r, c]
     nd = 0
     for i in range(n):
         for r in range(m):
@@ -736,9 +737,9 @@ def _covariance_update(p: FloatArray, wt: FloatArray, kt: FloatArray, k_opt: Flo
             v = 0.0
             for c in range(m):
                 v += ds[a, c] * (kt[c, k] - k_opt[c, k])
-            p[i, k] += v
+            out[i, k] += v
             if k != i:
-                p[k, i] += v
+                out[k, i] += v
 
 
 @njit
@@ -883,8 +884,7 @@ def _ekf_step_into(
         for r in range(m):
             v += kt[r, i] * y[r]
         x[i] = v
-    _covariance_update(p_pred, wt, kt, k_opt, s, m, cnt, scratch)
-    p[:, :] = p_pred
+    _covariance_update(p_pred, wt, kt, k_opt, s, m, cnt, scratch, p)
     _post_update(x, params)
 
 

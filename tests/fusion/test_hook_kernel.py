@@ -225,8 +225,8 @@ def test_the_covariance_update_is_josephs_form_for_a_restricted_gain(seed, m, re
     for i, c in restricted:
         hm[2, c % m, i] = 0.0
     k = hm[2, :m].T.copy()
-    out = p.copy()
-    hf._covariance_update(out, hm[3], hm[2], hm[4], ss[0], m, cnt, mats[1])
+    out = np.empty_like(p)
+    hf._covariance_update(p, hm[3], hm[2], hm[4], ss[0], m, cnt, mats[1], out)
     i_kh = np.eye(n) - k @ h
     joseph = i_kh @ p @ i_kh.T + k @ np.diag(r_diag) @ k.T
     scale = np.sqrt(np.outer(np.diag(p), np.diag(p)))
