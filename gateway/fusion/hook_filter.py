@@ -338,7 +338,7 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
 def _measurement_into(x: FloatArray, params: FloatArray, out: FloatArray) -> None:
     """`measurement` written into `out` (7,): scalar code, no allocation."""
     alpha, alpha_rate = x[4], x[5]
-    _measurement_trig(x, params, _twist_trig(alpha), _twist_trig(alpha + _DW_STEP_S * alpha_rate),
+    _measurement_trig(x, params, math.exp(x[_LOG_L]), _twist_trig(alpha), _twist_trig(alpha + _DW_STEP_S * alpha_rate),
                       _twist_trig(alpha - _DW_STEP_S * alpha_rate), True, out)  # fmt: skip
 
 
@@ -346,12 +346,13 @@ _DW_STEP_S = 1e-3  # `measurement`'s central difference of the body rate
 
 
 @njit
-def _measurement_trig(x: FloatArray, params: FloatArray, trig: tuple[float, float, float, float],
+def _measurement_trig(x: FloatArray, params: FloatArray, l: float, trig: tuple[float, float, float, float],
                       trig_ahead: tuple[float, float, float, float], trig_back: tuple[float, float, float, float],
                       with_mag: bool, out: FloatArray) -> None:  # fmt: skip
-    """`measurement` with the heading's `_twist_trig` at α and at α ± `_DW_STEP_S` α' given (the Jacobian perturbs
-    α and α' only in two of its eight columns); without `with_mag` the magnetometer rows are 0."""
-    g, l = params[_G], math.exp(x[_LOG_L])
+    """`measurement` with the rope length `l` = exp(x[_LOG_L]) and the heading's `_twist_trig` at α and at
+    α ± `_DW_STEP_S` α' given (the Jacobian perturbs ln l, α and α' in three of its eight columns only); without
+    `with_mag` the magnetometer rows are 0."""
+    g = params[_G]
     rx, ry, rz = params[_RX], params[_RY], params[_RZ]
     px, py, vx, vy, alpha_rate = x[0], x[1], x[2], x[3], x[5]
     qw, qx, qy, qz, wx, wy, wz = _attitude_rate_trig(px, py, vx, vy, trig, alpha_rate)
@@ -489,19 +490,21 @@ def _measurement_jacobian_into(x: FloatArray, params: FloatArray, h0: FloatArray
     the α column only; `xp` (N_STATE,) and `buf` (7,) are scratch."""
     eps = 1e-7
     alpha, alpha_rate = x[4], x[5]
+    l = math.exp(x[_LOG_L])
     trig = _twist_trig(alpha)
     ahead, back = _twist_trig(alpha + _DW_STEP_S * alpha_rate), _twist_trig(alpha - _DW_STEP_S * alpha_rate)
-    _measurement_trig(x, params, trig, ahead, back, True, h0)
+    _measurement_trig(x, params, l, trig, ahead, back, True, h0)
     h_jac[:, :] = 0.0
     xp[:] = x
     for j in _H_COLS:
         xp[j] += eps
         if j == 4 or j == 5:
             a, ar = xp[4], xp[5]
-            _measurement_trig(xp, params, _twist_trig(a), _twist_trig(a + _DW_STEP_S * ar),
+            _measurement_trig(xp, params, l, _twist_trig(a), _twist_trig(a + _DW_STEP_S * ar),
                               _twist_trig(a - _DW_STEP_S * ar), j == 4, buf)  # fmt: skip
         else:
-            _measurement_trig(xp, params, trig, ahead, back, False, buf)
+            lj = math.exp(xp[_LOG_L]) if j == _LOG_L else l
+            _measurement_trig(xp, params, lj, trig, ahead, back, False, buf)
         for i in range(7 if j == 4 else 4):
             h_jac[i, j] = (buf[i] - h0[i]) / eps
         xp[j] = x[j]
@@ -687,18 +690,18 @@ def _kalman_gain(hp: FloatArray, s: FloatArray, m: int, chol: FloatArray, wt: Fl
             c = chol[r, t]
             for i in range(n):
                 wt[r, i] -= c * wt[t, i]
-        d = chol[r, r]
+        d = 1.0 / chol[r, r]
         for i in range(n):
-            wt[r, i] /= d
+            wt[r, i] *= d
     for r in range(m - 1, -1, -1):
         kt[r, :] = wt[r, :]
         for t in range(r + 1, m):
             c = chol[t, r]
             for i in range(n):
                 kt[r, i] -= c * kt[t, i]
-        d = chol[r, r]
+        d = 1.0 / chol[r, r]
         for i in range(n):
-            kt[r, i] /= d
+            kt[r, i] *= d
 
 
 @njit
