@@ -338,7 +338,8 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
 def _measurement_into(x: FloatArray, params: FloatArray, out: FloatArray) -> None:
     """`measurement` written into `out` (7,): scalar code, no allocation."""
     alpha, alpha_rate = x[4], x[5]
-    _measurement_trig(x, params, math.exp(x[_LOG_L]), _twist_trig(alpha), _twist_trig(alpha + _DW_STEP_S * alpha_rate),
+    centre = _attitude_rate_trig(x[0], x[1], x[2], x[3], _twist_trig(alpha), alpha_rate)
+    _measurement_trig(x, params, math.exp(x[_LOG_L]), centre, _twist_trig(alpha + _DW_STEP_S * alpha_rate),
                       _twist_trig(alpha - _DW_STEP_S * alpha_rate), True, out)  # fmt: skip
 
 
@@ -346,16 +347,17 @@ _DW_STEP_S = 1e-3  # `measurement`'s central difference of the body rate
 
 
 @njit
-def _measurement_trig(x: FloatArray, params: FloatArray, l: float, trig: tuple[float, float, float, float],
+def _measurement_trig(x: FloatArray, params: FloatArray, l: float,
+                      centre: tuple[float, float, float, float, float, float, float],
                       trig_ahead: tuple[float, float, float, float], trig_back: tuple[float, float, float, float],
                       with_mag: bool, out: FloatArray) -> None:  # fmt: skip
-    """`measurement` with the rope length `l` = exp(x[_LOG_L]) and the heading's `_twist_trig` at α and at
-    α ± `_DW_STEP_S` α' given (the Jacobian perturbs ln l, α and α' in three of its eight columns only); without
-    `with_mag` the magnetometer rows are 0."""
+    """`measurement` with the rope length `l` = exp(x[_LOG_L]), the attitude and rate `centre` (`_attitude_rate`
+    of x) and the heading's `_twist_trig` at α ± `_DW_STEP_S` α' given (each column of the Jacobian perturbs only
+    some of them); without `with_mag` the magnetometer rows are 0."""
     g = params[_G]
     rx, ry, rz = params[_RX], params[_RY], params[_RZ]
     px, py, vx, vy, alpha_rate = x[0], x[1], x[2], x[3], x[5]
-    qw, qx, qy, qz, wx, wy, wz = _attitude_rate_trig(px, py, vx, vy, trig, alpha_rate)
+    qw, qx, qy, qz, wx, wy, wz = centre
     nz = math.sqrt(max(1.0 - px * px - py * py, 1e-6))
     vz = -(px * vx + py * vy) / nz
     ax, ay = _pendulum_accel(px, py, vx, vy, g, l, x[_L_RATE], 0.0, 0.0)
@@ -420,18 +422,20 @@ def _process_jacobian_into(x: FloatArray, dt_s: float, u: FloatArray, params: Fl
     l0 = math.exp(x[_LOG_L])
     ld, ldd = x[_L_RATE], x[_L_ACC]
     l = max(l0 + 0.5 * dt_s * ld, params[_L_MIN])
-    qw, qx, qy, qz, _, _, _ = _attitude_rate(px, py, vx, vy, alpha, x[5])
+    trig = _twist_trig(alpha)
+    qw, qx, qy, qz, _, _, _ = _attitude_rate_trig(px, py, vx, vy, trig, x[5])
     fx, fy = force_input(u, x[19], x[20], params[_RZ])
     bx, by = fx - x[10], fy - x[11]
     wx, wy = _horizontal_force(qw, qx, qy, qz, bx, by, x[17], x[18], params)
     for j in _F_COLS:
         xj = x[j] + eps
-        if j <= 4:  # the swing and the heading: the rotation of the force changes with them
-            s = (xj if j == 0 else px, xj if j == 1 else py, xj if j == 2 else vx, xj if j == 3 else vy,
-                 xj if j == 4 else alpha)  # fmt: skip
-            rw, rx, ry, rz, _, _, _ = _attitude_rate(s[0], s[1], s[2], s[3], s[4], x[5])
+        if j == 2 or j == 3:  # the swing rate: the pendulum only (the rotation does not depend on it)
+            sw = _swing_rk4(px, py, xj if j == 2 else vx, xj if j == 3 else vy, g, l, ld, wx, wy, dt_s)
+        elif j <= 4:  # the swing and the heading: the rotation of the force changes with them
+            pxj, pyj = xj if j == 0 else px, xj if j == 1 else py
+            rw, rx, ry, rz, _, _, _ = _attitude_rate_trig(pxj, pyj, vx, vy, _twist_trig(xj) if j == 4 else trig, x[5])
             wxj, wyj = _horizontal_force(rw, rx, ry, rz, bx, by, x[17], x[18], params)
-            sw = _swing_rk4(s[0], s[1], s[2], s[3], g, l, ld, wxj, wyj, dt_s)
+            sw = _swing_rk4(pxj, pyj, vx, vy, g, l, ld, wxj, wyj, dt_s)
             if j == 4:
                 f_jac[4, 4] = (xj + dt_s * x[5] - f0[4]) / eps
         elif j == _LOG_L or j == _L_RATE or j == _L_ACC:  # the rope: its step, and the pendulum but for l''
@@ -486,25 +490,30 @@ def measurement_jacobian(x: FloatArray, params: FloatArray) -> tuple[FloatArray,
 def _measurement_jacobian_into(x: FloatArray, params: FloatArray, h0: FloatArray, h_jac: FloatArray,
                                xp: FloatArray, buf: FloatArray) -> None:  # fmt: skip
     """`measurement_jacobian` into `h0` (7,) and `h_jac` (7, N_STATE), bit for bit, with the heading's sines and
-    cosines reused where α and α' are not perturbed and the magnetometer rows (heading-only) differentiated in
-    the α column only; `xp` (N_STATE,) and `buf` (7,) are scratch."""
+    cosines reused where α and α' are not perturbed, the attitude and rate where only the rope is, and the
+    magnetometer rows (heading-only) differentiated in the α column only; `xp` (N_STATE,) and `buf` (7,) are
+    scratch."""
     eps = 1e-7
     alpha, alpha_rate = x[4], x[5]
     l = math.exp(x[_LOG_L])
     trig = _twist_trig(alpha)
     ahead, back = _twist_trig(alpha + _DW_STEP_S * alpha_rate), _twist_trig(alpha - _DW_STEP_S * alpha_rate)
-    _measurement_trig(x, params, l, trig, ahead, back, True, h0)
+    centre = _attitude_rate_trig(x[0], x[1], x[2], x[3], trig, alpha_rate)
+    _measurement_trig(x, params, l, centre, ahead, back, True, h0)
     h_jac[:, :] = 0.0
     xp[:] = x
     for j in _H_COLS:
         xp[j] += eps
         if j == 4 or j == 5:
             a, ar = xp[4], xp[5]
-            _measurement_trig(xp, params, l, _twist_trig(a), _twist_trig(a + _DW_STEP_S * ar),
-                              _twist_trig(a - _DW_STEP_S * ar), j == 4, buf)  # fmt: skip
-        else:
-            lj = math.exp(xp[_LOG_L]) if j == _LOG_L else l
-            _measurement_trig(xp, params, lj, trig, ahead, back, False, buf)
+            _measurement_trig(xp, params, l, _attitude_rate_trig(xp[0], xp[1], xp[2], xp[3], _twist_trig(a), ar),
+                              _twist_trig(a + _DW_STEP_S * ar), _twist_trig(a - _DW_STEP_S * ar), j == 4,
+                              buf)  # fmt: skip
+        elif j < 4:
+            _measurement_trig(xp, params, l, _attitude_rate_trig(xp[0], xp[1], xp[2], xp[3], trig, alpha_rate),
+                              ahead, back, False, buf)  # fmt: skip
+        else:  # the rope (ln l, l'): the attitude and rate are those of x
+            _measurement_trig(xp, params, math.exp(xp[_LOG_L]) if j == _LOG_L else l, centre, ahead, back, False, buf)
         for i in range(7 if j == 4 else 4):
             h_jac[i, j] = (buf[i] - h0[i]) / eps
         xp[j] = x[j]
