@@ -952,8 +952,12 @@ def ekf_run(
 def process_inputs(gyr: FloatArray, acc: FloatArray, gyr_prev: FloatArray, dt_s: float) -> FloatArray:
     """Process input rows (N, N_INPUT): accelerometer x/y, gyroscope, and its backward difference (`gyr_prev` is
     the sample before the first)."""
-    prev = np.concatenate([gyr_prev[None, :], gyr[:-1]], axis=0)
-    return np.ascontiguousarray(np.concatenate([acc[:, :2], gyr, (gyr - prev) / dt_s], axis=1))
+    u = np.empty((gyr.shape[0], N_INPUT))
+    u[:, :2] = acc[:, :2]
+    u[:, 2:5] = gyr
+    u[:1, 5:] = (gyr[:1] - gyr_prev[None, :]) / dt_s
+    u[1:, 5:] = (gyr[1:] - gyr[:-1]) / dt_s
+    return u
 
 
 class HookFilter(AttitudeFilter):
@@ -1153,15 +1157,27 @@ class HookFilter(AttitudeFilter):
         if not self._initialised:
             self.initialise(acc[0], None if mag_uT is None else mag_uT[0])
         use_mag = self.use_mag and mag_uT is not None and self.mag_ref_uT is not None
-        cols = [gyr, acc[:, 2:3] - self.acc_z_offset_m_s2]
+        z = np.empty((gyr.shape[0], 7 if use_mag else 4))
+        z[:, :3] = gyr
+        z[:, 3] = acc[:, 2] - self.acc_z_offset_m_s2
         if use_mag:
-            cols.append(np.asarray(mag_uT, dtype=np.float64))
-        z = np.ascontiguousarray(np.concatenate(cols, axis=1))
-        u = self._inputs(np.ascontiguousarray(gyr), np.ascontiguousarray(acc), dt_s)
-        quats, lengths, self.x, self.P = ekf_run(self.x, self.P, z, u, dt_s, self._params(use_mag), self._q_psd,
-                                                 self._r_diag(z.shape[1]), self._monitor,
-                                                 *self._rings(dt_s))  # fmt: skip
+            z[:, 4:] = np.asarray(mag_uT, dtype=np.float64)
+        u = self._inputs(gyr, acc, dt_s)
+        params, r_diag = self._kernel_constants(use_mag, z.shape[1])
+        quats, lengths, self.x, self.P = ekf_run(self.x, self.P, z, u, dt_s, params, self._q_psd, r_diag,
+                                                 self._monitor, *self._rings(dt_s))  # fmt: skip
         return quats, lengths
+
+    _constants: tuple[HookFilterSettings, bool, int, bytes, FloatArray, FloatArray] | None = None
+
+    def _kernel_constants(self, use_mag: bool, m: int) -> tuple[FloatArray, FloatArray]:
+        """`_params(use_mag)` and `_r_diag(m)`, made again only when the settings, the magnetometer reference or
+        the measurement width change (building them cost more Python time than a 10-sample packet's own)."""
+        ref = b"" if self.mag_ref_uT is None else self.mag_ref_uT.tobytes()
+        c = self._constants
+        if c is None or c[0] is not self.settings or c[1] != use_mag or c[2] != m or c[3] != ref:
+            c = self._constants = (self.settings, use_mag, m, ref, self._params(use_mag), self._r_diag(m))
+        return c[4], c[5]
 
     def run(
         self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float
