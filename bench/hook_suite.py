@@ -217,26 +217,44 @@ def score(q: np.ndarray, truth: HookTruth, keep: np.ndarray, absolute: bool) -> 
 def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length: bool, paper_ekf: bool = False,
              family: str = "crane", tracking: bool = False) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed."""
-    case = make_case(seed, duration_s, family)
-    truth = simulate(case.physics, case.scenario)
-    sensor = SensorModel(ImuErrorModel.preset(imu), 1, np.random.default_rng(10_000 + seed))
-    gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / RATE_HZ)
-    mag = mag if use_mag else None
-    scored = truth.t_s >= WARMUP_S
-    phase = case.phase(truth.t_s)
+    case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family)
     out: dict[str, dict[str, dict[str, float]]] = {}
     q_hook, length = hook_estimate(gyr, acc, mag, case.physics.rope_length_m if tell_length else None, tracking)
     others = [("vqf", vqf_estimate(gyr, acc, mag))]
     if paper_ekf:
         others.append(("ekf001", paper_ekf_estimate(gyr, acc, mag)))
     for name, q in [("hook", q_hook), *others]:
-        out[name] = {"all": score(q, truth, scored, use_mag)}
-        for k, ph in enumerate(PHASES):
-            out[name][ph] = score(q, truth, scored & (phase == k), use_mag)
-    true_l = truth.extra["rope_length_m"]
-    out["hook"]["all"]["rope_rms_m"] = float(np.sqrt(np.mean((length - true_l)[scored] ** 2)))
-    out["hook"]["all"]["rope_rel"] = float(np.sqrt(np.mean(((length - true_l) / true_l)[scored] ** 2)))
+        out[name] = score_phases(q, truth, case, use_mag)
+    out["hook"]["all"].update(rope_errors(length, truth))
     return out
+
+
+def simulate_seed(seed: int, duration_s: float, imu: str, use_mag: bool, family: str = "crane"
+                  ) -> tuple[SuiteCase, HookTruth, np.ndarray, np.ndarray, np.ndarray | None]:  # fmt: skip
+    """The crane of `seed`, its ground truth and the IMU's samples (gyr, acc, mag or None) as the suite draws them."""
+    case = make_case(seed, duration_s, family)
+    truth = simulate(case.physics, case.scenario)
+    sensor = SensorModel(ImuErrorModel.preset(imu), 1, np.random.default_rng(10_000 + seed))
+    gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / RATE_HZ)
+    return case, truth, gyr, acc, mag if use_mag else None
+
+
+def score_phases(q: np.ndarray, truth: HookTruth, case: SuiteCase, absolute: bool) -> dict[str, dict[str, float]]:
+    """`score` over the whole run after the warm-up (`"all"`) and over each phase of `PHASES`."""
+    scored = truth.t_s >= WARMUP_S
+    phase = case.phase(truth.t_s)
+    out = {"all": score(q, truth, scored, absolute)}
+    for k, ph in enumerate(PHASES):
+        out[ph] = score(q, truth, scored & (phase == k), absolute)
+    return out
+
+
+def rope_errors(length_m: np.ndarray, truth: HookTruth) -> dict[str, float]:
+    """RMS rope-length error after the warm-up, in metres and relative to the true length."""
+    scored = truth.t_s >= WARMUP_S
+    true_l = truth.extra["rope_length_m"]
+    return {"rope_rms_m": float(np.sqrt(np.mean((length_m - true_l)[scored] ** 2))),
+            "rope_rel": float(np.sqrt(np.mean(((length_m - true_l) / true_l)[scored] ** 2)))}  # fmt: skip
 
 
 def parse_seeds(text: str) -> list[int]:
