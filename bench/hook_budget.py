@@ -38,13 +38,14 @@ from bench.hook_suite import (
     WARMUP_S,
     SuiteCase,
     parse_seeds,
+    parse_settings,
     rope_errors,
     score_phases,
     simulate_seed,
 )
 from devices.common import EARTH_FIELD_ENU_UT
 from devices.hook_physics import HookTruth
-from gateway.fusion.hook_filter import TRACKING, HookFilter, HookFilterSettings
+from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
 
 ORACLES = ("base", "rope", "tip", "lever", "init", "bias", "all")
 # `bias` split by sensor-error state, to pin one group at a time
@@ -115,18 +116,6 @@ def oracle_run(oracle: str, case: SuiteCase, truth: HookTruth, gyr: np.ndarray, 
     return q, length
 
 
-def _parse_settings(text: str) -> dict[str, float]:
-    """`name=value,name=value` (floats) or `tracking` (the TRACKING overrides)."""
-    out: dict[str, float] = {}
-    for part in filter(None, text.split(",")):
-        if part == "tracking":
-            out.update(TRACKING)
-            continue
-        k, _, v = part.partition("=")
-        out[k.strip()] = float(v)
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.hook_budget", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
@@ -136,14 +125,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--6d", dest="six_d", action="store_true", help="no magnetometer")
     p.add_argument("--family", default="crane", choices=FAMILIES)
     p.add_argument("--oracles", default=",".join(ORACLES), help=f"comma list of {', '.join(ORACLES)}")
-    p.add_argument("--settings", default="", help="HookFilterSettings overrides for every oracle: a=1,b=2 or tracking")
+    p.add_argument("--settings", default="",
+                   help="settings overrides for every oracle: a=1,b=2 and/or presets tracking, steady")  # fmt: skip
     p.add_argument("--per-seed", action="store_true", help="also print each seed's whole-run Θ RMSE per oracle")
     args = p.parse_args(argv)
     seeds, oracles = parse_seeds(args.seeds), [o.strip() for o in args.oracles.split(",")]
     unknown = {p for o in oracles for p in o.split("+")} - set(ORACLES) - set(BIAS_PARTS)
     if unknown:
         raise SystemExit(f"unknown oracle(s): {', '.join(sorted(unknown))}")
-    extra = _parse_settings(args.settings)
+    extra = parse_settings(args.settings)
     print(f"hook error budget ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}, {args.duration:g} s, "
           f"seeds {args.seeds}, settings {extra or 'default'}; Θ RMSE in degrees, mean over seeds")
     rows: dict[str, list[dict[str, dict[str, float]]]] = {o: [] for o in oracles}

@@ -6,6 +6,7 @@
     python -m bench.hook_suite --paper-ekf                  # also paper 001's EKF as published
     python -m bench.hook_suite --family windy --seeds 1-12  # light loads in a steady wind from the start
     python -m bench.hook_suite --tracking                   # the hook filter with its optional boom-tip tracking
+    python -m bench.hook_suite --settings steady            # ... with STEADY_BIAS_TRACKING (or name=value,...)
 
 Each seed draws a crane (issue 11): rope 2-30 m (log-uniform), hook + load 0.5-20 t, torsion stiffness and
 inertia (twist period 4-20 s), the IMU 0.1 ± 0.02 m off the rope axis (the filter assumes 0.1 m and learns the
@@ -53,7 +54,7 @@ from devices.hook_physics import (
     trolley_traverse,
 )
 from gateway.fusion import hook
-from gateway.fusion.hook_filter import TRACKING, HookFilter, HookFilterSettings
+from gateway.fusion.hook_filter import STEADY_BIAS_TRACKING, TRACKING, HookFilter, HookFilterSettings
 
 RATE_HZ = 100.0
 WARMUP_S = 0.5
@@ -161,10 +162,11 @@ def make_case(seed: int, duration_s: float = 180.0, family: str = "crane") -> Su
 
 
 def hook_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rope_length_m: float | None,
-                  tracking: bool = False) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+                  tracking: bool = False, overrides: dict[str, float] | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Hook filter quaternions (N, 4) and rope-length estimates (N,), started as the gateway starts it (`tracking`:
-    with the optional boom-tip tracking, `hook_filter.TRACKING`)."""
-    extra = TRACKING if tracking else {}
+    with the optional boom-tip tracking, `hook_filter.TRACKING`; `overrides`: further settings on top)."""
+    extra: dict[str, float] = (TRACKING if tracking else {}) | (overrides or {})
     settings = (HookFilterSettings(**extra) if rope_length_m is None
                 else HookFilterSettings(rope_length_m=rope_length_m, rope_length_known=True, **extra))  # fmt: skip
     f = HookFilter(settings, use_mag=mag is not None)
@@ -215,11 +217,13 @@ def score(q: np.ndarray, truth: HookTruth, keep: np.ndarray, absolute: bool) -> 
 
 
 def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length: bool, paper_ekf: bool = False,
-             family: str = "crane", tracking: bool = False) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+             family: str = "crane", tracking: bool = False, overrides: dict[str, float] | None = None
+             ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed."""
     case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family)
     out: dict[str, dict[str, dict[str, float]]] = {}
-    q_hook, length = hook_estimate(gyr, acc, mag, case.physics.rope_length_m if tell_length else None, tracking)
+    q_hook, length = hook_estimate(gyr, acc, mag, case.physics.rope_length_m if tell_length else None, tracking,
+                                   overrides)  # fmt: skip
     others = [("vqf", vqf_estimate(gyr, acc, mag))]
     if paper_ekf:
         others.append(("ekf001", paper_ekf_estimate(gyr, acc, mag)))
@@ -257,6 +261,23 @@ def rope_errors(length_m: np.ndarray, truth: HookTruth) -> dict[str, float]:
             "rope_rel": float(np.sqrt(np.mean(((length_m - true_l) / true_l)[scored] ** 2)))}  # fmt: skip
 
 
+PRESETS = {"tracking": TRACKING, "steady": STEADY_BIAS_TRACKING}
+
+
+def parse_settings(text: str) -> dict[str, float]:
+    """`name=value,...` (floats) and preset names of `PRESETS`, applied in order, as HookFilterSettings overrides."""
+    out: dict[str, float] = {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        if part in PRESETS:
+            out.update(PRESETS[part])
+            continue
+        k, eq, v = part.partition("=")
+        if not eq:
+            raise SystemExit(f"--settings: {part!r} is neither name=value nor a preset ({', '.join(PRESETS)})")
+        out[k.strip()] = float(v)
+    return out
+
+
 def parse_seeds(text: str) -> list[int]:
     """`1-6` or `1,4,9` or a mix."""
     seeds: list[int] = []
@@ -278,6 +299,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--family", default="crane", choices=FAMILIES,
                    help="crane (default) or windy (light load, short rope, steady wind from the start)")
     p.add_argument("--tracking", action="store_true", help="the hook filter with its optional boom-tip tracking")
+    p.add_argument("--settings", default="", help="HookFilterSettings overrides: name=value,... and/or the presets "
+                   "tracking (TRACKING), steady (STEADY_BIAS_TRACKING)")
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
@@ -290,7 +313,7 @@ def main(argv: list[str] | None = None) -> int:
     for seed in seeds:
         case = make_case(seed, args.duration, args.family)
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
-                     args.tracking)
+                     args.tracking, parse_settings(args.settings))
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]
