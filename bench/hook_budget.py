@@ -12,7 +12,7 @@ Oracles (each on the suite's own samples, `bench.hook_suite.simulate_seed`, so t
 - `tip`: the true boom-tip horizontal acceleration (trolley, slewing), written in the same way;
 - `lever`: the IMU's true offset from the rope axis, as the settings' lever arm with a 1 µm prior (x, y and z);
 - `init`: the true swing, swing rate, heading and twist rate at the start (tight priors) and the true earth field
-  as the magnetometer reference;
+  as the magnetometer reference; `swing0`: the swing and its rate only, `heading0`: the heading, twist rate and field;
 - `bias`: every sensor-error state pinned at 0 (gyro bias, tension offset, accelerometer x/y bias, cross-axis,
   hard iron): only meaningful with `--imu ideal`;
   `gbias`, `offset`, `accxy`, `cross`, `hard`: one group of them only;
@@ -93,11 +93,14 @@ def oracle_run(oracle: str, case: SuiteCase, truth: HookTruth, gyr: np.ndarray, 
             if name == "offset":
                 f.acc_z_offset_m_s2 = 0.0
             pins.append((idx, np.zeros((truth.t_s.shape[0], len(idx)))))
-    if "init" in parts:
-        x0 = np.concatenate([_backdate(truth.rope_dir[:, :2]), _backdate(truth.rope_rate_1_s[:, :2]),
-                             [_backdate(truth.torsion_rad), _backdate(truth.extra["torsion_rate_rad_s"])]])  # fmt: skip
-        _pin(f, [0, 1, 2, 3, 4, 5], x0)
-        for i in range(6):
+    if parts & {"init", "swing0"}:
+        x0 = np.concatenate([_backdate(truth.rope_dir[:, :2]), _backdate(truth.rope_rate_1_s[:, :2])])
+        _pin(f, [0, 1, 2, 3], x0)
+        for i in range(4):
+            f.P[i, i] = 1e-10
+    if parts & {"init", "heading0"}:
+        _pin(f, [4, 5], np.array([_backdate(truth.torsion_rad), _backdate(truth.extra["torsion_rate_rad_s"])]))
+        for i in (4, 5):
             f.P[i, i] = 1e-10
         if mag is not None:
             f.mag_ref_uT = np.asarray(EARTH_FIELD_ENU_UT, dtype=np.float64)
@@ -130,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--per-seed", action="store_true", help="also print each seed's whole-run Θ RMSE per oracle")
     args = p.parse_args(argv)
     seeds, oracles = parse_seeds(args.seeds), [o.strip() for o in args.oracles.split(",")]
-    unknown = {p for o in oracles for p in o.split("+")} - set(ORACLES) - set(BIAS_PARTS)
+    unknown = {p for o in oracles for p in o.split("+")} - set(ORACLES) - set(BIAS_PARTS) - {"swing0", "heading0"}
     if unknown:
         raise SystemExit(f"unknown oracle(s): {', '.join(sorted(unknown))}")
     extra = parse_settings(args.settings)
