@@ -5,8 +5,8 @@
     python -m bench.hook_suite --seeds 1-6 --duration 120   # the tuning seeds
     python -m bench.hook_suite --paper-ekf                  # also paper 001's EKF as published
     python -m bench.hook_suite --family windy --seeds 1-12  # light loads in a steady wind from the start
-    python -m bench.hook_suite --tracking                   # the hook filter with its optional boom-tip tracking
-    python -m bench.hook_suite --settings steady            # ... with STEADY_BIAS_TRACKING (or name=value,...)
+    python -m bench.hook_suite --tracking                   # the second round's boom-tip tracking (and slow test)
+    python -m bench.hook_suite --settings previous          # the defaults before issue 11's third round
 
 Each seed draws a crane (issue 11): rope 2-30 m (log-uniform), hook + load 0.5-20 t, torsion stiffness and
 inertia (twist period 4-20 s), the IMU 0.1 ± 0.02 m off the rope axis (the filter assumes 0.1 m and learns the
@@ -54,7 +54,13 @@ from devices.hook_physics import (
     trolley_traverse,
 )
 from gateway.fusion import hook
-from gateway.fusion.hook_filter import STEADY_BIAS_TRACKING, TRACKING, HookFilter, HookFilterSettings
+from gateway.fusion.hook_filter import (
+    PREVIOUS_DEFAULT,
+    STEADY_BIAS_TRACKING,
+    TRACKING,
+    HookFilter,
+    HookFilterSettings,
+)
 
 RATE_HZ = 100.0
 WARMUP_S = 0.5
@@ -261,7 +267,7 @@ def rope_errors(length_m: np.ndarray, truth: HookTruth) -> dict[str, float]:
             "rope_rel": float(np.sqrt(np.mean(((length_m - true_l) / true_l)[scored] ** 2)))}  # fmt: skip
 
 
-PRESETS = {"tracking": TRACKING, "steady": STEADY_BIAS_TRACKING}
+PRESETS = {"tracking": TRACKING, "steady": STEADY_BIAS_TRACKING, "previous": PREVIOUS_DEFAULT}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -298,9 +304,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--phases", action="store_true", help="also print each seed's figures by phase")
     p.add_argument("--family", default="crane", choices=FAMILIES,
                    help="crane (default) or windy (light load, short rope, steady wind from the start)")
-    p.add_argument("--tracking", action="store_true", help="the hook filter with its optional boom-tip tracking")
+    p.add_argument("--tracking", action="store_true", help="the second round's boom-tip tracking (TRACKING)")
     p.add_argument("--settings", default="", help="HookFilterSettings overrides: name=value,... and/or the presets "
-                   "tracking (TRACKING), steady (STEADY_BIAS_TRACKING)")
+                   "tracking (TRACKING), steady (STEADY_BIAS_TRACKING, the defaults), previous (PREVIOUS_DEFAULT)")
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
