@@ -81,7 +81,8 @@ N_INPUT = 8  # per-sample process input: accelerometer x/y, gyroscope (3), its b
 (_G, _RX, _RY, _RZ, _MX, _MY, _MZ, _USE_MAG, _GATE, _TIP_PSD, _FORCE_STD, _HOIST_TAU, _L_MIN, _TIP_TAU,
  _FORCE_ON, _L_MAX, _NIS_TAU, _NIS_GATE, _TIP_MOVE, _TIP_STD, _TIP_GATE, _MOVE_FREEZE, _MOVE_HOLD,
  _TIP_GATE_STD, _MEAN_TAU, _MEAN_GATE, _L_RATE_TAU, _JUMP_ROPE, _SLOW_TAU, _SLOW_GATE, _SLOW_OPEN, _TRACK_S,
- _TRACK_PSD, _TURN_PSD, _TRACK_CAP, _TURN_CAP, _TRIAL_GATE, _TRIAL_LR, _TRIAL_EVERY, _TRIAL_OPEN) = range(40)
+ _TRACK_PSD, _TURN_PSD, _TRACK_CAP, _TURN_CAP, _TRIAL_GATE, _TRIAL_LR, _TRIAL_EVERY, _TRIAL_OPEN,
+ _ROLLBACK, _TRIAL_WIN) = range(42)
 N_MONITOR = 11  # `ekf_step`'s innovation statistics and move timers
 
 
@@ -160,6 +161,7 @@ class HookFilterSettings:
     jump_trial_every_s: float = 0.1  # ... tried again at most this often while the mean stays above the trial gate
     jump_trial_open_std_m_s2: float = 0.5  # ... the tip state's std the trial opens (the jump's is
     # `tip_accel_move_std_m_s2`)
+    jump_trial_window_s: float = 0.3  # ... and how far it goes back (the likelihoods compared are over this window)
     slow_mean_tau_s: float = 3.0  # a second, slower running mean of the same whitened innovation: a tip acceleration
     # that turns slowly (a slew's tangential part rotating into its centripetal part) biases it too little for the
     # 0.5 s mean's gate
@@ -976,7 +978,8 @@ def ekf_run(
             if trial:
                 x_kept[:] = x
                 p_kept[:, :] = p
-            j0 = hist_n[0] - min(hist_n[0], b)
+            back = max(1, round((params[_TRIAL_WIN] if trial else params[_ROLLBACK]) / dt_s))
+            j0 = hist_n[0] - min(hist_n[0], b, back)
             x[:] = hist_x[j0 % b]
             p[:, :] = hist_p[j0 % b]
             mon = hist_mon[j0 % b].copy()
@@ -1059,7 +1062,8 @@ class HookFilter(AttitudeFilter):
                          s.move_mean_gate, s.rope_rate_tau_s, s.jump_rope_rel_std, s.slow_mean_tau_s,
                          s.slow_mean_gate, s.slow_open_std_m_s2, s.move_track_s, s.move_track_psd,
                          s.tip_turn_psd, s.move_track_cap_m_s2, s.tip_turn_cap_m_s2, s.jump_trial_gate,
-                         s.jump_trial_lr, s.jump_trial_every_s, s.jump_trial_open_std_m_s2])  # fmt: skip
+                         s.jump_trial_lr, s.jump_trial_every_s, s.jump_trial_open_std_m_s2, s.move_rollback_s,
+                         s.jump_trial_window_s])  # fmt: skip
 
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings
@@ -1174,8 +1178,10 @@ class HookFilter(AttitudeFilter):
 
     def _rings(self, dt_s: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
                                             NDArray[np.int64]]:  # fmt: skip
-        """The jump-rollback history of `ekf_run` (`settings.move_rollback_s` of samples), made on first use."""
-        b = max(1, round(self.settings.move_rollback_s / dt_s))
+        """The jump-rollback history of `ekf_run` (`settings.move_rollback_s` of samples, or the trial window if
+        trials are on and it is longer), made on first use."""
+        s = self.settings
+        b = max(1, round(max(s.move_rollback_s, s.jump_trial_window_s if s.jump_trial_gate > 0.0 else 0.0) / dt_s))
         if self._history is None or self._history[0].shape[0] != b:
             self._history = (np.zeros((b, N_STATE)), np.zeros((b, N_STATE, N_STATE)), np.zeros((b, 7)),
                              np.zeros((b, N_INPUT)), np.zeros((b, N_MONITOR)), np.zeros(2, dtype=np.int64))  # fmt: skip
