@@ -82,7 +82,7 @@ N_INPUT = 8  # per-sample process input: accelerometer x/y, gyroscope (3), its b
  _FORCE_ON, _L_MAX, _NIS_TAU, _NIS_GATE, _TIP_MOVE, _TIP_STD, _TIP_GATE, _MOVE_FREEZE, _MOVE_HOLD,
  _TIP_GATE_STD, _MEAN_TAU, _MEAN_GATE, _L_RATE_TAU, _JUMP_ROPE, _SLOW_TAU, _SLOW_GATE, _SLOW_OPEN, _TRACK_S,
  _TRACK_PSD, _TURN_PSD, _TRACK_CAP, _TURN_CAP, _TRIAL_GATE, _TRIAL_LR, _TRIAL_EVERY, _TRIAL_OPEN,
- _ROLLBACK, _TRIAL_WIN) = range(42)
+ _ROLLBACK, _TRIAL_WIN, _TRIAL_QUIET) = range(43)
 N_MONITOR = 11  # `ekf_step`'s innovation statistics and move timers
 
 
@@ -162,6 +162,9 @@ class HookFilterSettings:
     jump_trial_open_std_m_s2: float = 0.5  # ... the tip state's std the trial opens (the jump's is
     # `tip_accel_move_std_m_s2`)
     jump_trial_window_s: float = 0.3  # ... and how far it goes back (the likelihoods compared are over this window)
+    jump_trial_quiet_s: float = 0.0  # ... and not within this long of the start or of the last jump (either test):
+    # a filter still settling (a swinging start, after a hoist on a short rope) has innovations that are not white,
+    # and trials there were kept one after the other (tuning seeds 17 and 20)
     slow_mean_tau_s: float = 3.0  # a second, slower running mean of the same whitened innovation: a tip acceleration
     # that turns slowly (a slew's tangential part rotating into its centripetal part) biases it too little for the
     # 0.5 s mean's gate
@@ -891,6 +894,7 @@ def _ekf_step_into(
             p_pred[i, i] += params[_SLOW_OPEN] * params[_SLOW_OPEN]
     monitor[10] -= dt_s
     if (params[_TRIAL_GATE] > 0.0 and monitor[5] == 0.0 and monitor[10] <= 0.0
+            and params[_MOVE_HOLD] - monitor[4] > params[_TRIAL_QUIET]
             and _mean_stat(monitor, 2, min(1.0, dt_s / params[_MEAN_TAU])) > params[_TRIAL_GATE]):
         monitor[5] = 2.0  # a candidate jump: `ekf_run` tries it and keeps it if the innovations say so
         monitor[10] = params[_TRIAL_EVERY]
@@ -995,8 +999,10 @@ def ekf_run(
             if trial and monitor[9] - mon[9] <= params[_TRIAL_LR]:
                 x[:] = x_kept
                 p[:, :] = p_kept
+                monitor[5] = 0.0
             else:
                 if trial:  # as the jump test does when it fires
+                    monitor[5] = 1.0
                     monitor[2] = monitor[3] = monitor[6] = monitor[7] = 0.0
                     monitor[4] = params[_MOVE_HOLD]
                     monitor[8] = params[_TRACK_S]
@@ -1063,7 +1069,7 @@ class HookFilter(AttitudeFilter):
                          s.slow_mean_gate, s.slow_open_std_m_s2, s.move_track_s, s.move_track_psd,
                          s.tip_turn_psd, s.move_track_cap_m_s2, s.tip_turn_cap_m_s2, s.jump_trial_gate,
                          s.jump_trial_lr, s.jump_trial_every_s, s.jump_trial_open_std_m_s2, s.move_rollback_s,
-                         s.jump_trial_window_s])  # fmt: skip
+                         s.jump_trial_window_s, s.jump_trial_quiet_s])  # fmt: skip
 
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings
