@@ -434,13 +434,14 @@ def small_step_data(seed: int):
 def test_a_trial_jump_sees_a_tip_step_below_the_jump_gate():
     """`TRIAL_JUMP`: below the jump gate the filter tries the jump (goes back 1 s, opens the tip state) and keeps it
     when the re-run's swing-rate innovations are likelier. On a 0.1 m/s² step on an 8 m rope, Θ RMSE from the step
-    on, mean over four draws, is more than 1.2x lower than without trials (measured MEAS_ON° vs MEAS_OFF°)."""
+    on, mean over four draws, is more than 2x lower than without trials (measured 0.18° vs 0.52°; 0.11-0.23° vs
+    0.45-0.55° per draw)."""
     on, off = [], []
     for seed in (41, 42, 43, 44):
         truth, gyr, acc = small_step_data(seed)
         on.append(swing_rmse_from(truth, gyr, acc, 8.0, TRIAL_JUMP, 19.5))
         off.append(swing_rmse_from(truth, gyr, acc, 8.0, {}, 19.5))
-    assert np.mean(off) > 1.2 * np.mean(on), (on, off)
+    assert np.mean(off) > 2.0 * np.mean(on), (on, off)
 
 
 def test_a_trial_the_likelihood_rejects_changes_nothing():
