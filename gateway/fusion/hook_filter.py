@@ -964,7 +964,11 @@ def ekf_run(
     hold the state before each of the last B samples and that sample's inputs. When `ekf_step` finds a boom-tip
     jump, the jump test has needed those samples to see it, and the pendulum law has meanwhile bent the tilt: the
     filter goes back B samples, opens the tip state there, and runs them again (the jump test off), so the tilt
-    keeps the gyroscope's integral from before the move. Past outputs are not rewritten (a live filter cannot)."""
+    keeps the gyroscope's integral from before the move. Past outputs are not rewritten (a live filter cannot).
+    A trial jump (`ekf_step`'s candidate, off by default) goes back `params[_TRIAL_WIN]` instead, opens the tip state by
+    `params[_TRIAL_OPEN]` and is kept only if the re-run's -2 log-likelihood of the swing-rate innovations
+    (`monitor[9]`) is lower than the kept path's by more than `params[_TRIAL_LR]`; otherwise state, covariance and
+    monitor stay as they were."""
     n, m = z.shape[0], z.shape[1]
     b = hist_x.shape[0]
     out = np.empty((n, 4))
