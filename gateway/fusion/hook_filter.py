@@ -29,7 +29,9 @@ iron (µT, body).
   state takes what the pendulum law cannot explain. For 10 s after a jump the tip state keeps tracking (while its
   estimate is not near 0) and takes process noise across its own direction (a slew's acceleration turns with the
   boom); optionally (`TRACKING`) a slower test on the same innovation opens it when the acceleration turns too
-  slowly for the jump test. A small white part stays on `v` (`tip_accel_psd / l²`).
+  slowly for the jump test; optionally (`TRIAL_JUMP`) a step below the jump gate is *tried*: the filter goes back,
+  opens the tip state, and keeps the re-run if the likelihood of its innovations says so (`ekf_run`).
+  A small white part stays on `v` (`tip_accel_psd / l²`).
   `α` integrates `α'`; `α'`, the biases and the offset random-walk (the gyro bias only as fast as the sensor's
   does: faster, it takes a slew's slowly changing acceleration for bias); `c` is constant; `l` integrates `l'`, which
   integrates `l''` (mean-reverting: hoist drives accelerate briefly).
