@@ -876,6 +876,7 @@ class _ImuWire(msgspec.Struct, forbid_unknown_fields=True):
 
 _imu_wire_decoder: Final = msgspec.json.Decoder(_ImuWire)
 _setattr = object.__setattr__
+_W = typing.TypeVar("_W", bound=WireModel)
 
 
 class _Builder:
@@ -909,6 +910,14 @@ def _construct(model: type[WireModel], values: dict[str, Any], fields_set: set[s
     _setattr(obj, "__pydantic_fields_set__", fields_set)
     _setattr(obj, "__pydantic_extra__", None)
     _setattr(obj, "__pydantic_private__", None)
+    return obj
+
+
+def prevalidated(model: type[_W], values: dict[str, Any], fields_set: frozenset[str]) -> _W:
+    """The instance `model(**{k: values[k] for k in fields_set})` would return, without the validation: for outputs
+    whose values the caller range-checked in bulk (`gateway.kinds.base.attitudes`; tests/test_kinds_outputs.py checks
+    they are equal). `values` holds every field in `model`'s field order, `fields_set` the ones the caller set."""
+    obj: _W = _construct(model, values, set(fields_set))
     return obj
 
 
