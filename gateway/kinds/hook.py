@@ -15,7 +15,7 @@ import numpy as np
 
 from gateway import schemas
 from gateway.alarm.engine import Condition
-from gateway.alarm.hook import HookAlarms
+from gateway.alarm.hook import HookAlarms, hook_rules
 from gateway.config import HookThresholds
 from gateway.fusion import hook as hook_geo
 from gateway.kinds.base import (
@@ -109,12 +109,11 @@ class HookKind(KindBase):
         interval_s = ctx.settings.swing_interval_s
         ran: list[tuple[int, list[Condition], int, int]] = []  # (device index, its new conditions, its picks [a, b))
         picks: list[tuple[int, int, int, int]] = []  # (device index, row in kb, seq, t_us) of each Swing to send
-        for i, f in enumerate(kb.items):
+        rules = hook_rules([f.dev.state.rules for f in kb.items], kb.t_s, swing, tors, kb.start, kb.stop)
+        for i, (f, new) in enumerate(zip(kb.items, rules, strict=True)):
             dev, rows, st = f.dev, kb.rows(i), f.dev.state
-            try:
-                new = st.rules.update(f.t_s, swing[rows], tors[rows])
-            except Exception as exc:  # only this hook restarts
-                ctx.fail(dev, exc, out)
+            if isinstance(new, Exception):  # only this hook restarts
+                ctx.fail(dev, new, out)
                 continue
             first = len(picks)
             for j, seq, t_us in f.ends:

@@ -109,7 +109,7 @@ def test_heights_equal_the_validated_ones(devices: list[dict[str, Any]]) -> None
 
 
 class _Rules:
-    def update(self, *args: Any) -> list[Any]:
+    def update_deg(self, *args: Any) -> list[Any]:
         return []
 
 
