@@ -93,7 +93,7 @@ class _CountingBus:
         self.digest = 0
         self._lock = threading.Lock()  # the blocking-put thread puts too
 
-    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None:
+    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False, express: bool = False) -> None:
         import hashlib
 
         h = int.from_bytes(hashlib.blake2b(key.encode() + b"\0" + payload, digest_size=8).digest(), "big")

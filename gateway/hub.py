@@ -75,13 +75,13 @@ class Hub:
     def put_diag(self, topic: schemas.Topic, model: schemas.WireModel) -> None:
         """Publish a gateway-wide diagnostics message with its topic's congestion control (BLOCK through the publisher
         thread), without the listeners (they take device outputs)."""
-        self._send(topic.key(), model.to_json(), topic.encoding, topic.block)
+        self._send(topic.key(), model.to_json(), topic)
 
-    def _send(self, key: str, payload: bytes, encoding: str, block: bool) -> None:
-        if block and self.publisher is not None:
-            self.publisher.put(key, payload, encoding)
+    def _send(self, key: str, payload: bytes, topic: schemas.Topic) -> None:
+        if topic.block and self.publisher is not None:
+            self.publisher.put(key, payload, topic.encoding, topic.express)
         else:
-            self.bus.put(key, payload, encoding=encoding, block=block)
+            self.bus.put(key, payload, encoding=topic.encoding, block=topic.block, express=topic.express)
 
     def _put(self, topic: schemas.Topic, model: schemas.WireModel, kind: str | None = None,
              device_id: str | None = None) -> None:  # fmt: skip
@@ -91,7 +91,7 @@ class Hub:
             if len(self._keys) >= MAX_KEYS:  # devices come and go: start over rather than grow for good
                 self._keys.clear()
             key = self._keys[(topic.name, kind, device_id)] = topic.key(kind, device_id)
-        self._send(key, model.to_json(), topic.encoding, topic.block)
+        self._send(key, model.to_json(), topic)
         self.published += 1
         for cb in self.listeners:
             try:
@@ -146,7 +146,7 @@ class Hub:
             speed_m_s=speed_m_s, drag_n=drag_n, sent_wall_us=int(self.clock() * 1e6), sender=sender,
         )  # fmt: skip
         t = schemas.T_REEL_CMD
-        self._send(t.key("rod", device_id), cmd.to_json(), t.encoding, t.block)
+        self._send(t.key("rod", device_id), cmd.to_json(), t)
         for cb in self.listeners:
             cb("reel_cmd", cmd)
         return cmd

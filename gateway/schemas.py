@@ -626,22 +626,21 @@ T_BALL_TRUTH: Final = Topic("ball_truth", "rig/{kind}/{id}/truth", _kinds("ball"
 T_DEVICE_TOKEN: Final = Topic("device_token", "rig/{kind}/{id}", KINDS, None, "", "token",
                               note="liveliness token of a device (no payload)")
 T_REEL_CMD: Final = Topic("reel_cmd", "rig/{kind}/{id}/reel/cmd", _kinds("rod"), ReelCommand, ENCODING_REEL_CMD,
-                          "command", block=True)
+                          "command", block=True, express=True)
 T_BALL_CMD: Final = Topic("ball_cmd", "rig/{kind}/{id}/cmd", _kinds("ball"), BallCommand, ENCODING_BALL_CMD,
-                          "command", block=True)
-T_ATTITUDE: Final = Topic("attitude", "gw/{kind}/{id}/attitude", IMU_KINDS, Attitude, ENCODING_GW, "output",
-                          express=True)
+                          "command", block=True, express=True)
+T_ATTITUDE: Final = Topic("attitude", "gw/{kind}/{id}/attitude", IMU_KINDS, Attitude, ENCODING_GW, "output")
 T_ATTITUDE_BLOCK: Final = Topic("attitude_block", "gw/{kind}/{id}/attitude/block", IMU_KINDS, AttitudeBlock,
                                 ENCODING_GW, "output", block=True, express=True,
                                 note="opt-in `--attitude-blocks`: every sample, one message per IMU packet")
 T_SWING: Final = Topic("swing", "gw/{kind}/{id}/swing", _kinds("hook"), Swing, ENCODING_GW, "output", block=True,
                        express=True, note="≤ 20 Hz per hook")
-T_HEIGHT: Final = Topic("height", "gw/{kind}/{id}/height", IMU_KINDS, Height, ENCODING_GW, "output", express=True,
+T_HEIGHT: Final = Topic("height", "gw/{kind}/{id}/height", IMU_KINDS, Height, ENCODING_GW, "output",
                         note="vertical velocity and heave, about 10 Hz")
 T_ALARM: Final = Topic("alarm", "gw/{kind}/{id}/alarm", KINDS, AlarmEvent, ENCODING_GW, "output", block=True,
                        express=True)
-T_SPOTS: Final = Topic("spots", "gw/spots", (), SpotRanking, ENCODING_GW, "output", express=True)
-T_DIAG_INGEST: Final = Topic("diag_ingest", "gw/diag/ingest", (), IngestStats, ENCODING_GW, "output", express=True,
+T_SPOTS: Final = Topic("spots", "gw/spots", (), SpotRanking, ENCODING_GW, "output")
+T_DIAG_INGEST: Final = Topic("diag_ingest", "gw/diag/ingest", (), IngestStats, ENCODING_GW, "output",
                              note="about 1 Hz")
 T_DIAG_REJECTED: Final = Topic("diag_rejected", "gw/diag/rejected", (), RejectedPacket, ENCODING_GW, "output",
                                block=True, express=True, note="one per rejected packet, at most 20 a second")

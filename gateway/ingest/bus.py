@@ -35,7 +35,7 @@ class Bus(Protocol):
 
     def subscribe(self, selector: str, callback: SampleCallback, *, direct: bool = False) -> Unsubscribe: ...
 
-    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None: ...
+    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False, express: bool = False) -> None: ...
 
     def watch_liveliness(self, selector: str, callback: PresenceCallback) -> None: ...
 
@@ -89,7 +89,7 @@ class ZenohBus:
 
     def __init__(self, session: zenoh.Session) -> None:
         self.session = session
-        self._pubs: dict[tuple[str, bool], zenoh.Publisher] = {}
+        self._pubs: dict[tuple[str, bool, bool], zenoh.Publisher] = {}
         self._handles: list[object] = []
         self._lock = threading.Lock()
 
@@ -125,15 +125,19 @@ class ZenohBus:
 
         return unsubscribe
 
-    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None:
+    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False, express: bool = False) -> None:
+        """One put with the topic's QoS (schemas.Topic): `express` sends it at once; otherwise zenoh batches it with
+        the puts around it. A DROP stream must not be express: zenoh queues a few batches per priority, one message
+        each when express, so a batch's burst of express DROP puts overflowed that queue and lost messages
+        (`bench.zenoh_burst`); batched, the same burst fits."""
         with self._lock:
-            pub = self._pubs.get((key, block))
+            pub = self._pubs.get((key, block, express))
             if pub is None:
                 pub = self.session.declare_publisher(
-                    key, encoding=zenoh.Encoding(encoding), express=True,
+                    key, encoding=zenoh.Encoding(encoding), express=express,
                     congestion_control=zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP,
                 )  # fmt: skip
-                self._pubs[(key, block)] = pub
+                self._pubs[(key, block, express)] = pub
         pub.put(payload)
 
     def watch_liveliness(self, selector: str, callback: PresenceCallback) -> None:
@@ -202,7 +206,7 @@ class MemoryBus:
         self.subs.append(entry)
         return lambda: self.subs.remove(entry) if entry in self.subs else None
 
-    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None:
+    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False, express: bool = False) -> None:
         self.sent.append((key, payload, block))
         for sel, cb in self.subs:
             if key_matches(sel, key):

@@ -28,22 +28,23 @@ class BlockingPublisher:
         self.dropped = 0
         self.published = 0
         self.failures = 0
-        self._items: collections.deque[tuple[str, bytes, str]] = collections.deque()
+        self._items: collections.deque[tuple[str, bytes, str, bool]] = collections.deque()
         self._cond = threading.Condition()
         self._busy = False
         self._stop = False
         self._thread = threading.Thread(target=self._run, name="block-publisher", daemon=True)
         self._thread.start()
 
-    def put(self, key: str, payload: bytes, encoding: str) -> None:
-        """Queue one BLOCK put (any thread); drops the oldest queued put when full."""
+    def put(self, key: str, payload: bytes, encoding: str, express: bool = True) -> None:
+        """Queue one BLOCK put (any thread; `express` as the topic's row says); drops the oldest queued put when
+        full."""
         with self._cond:
             if self._stop:
                 return
             if len(self._items) >= self.maxsize:
                 self._items.popleft()
                 self.dropped += 1
-            self._items.append((key, payload, encoding))
+            self._items.append((key, payload, encoding, express))
             self._cond.notify_all()
 
     def _run(self) -> None:
@@ -53,10 +54,10 @@ class BlockingPublisher:
                     self._cond.wait()
                 if not self._items:
                     return
-                key, payload, encoding = self._items.popleft()
+                key, payload, encoding, express = self._items.popleft()
                 self._busy = True
             try:
-                self.bus.put(key, payload, encoding=encoding, block=True)
+                self.bus.put(key, payload, encoding=encoding, block=True, express=express)
                 self.published += 1
             except Exception:
                 self.failures += 1

@@ -264,7 +264,7 @@ class ShardNode:
         if publisher is not None:
             publisher.put(key, payload, schemas.ENCODING_GW)
         else:
-            self.bus.put(key, payload, encoding=schemas.ENCODING_GW, block=True)
+            self.bus.put(key, payload, encoding=schemas.ENCODING_GW, block=True, express=True)
 
     def _publish_row(self, alarm: Alarm) -> None:
         self._put_block(self.key("alarm_row"), alarm_to_json(alarm))

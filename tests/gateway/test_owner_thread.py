@@ -163,7 +163,7 @@ class StallingBus(MemoryBus):
         self.blocked = 0
         self.returned = 0
 
-    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False) -> None:
+    def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False, express: bool = False) -> None:
         if block:
             self.blocked += 1
             self.release.wait(self.stall_s)
