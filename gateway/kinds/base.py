@@ -255,10 +255,10 @@ def ints_valid(values: Sequence[int], end: int) -> bool:
     return not values or (set(map(type, values)) == {int} and min(values) >= 0 and max(values) < end)
 
 
-def device_fields_valid(devs: Iterable[FusedDevice]) -> bool:
-    """The device id, kind and filter name of each device are what an output model accepts."""
+def device_fields_valid(devs: Iterable[FusedDevice], filter_name: bool = True) -> bool:
+    """The device id, kind (and filter name) of each device are what an output model accepts."""
     return all(type(d.device_id) is str and schemas.valid_device_id(d.device_id) and d.kind in schemas.IMU_KINDS
-               and type(d.kind) is str and (d.filter_name is None or type(d.filter_name) is str
+               and type(d.kind) is str and (not filter_name or d.filter_name is None or type(d.filter_name) is str
                                             and 1 <= len(d.filter_name) <= 64) for d in devs)  # fmt: skip
 
 
@@ -442,28 +442,60 @@ def height_messages(f: Fused, rows: FloatArray, interval_s: float) -> list[schem
     most every `interval_s` of device time; the device keeps the last one."""
     from gateway.fusion.heave import AIDED_NAMES
 
-    dev, gap_s, last_s = f.dev, interval_s - 1e-9, f.dev.last_height_t_s
-    out: list[schemas.Height] = []
-    picks = []
-    for (i, seq, t_us), t in zip(f.ends, f.t_s[[i for i, _, _ in f.ends]].tolist(), strict=True):
-        if t - last_s >= gap_s:
-            last_s = t
-            picks.append((i, seq, t_us))
+    dev, t_s, out = f.dev, f.t_s, []
+    for i, seq, t_us in f.ends:
+        if t_s[i] - dev.last_height_t_s < interval_s - 1e-9:
+            continue
+        dev.last_height_t_s = float(t_s[i])
+        h, v, rest, aided = rows[i]
+        out.append(schemas.Height(
+            device_id=dev.device_id, kind=dev.kind, seq=seq, t_us=t_us,  # type: ignore[arg-type]
+            wall_t_us=t_us + dev.wall_offset_us, vz_m_s=float(v), height_m=float(h), at_rest=bool(rest),
+            aided=AIDED_NAMES[int(aided)],  # type: ignore[arg-type]
+        ))  # fmt: skip
+    dev.height = out[-1] if out else dev.height
+    return out
+
+
+def heights_batch(kb: KindBatch, live: Sequence[int], rows: FloatArray, interval_s: float
+                  ) -> list[schemas.Height] | None:  # fmt: skip
+    """`height_messages` of the devices `live` of a batch (heave rows of the whole batch), with one range check of
+    all their values instead of pydantic's per message; None (nothing changed) when a value fails it: the caller
+    then builds them device by device through pydantic, which raises for the device it concerns."""
+    from gateway.fusion.heave import AIDED_NAMES
+
+    t_all, gap_s = kb.t_s.tolist(), interval_s - 1e-9
+    picks: list[tuple[FusedDevice, int, int, int]] = []  # (device, row in kb, seq, t_us)
+    last: dict[int, float] = {}  # item -> device time of its last pick
+    for i in live:
+        f = kb.items[i]
+        base, t_last = int(kb.start[i]), f.dev.last_height_t_s
+        for j, seq, t_us in f.ends:
+            t = t_all[base + j]
+            if t - t_last >= gap_s:
+                picks.append((f.dev, base + j, seq, t_us))
+                t_last = last[i] = t
     if not picks:
-        return out
-    dev.last_height_t_s = last_s
-    vals = rows[[i for i, _, _ in picks]]
-    t_list = [t for _, _, t in picks]
-    walls = [t + dev.wall_offset_us for t in t_list]
-    # pydantic's checks of the batch at once (finite floats, ints in range, the device's strings); else it builds them
-    trusted = (np.isfinite(vals[:, :2]).all() and ints_valid([s for _, s, _ in picks], schemas.UINT32)
-               and ints_valid(t_list, TIME_END_US) and ints_valid(walls, TIME_END_US) and device_fields_valid((dev,)))
-    for (_, seq, t_us), wall, (h, v, rest, aided) in zip(picks, walls, vals.tolist(), strict=True):
-        fields = {"device_id": dev.device_id, "kind": dev.kind, "seq": seq, "t_us": t_us, "wall_t_us": wall,
-                  "vz_m_s": v, "height_m": h, "at_rest": bool(rest), "aided": AIDED_NAMES[int(aided)]}
-        out.append(schemas.prevalidated(schemas.Height, {"v": 1, **fields}, _HEIGHT_SET) if trusted
-                   else schemas.Height(**fields))  # fmt: skip
-    dev.height = out[-1]
+        return []
+    vals = rows[[r for _, r, _, _ in picks]]
+    aided = vals[:, 3]
+    times = [t for _, _, _, t in picks]
+    walls = [t + d.wall_offset_us for (d, _, _, _), t in zip(picks, times, strict=True)]
+    aided_ok = ((aided >= 0) & (aided < len(AIDED_NAMES)) & (aided == np.floor(aided))).all()
+    if not (np.isfinite(vals[:, :2]).all() and aided_ok
+            and ints_valid([s for _, _, s, _ in picks], schemas.UINT32) and ints_valid(times, TIME_END_US)
+            and ints_valid(walls, TIME_END_US) and device_fields_valid({id(d): d for d, _, _, _ in picks}.values(), filter_name=False)):
+        return None
+    for i, t in last.items():
+        kb.items[i].dev.last_height_t_s = t
+    build, model, fields = schemas.prevalidated, schemas.Height, _HEIGHT_SET
+    out = [build(model, {
+        "v": 1, "device_id": dev.device_id, "kind": dev.kind, "seq": seq, "t_us": t, "wall_t_us": wall,
+        "vz_m_s": v, "height_m": h, "at_rest": bool(rest), "aided": AIDED_NAMES[int(a)],
+    }, fields) for (dev, _, seq, t), wall, (h, v, rest, a) in zip(picks, walls, vals.tolist(), strict=True)
+    ]  # fmt: skip
+    for m, (dev, _, _, _) in zip(out, picks, strict=True):
+        dev.height = m
     return out
 
 
