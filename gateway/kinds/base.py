@@ -484,7 +484,8 @@ def heights_batch(kb: KindBatch, live: Sequence[int], rows: FloatArray, interval
     aided_ok = ((aided >= 0) & (aided < len(AIDED_NAMES)) & (aided == np.floor(aided))).all()
     if not (np.isfinite(vals[:, :2]).all() and aided_ok
             and ints_valid([s for _, _, s, _ in picks], schemas.UINT32) and ints_valid(times, TIME_END_US)
-            and ints_valid(walls, TIME_END_US) and device_fields_valid({id(d): d for d, _, _, _ in picks}.values(), filter_name=False)):
+            and ints_valid(walls, TIME_END_US)
+            and device_fields_valid({id(d): d for d, _, _, _ in picks}.values(), filter_name=False)):
         return None
     for i, t in last.items():
         kb.items[i].dev.last_height_t_s = t
