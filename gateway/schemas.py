@@ -1156,8 +1156,8 @@ def _decode_binary_batch(todo: list[tuple[int, ParsedKey, bytes | bytearray | me
         stops = np.cumsum(counts)
         starts = (stops - counts).tolist()
         pkt_ok = np.logical_and.reduceat(row_ok, starts).tolist()
-        structured = np.frombuffer(blob, dtype=_ROWS[k])
-        columns = [structured[name].tolist() for name in _ROW_NAMES[k]]
+        values = block.T.tolist()  # k lists of floats; zipped in threes: each sensor's rows as tuples
+        columns = [list(zip(values[j], values[j + 1], values[j + 2])) for j in range(0, k, 3)]  # noqa: B905
         for (i, parsed, payload, h), a, b, ok in zip(items, starts, stops.tolist(), pkt_ok, strict=True):
             try:
                 out[i] = _binary_finish(parsed, payload, h, ok, lambda a=a, b=b, blk=block: blk[a:b],  # type: ignore[misc]
