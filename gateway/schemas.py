@@ -918,6 +918,8 @@ class _ImuWire(msgspec.Struct, forbid_unknown_fields=True):
 
 _imu_wire_decoder: Final = msgspec.json.Decoder(_ImuWire)
 _setattr = object.__setattr__
+_new = object.__new__  # what `model.__new__` resolves to (pydantic defines none), without the class lookup
+assert BaseModel.__new__ is object.__new__
 _W = typing.TypeVar("_W", bound=WireModel)
 
 
@@ -947,7 +949,7 @@ class _Builder:
 def _construct(model: type[WireModel], values: dict[str, Any], fields_set: set[str]) -> Any:
     """The instance `model_validate` would return for input that passed every check (`values` in field order, every
     field present); `model_construct` does the same with more Python per call."""
-    obj = model.__new__(model)
+    obj = _new(model)
     _setattr(obj, "__dict__", values)
     _setattr(obj, "__pydantic_fields_set__", fields_set)
     _setattr(obj, "__pydantic_extra__", None)
@@ -1057,6 +1059,12 @@ _BinHeader: TypeAlias = tuple[int, int, int, int, int, int, int, int, float, int
 packet whose layout checked out (`_binary_header`)."""
 
 
+_BIN_FIELDS_SET: Final = tuple(
+    _IMU_REQUIRED | {name for name, bit in _BIN_OPTIONAL if flags & bit} | ({"mag_uT"} if flags & BIN_MAG else set())
+    | ({"wall_t0_us"} if flags & BIN_WALL else set()) for flags in range(64)
+)  # the fields a packet with these flags sets (the model's `model_fields_set`), by flags
+
+
 def _binary_header(payload: bytes | bytearray | memoryview) -> _BinHeader:
     """The header of a binary IMU packet, after the layout checks (`schema`): size, flags, sample count, length."""
     size = IMU_BINARY_HEADER.size
@@ -1105,12 +1113,7 @@ def _binary_finish(parsed: ParsedKey, payload: bytes | bytearray | memoryview, h
         if not kind or not _DEVICE_ID_RE.fullmatch(other):
             raise DecodeError("schema", f"binary IMU packet: kind code {kind_code} or device id {other[:70]!r}")
         raise DecodeError("key_mismatch", f"payload {kind}/{other} on key rig/{parsed.kind}/{parsed.device_id}")
-    fields_set = set(_IMU_REQUIRED)
-    fields_set.update(optional)
-    if k == 9:
-        fields_set.add("mag_uT")
-    if flags & BIN_WALL:
-        fields_set.add("wall_t0_us")
+    fields_set = set(_BIN_FIELDS_SET[flags])
     get = optional.get
     sensor = rows()
     packet: ImuPacket = _construct(ImuPacket, {
