@@ -26,6 +26,7 @@ import re
 import struct
 import sys
 import typing
+import weakref
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, Final, Literal, TypeAlias
@@ -1163,12 +1164,35 @@ def _decode_binary_batch(todo: list[tuple[int, ParsedKey, bytes | bytearray | me
         columns = [list(zip(values[j], values[j + 1], values[j + 2])) for j in range(0, k, 3)]  # noqa: B905
         for (i, parsed, payload, h), a, b, ok in zip(items, starts, stops.tolist(), pkt_ok, strict=True):
             try:
-                out[i] = _binary_finish(parsed, payload, h, ok, lambda a=a, b=b, blk=block: blk[a:b],  # type: ignore[misc]
+                packet = _binary_finish(parsed, payload, h, ok, lambda a=a, b=b, blk=block: blk[a:b],  # type: ignore[misc]
                                         lambda a=a, b=b, cols=columns: tuple(c[a:b] for c in cols))  # type: ignore[misc]
+                _keep_rows(packet, block[a:b])
+                out[i] = packet
             except DecodeError as err:
                 out[i] = err
             except Exception as exc:  # as `decode`: never anything but a DecodeError
                 out[i] = DecodeError("schema", f"{type(exc).__name__}: {exc}"[:300])
+
+
+_SAMPLE_ROWS: dict[int, tuple[weakref.ref[ImuPacket], NDArray[np.float32]]] = {}
+
+
+def _keep_rows(packet: ImuPacket, rows: NDArray[np.float32]) -> None:
+    """Remember a decoded binary packet's float32 rows [gyr acc (mag)] for `sample_rows`, for as long as the packet
+    lives (a weak reference removes the entry with it)."""
+    key = id(packet)
+
+    def forget(_: weakref.ref[ImuPacket]) -> None:
+        _SAMPLE_ROWS.pop(key, None)
+
+    _SAMPLE_ROWS[key] = (weakref.ref(packet, forget), rows)
+
+
+def sample_rows(packet: ImuPacket) -> NDArray[np.float32] | None:
+    """The (n, 6 or 9) float32 rows [gyr acc (mag)] a binary packet was decoded from (`decode_many`), else None:
+    its samples as an array without going through the float tuples (they are these values, exactly)."""
+    entry = _SAMPLE_ROWS.get(id(packet))
+    return entry[1] if entry is not None and entry[0]() is packet else None
 
 
 def decode_many(items: Sequence[tuple[str, bytes | bytearray | memoryview]]) -> list[Packet | DecodeError]:
