@@ -142,9 +142,9 @@ class WireModel(BaseModel):
 _json_encoder: Final = msgspec.json.Encoder()
 # For the same values msgspec and pydantic (serde_json) write the same JSON (floats shortest round-trip, strings
 # escaped alike: tests/test_schemas.py checks it on random models) but for one thing: msgspec writes 1e16 where
-# serde_json writes 1e+16 (|x| >= 1e16). A payload with "e" and a digit 1-3 in it (such a float, or a device id like
-# "rode1") is written by pydantic; no field name has one (`_json_mirror` checks).
-_POSITIVE_EXPONENT: Final = re.compile(rb"e[1-3]")
+# serde_json writes 1e+16 (|x| >= 1e16: exponents 16..308). A payload with "e" and a digit 1-9 in it (such a
+# float, or a device id like "rode1") is written by pydantic; no field name has one (`_json_mirror` checks).
+_POSITIVE_EXPONENT: Final = re.compile(rb"e[1-9]")
 _MIRRORS: dict[type[BaseModel], tuple[type[msgspec.Struct], Any] | Literal[False]] = {}
 
 

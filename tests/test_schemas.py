@@ -305,7 +305,8 @@ def _values(annotation: object) -> st.SearchStrategy[object]:
         return st.none()
     if annotation is float:
         return st.one_of(st.floats(allow_nan=False, allow_infinity=False),
-                         st.sampled_from([0.0, -0.0, 1e16, -1e16, 9.999999999999998e15, 1e-7, 1.5e-5, 1e22, 5e-324]))
+                         st.sampled_from([0.0, -0.0, 1e16, -1e16, 9.999999999999998e15, 1e-7, 1.5e-5, 1e22, 1e40, 7e99,
+                                          1e100, 1.7976931348623157e308, 5e-324]))
     if annotation is bool:
         return st.booleans()
     if annotation is int:
