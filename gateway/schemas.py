@@ -1201,7 +1201,7 @@ def decode_many(items: Sequence[tuple[str, bytes | bytearray | memoryview]]) -> 
     out: list[Packet | DecodeError] = []
     binary: list[tuple[int, ParsedKey, bytes | bytearray | memoryview, _BinHeader]] = []
     for i, (key, payload) in enumerate(items):
-        if payload[:1] == _BIN_MAGIC_BYTE and len(payload) <= MAX_PAYLOAD_BYTES:
+        if payload and payload[0] == IMU_BINARY_MAGIC and len(payload) <= MAX_PAYLOAD_BYTES:  # no slice per packet
             try:
                 parsed, topic = _parse(key)
                 if topic is T_IMU:

@@ -90,8 +90,9 @@ def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
     stop = np.cumsum(sizes).tolist()
     cuts = list(zip([0, *stop[:-1]], stop, strict=True))  # rows of each device (slices: np.split is slow)
     total = stop[-1] if stop else 0
-    kept = [schemas.sample_rows(p) for p in pk]
-    rows = [r for r in kept if r is not None] if pk else []
+    # rows of binary packets; a batch whose first packet has none (JSON) is not searched further
+    kept = [schemas.sample_rows(p) for p in pk] if pk and schemas.sample_rows(pk[0]) is not None else []
+    rows = [r for r in kept if r is not None]
     from_rows = len(rows) == len(pk) > 0
 
     def column(a: int, b: int, which: Iterable[int] | None = None) -> FloatArray:
