@@ -625,32 +625,42 @@ def _nonzero_columns(a: FloatArray, rows: int, idx: NDArray[np.int64], cnt: NDAr
 @njit
 def _predict_covariance(f_jac: FloatArray, p: FloatArray, q: FloatArray, idx: NDArray[np.int64],
                         cnt: NDArray[np.int64], fp: FloatArray, out: FloatArray) -> None:  # fmt: skip
-    """`out = F P Fᵀ + diag(q)`: `fp = (F P)ᵀ` = P Fᵀ row by row over F's non-zeros (an identity row copies P's
-    row), then `out = F fp` the same way; the upper triangle is mirrored so `out` is exactly symmetric. `fp`
-    (N, N) is scratch."""
+    """`out = F P Fᵀ + diag(q)` for an F that is diagonal but for a few rows (the pendulum, heading and rope rows
+    of the process): between two diagonal rows it is `d_i P_ik d_k`; a dense row `i` takes `(F P)_i` (row `i` of
+    `fp`, over F's non-zeros) times `Fᵀ`, mirrored into column `i`. `out` is exactly symmetric; `fp` (N, N) is
+    scratch."""
     n = p.shape[0]
     _nonzero_columns(f_jac, n, idx, cnt)
     for i in range(n):
-        out[i, :] = 0.0
+        diagonal = cnt[i] == 0 or (cnt[i] == 1 and idx[i, 0] == i)
+        if diagonal:
+            di = f_jac[i, i]
+            for k in range(i, n):
+                if cnt[k] == 0 or (cnt[k] == 1 and idx[k, 0] == k):
+                    v = di * p[i, k] * f_jac[k, k]
+                    out[i, k] = v
+                    out[k, i] = v
+            continue
+        fp[i, :] = 0.0
         for t in range(cnt[i]):
             j = idx[i, t]
             f = f_jac[i, j]
             for c in range(n):
-                out[i, c] += f * p[j, c]
+                fp[i, c] += f * p[j, c]
+        for k in range(n):
+            if cnt[k] == 0 or (cnt[k] == 1 and idx[k, 0] == k):
+                v = fp[i, k] * f_jac[k, k]
+            elif k >= i:
+                v = 0.0
+                for t in range(cnt[k]):
+                    j = idx[k, t]
+                    v += fp[i, j] * f_jac[k, j]
+            else:
+                continue  # a dense row before this one set it
+            out[i, k] = v
+            out[k, i] = v
     for i in range(n):
-        for c in range(n):
-            fp[c, i] = out[i, c]
-    for i in range(n):  # whole rows (a triangle's ragged rows vectorise worse), then the upper one mirrored
-        out[i, :] = 0.0
-        for t in range(cnt[i]):
-            j = idx[i, t]
-            f = f_jac[i, j]
-            for c in range(n):
-                out[i, c] += f * fp[j, c]
         out[i, i] += q[i]
-    for i in range(n):
-        for c in range(i + 1, n):
-            out[c, i] = out[i, c]
 
 
 @njit
