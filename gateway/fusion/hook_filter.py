@@ -44,12 +44,13 @@ iron (µT, body).
 * Jacobians are forward differences of numba kernels; the update is filterpy's (Joseph form) except that the
   rope's speed and hoist acceleration take corrections from the tension channel only (a consider-style gain
   restriction filterpy cannot express), so the filter runs its own `ekf_step`: `update()` one sample, `run()` a
-  numba loop of the same step (tests check they agree). The arithmetic is sparse and allocation-free (issue 16:
-  ~38 µs a sample before): F is the identity but for the pendulum, heading and rope rows and H sees 15 of the 24
-  states, so `F P Fᵀ`, `H P Hᵀ` and `P Hᵀ` run over their non-zeros; `H P Hᵀ` is formed once and serves the NIS,
-  the whitening, the surprise test and the gain (Cholesky); Joseph's form for the restricted gain K = K_opt + D is
-  computed exactly as `P - P Hᵀ S⁻¹ H P + D S Dᵀ` (D lives in the restricted rows). tests/fusion/test_hook_kernel.py
-  holds the dense step it replaced.
+  numba loop of the same step (tests check they agree). The arithmetic is sparse and allocation-free (issue 16):
+  F is the identity but for the pendulum, heading and rope rows and H sees 15 of the 24 states, so `F P Fᵀ`,
+  `H P` and `H P Hᵀ` run over their non-zeros (the swing-rate block before the gating for the NIS and whitening,
+  all rows after it for the surprise test and the Cholesky gain, kept in step by the surprise inflation); each
+  Jacobian column re-runs only the parts of the model its state feeds (bit-identical to plain differences);
+  Joseph's form for the restricted gain K = K_opt + D is computed exactly as `P - P Hᵀ S⁻¹ H P + D S Dᵀ` (D lives
+  in the restricted rows). tests/fusion/test_hook_kernel.py holds the dense step it replaced.
 * Adaptive process noise: when the swing-rate innovation fails a χ² gate, its square is added to the rope-rate
   variance (an unmodelled push), so the state follows the gyroscope instead of bending bias and tilt.
 
