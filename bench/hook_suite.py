@@ -5,7 +5,8 @@
     python -m bench.hook_suite --seeds 1-6 --duration 120   # the tuning seeds
     python -m bench.hook_suite --paper-ekf                  # also paper 001's EKF as published
     python -m bench.hook_suite --family windy --seeds 1-12  # light loads in a steady wind from the start
-    python -m bench.hook_suite --tracking                   # the hook filter with its optional boom-tip tracking
+    python -m bench.hook_suite --tracking                   # the second round's boom-tip tracking (and slow test)
+    python -m bench.hook_suite --settings previous          # the defaults before issue 11's third round
 
 Each seed draws a crane (issue 11): rope 2-30 m (log-uniform), hook + load 0.5-20 t, torsion stiffness and
 inertia (twist period 4-20 s), the IMU 0.1 ± 0.02 m off the rope axis (the filter assumes 0.1 m and learns the
@@ -53,7 +54,13 @@ from devices.hook_physics import (
     trolley_traverse,
 )
 from gateway.fusion import hook
-from gateway.fusion.hook_filter import TRACKING, HookFilter, HookFilterSettings
+from gateway.fusion.hook_filter import (
+    PREVIOUS_DEFAULT,
+    STEADY_BIAS_TRACKING,
+    TRACKING,
+    HookFilter,
+    HookFilterSettings,
+)
 
 RATE_HZ = 100.0
 WARMUP_S = 0.5
@@ -161,10 +168,11 @@ def make_case(seed: int, duration_s: float = 180.0, family: str = "crane") -> Su
 
 
 def hook_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rope_length_m: float | None,
-                  tracking: bool = False) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+                  tracking: bool = False, overrides: dict[str, float] | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Hook filter quaternions (N, 4) and rope-length estimates (N,), started as the gateway starts it (`tracking`:
-    with the optional boom-tip tracking, `hook_filter.TRACKING`)."""
-    extra = TRACKING if tracking else {}
+    with the optional boom-tip tracking, `hook_filter.TRACKING`; `overrides`: further settings on top)."""
+    extra: dict[str, float] = (TRACKING if tracking else {}) | (overrides or {})
     settings = (HookFilterSettings(**extra) if rope_length_m is None
                 else HookFilterSettings(rope_length_m=rope_length_m, rope_length_known=True, **extra))  # fmt: skip
     f = HookFilter(settings, use_mag=mag is not None)
@@ -215,27 +223,64 @@ def score(q: np.ndarray, truth: HookTruth, keep: np.ndarray, absolute: bool) -> 
 
 
 def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length: bool, paper_ekf: bool = False,
-             family: str = "crane", tracking: bool = False) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+             family: str = "crane", tracking: bool = False, overrides: dict[str, float] | None = None
+             ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed."""
-    case = make_case(seed, duration_s, family)
-    truth = simulate(case.physics, case.scenario)
-    sensor = SensorModel(ImuErrorModel.preset(imu), 1, np.random.default_rng(10_000 + seed))
-    gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / RATE_HZ)
-    mag = mag if use_mag else None
-    scored = truth.t_s >= WARMUP_S
-    phase = case.phase(truth.t_s)
+    case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family)
     out: dict[str, dict[str, dict[str, float]]] = {}
-    q_hook, length = hook_estimate(gyr, acc, mag, case.physics.rope_length_m if tell_length else None, tracking)
+    q_hook, length = hook_estimate(gyr, acc, mag, case.physics.rope_length_m if tell_length else None, tracking,
+                                   overrides)  # fmt: skip
     others = [("vqf", vqf_estimate(gyr, acc, mag))]
     if paper_ekf:
         others.append(("ekf001", paper_ekf_estimate(gyr, acc, mag)))
     for name, q in [("hook", q_hook), *others]:
-        out[name] = {"all": score(q, truth, scored, use_mag)}
-        for k, ph in enumerate(PHASES):
-            out[name][ph] = score(q, truth, scored & (phase == k), use_mag)
+        out[name] = score_phases(q, truth, case, use_mag)
+    out["hook"]["all"].update(rope_errors(length, truth))
+    return out
+
+
+def simulate_seed(seed: int, duration_s: float, imu: str, use_mag: bool, family: str = "crane"
+                  ) -> tuple[SuiteCase, HookTruth, np.ndarray, np.ndarray, np.ndarray | None]:  # fmt: skip
+    """The crane of `seed`, its ground truth and the IMU's samples (gyr, acc, mag or None) as the suite draws them."""
+    case = make_case(seed, duration_s, family)
+    truth = simulate(case.physics, case.scenario)
+    sensor = SensorModel(ImuErrorModel.preset(imu), 1, np.random.default_rng(10_000 + seed))
+    gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / RATE_HZ)
+    return case, truth, gyr, acc, mag if use_mag else None
+
+
+def score_phases(q: np.ndarray, truth: HookTruth, case: SuiteCase, absolute: bool) -> dict[str, dict[str, float]]:
+    """`score` over the whole run after the warm-up (`"all"`) and over each phase of `PHASES`."""
+    scored = truth.t_s >= WARMUP_S
+    phase = case.phase(truth.t_s)
+    out = {"all": score(q, truth, scored, absolute)}
+    for k, ph in enumerate(PHASES):
+        out[ph] = score(q, truth, scored & (phase == k), absolute)
+    return out
+
+
+def rope_errors(length_m: np.ndarray, truth: HookTruth) -> dict[str, float]:
+    """RMS rope-length error after the warm-up, in metres and relative to the true length."""
+    scored = truth.t_s >= WARMUP_S
     true_l = truth.extra["rope_length_m"]
-    out["hook"]["all"]["rope_rms_m"] = float(np.sqrt(np.mean((length - true_l)[scored] ** 2)))
-    out["hook"]["all"]["rope_rel"] = float(np.sqrt(np.mean(((length - true_l) / true_l)[scored] ** 2)))
+    return {"rope_rms_m": float(np.sqrt(np.mean((length_m - true_l)[scored] ** 2))),
+            "rope_rel": float(np.sqrt(np.mean(((length_m - true_l) / true_l)[scored] ** 2)))}  # fmt: skip
+
+
+PRESETS = {"tracking": TRACKING, "steady": STEADY_BIAS_TRACKING, "previous": PREVIOUS_DEFAULT}
+
+
+def parse_settings(text: str) -> dict[str, float]:
+    """`name=value,...` (floats) and preset names of `PRESETS`, applied in order, as HookFilterSettings overrides."""
+    out: dict[str, float] = {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        if part in PRESETS:
+            out.update(PRESETS[part])
+            continue
+        k, eq, v = part.partition("=")
+        if not eq:
+            raise SystemExit(f"--settings: {part!r} is neither name=value nor a preset ({', '.join(PRESETS)})")
+        out[k.strip()] = float(v)
     return out
 
 
@@ -259,7 +304,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--phases", action="store_true", help="also print each seed's figures by phase")
     p.add_argument("--family", default="crane", choices=FAMILIES,
                    help="crane (default) or windy (light load, short rope, steady wind from the start)")
-    p.add_argument("--tracking", action="store_true", help="the hook filter with its optional boom-tip tracking")
+    p.add_argument("--tracking", action="store_true", help="the second round's boom-tip tracking (TRACKING)")
+    p.add_argument("--settings", default="", help="HookFilterSettings overrides: name=value,... and/or the presets "
+                   "tracking (TRACKING), steady (STEADY_BIAS_TRACKING, the defaults), previous (PREVIOUS_DEFAULT)")
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
@@ -272,7 +319,7 @@ def main(argv: list[str] | None = None) -> int:
     for seed in seeds:
         case = make_case(seed, args.duration, args.family)
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
-                     args.tracking)
+                     args.tracking, parse_settings(args.settings))
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]
