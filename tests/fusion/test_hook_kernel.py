@@ -179,8 +179,9 @@ def angle_rad(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("use_mag", [True, False])
 def test_the_kernel_gives_the_dense_steps_estimates_on_suite_cranes(seed, use_mag):
     """60 s of a suite crane (moves, pulls, jumps and their rollbacks): per sample the attitude within 1e-6 rad and the
-    rope length within 1e-6 relative of the dense reference (measured: ≤ 2e-7 rad, ≤ 4e-8; the forward-difference
-    Jacobians amplify rounding differences of the state by 1/1e-7, so the two do not agree to the last bit)."""
+    rope length within 1e-6 relative of the dense reference (measured: ≤ 2e-7 rad, ≤ 6e-8; the forward-difference
+    Jacobians amplify rounding differences of the state by 1/1e-7, so the two do not agree to the last bit), the
+    same gate state at the end and the final covariance within 1e-4 of each entry's scale √(P_ii P_jj)."""
     case, gyr, acc, mag = suite_samples(seed, 60.0)
     mag = mag if use_mag else None
     fast, ref = started(case, gyr, acc, mag), started(case, gyr, acc, mag)
@@ -194,7 +195,8 @@ def test_the_kernel_gives_the_dense_steps_estimates_on_suite_cranes(seed, use_ma
     assert np.max(angle_rad(q_fast, q_ref)) <= 1e-6
     assert np.max(np.abs(l_fast / l_ref - 1.0)) <= 1e-6
     assert np.array_equal(fast._monitor[4:6] > 0.0, ref._monitor[4:6] > 0.0)  # the same gate state at the end
-    assert np.allclose(fast.P, p_ref, rtol=1e-4, atol=1e-12)
+    scale = np.sqrt(np.outer(np.diag(p_ref), np.diag(p_ref)))  # covariance differences as correlations
+    assert np.max(np.abs(fast.P - p_ref) / scale) <= 1e-4
 
 
 def random_spd(rng: np.random.Generator, n: int) -> np.ndarray:
