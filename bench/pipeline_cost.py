@@ -5,6 +5,7 @@
     python -m bench.pipeline_cost --compare <tree>             # also an older tree, same packets: both and the ratio
     python -m bench.pipeline_cost --stage ingest --rods 300 --seconds 8 --compare <tree>   # all-in, two trees
     python -m bench.pipeline_cost --stage ingest --rods 300 --profile /tmp/ingest.prof        # where it goes
+    python -m bench.pipeline_cost --stage ingest --rods 300 --encoding binary --compare <tree>  # protocol v2 packets
 
 `--stage ingest`: 80 % rods / 20 % hooks, JSON packets as `bench.fleet` sends them (its pooled simulator streams,
 `--spp` samples per packet), one batch per packet period holding every device's packet, through the service
@@ -157,9 +158,10 @@ def ingest_payloads(n: int, hook_share: float, seconds: float, spp: int, seed: i
 
 
 def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 10, hook_share: float = 0.2,
-                   profile: Path | None = None) -> dict[str, Any]:  # fmt: skip
+                   profile: Path | None = None, encoding: str = "json") -> dict[str, Any]:  # fmt: skip
     """CPU seconds per packet of `GatewayService.handle` at `n` devices, with the sinks `create_app` wires (dashboard
-    history, live stream without clients, metrics) and the blocking-put thread; the bus only digests the puts."""
+    history, live stream without clients, metrics) and the blocking-put thread; the bus only digests the puts.
+    `encoding="binary"`: the packets in the binary IMU encoding (protocol v2, as `bench.fleet --encoding binary`)."""
     import asyncio
     import tempfile
 
@@ -173,6 +175,11 @@ def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 
 
     wall0_s = 1.8e9  # a fixed wall clock (as `measure`): two trees' runs compare output for output
     batches = ingest_payloads(n, hook_share, seconds, spp, seed, wall0_s)
+    if encoding == "binary":
+        from gateway import schemas
+
+        batches = [[(key, schemas.imu_to_binary(schemas.decode(key, payload)))  # type: ignore[arg-type]
+                    for key, payload in batch] for batch in batches]  # fmt: skip
     period_s = spp / RATE_HZ
     skip = int(round(skip_s / period_s))
 
@@ -243,7 +250,8 @@ def _child(tree: Path, rods: int, args: argparse.Namespace) -> dict[str, Any]:
     """`measure` (or `measure_ingest`) in a fresh interpreter running this file with PYTHONPATH=`tree`, so
     `gateway` is that tree's (the bench module is this one)."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", str(rods), "--seconds", str(args.seconds),
-           "--skip-s", str(args.skip_s), "--seed", str(args.seed), "--stage", args.stage, "--spp", str(args.spp)]
+           "--skip-s", str(args.skip_s), "--seed", str(args.seed), "--stage", args.stage, "--spp", str(args.spp),
+           "--encoding", args.encoding]
     here = Path(__file__).resolve().parents[1]
     env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{here}" if args.stage == "ingest" else str(tree))
     res = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True)
@@ -261,6 +269,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--stage", choices=("pipeline", "ingest"), default="pipeline",
                    help="pipeline: Pipeline.process alone (default); ingest: GatewayService.handle all-in")
     p.add_argument("--spp", type=int, default=10, help="with --stage ingest: samples per packet (default 10)")
+    p.add_argument("--encoding", choices=("json", "binary"), default="json",
+                   help="with --stage ingest: the IMU packets' encoding (default json; binary: protocol v2)")
     p.add_argument("--profile", type=Path, default=None, help="with --stage ingest: cProfile of the timed part here")
     p.add_argument("--compare", type=Path, default=None, help="another source tree (e.g. a worktree of main)")
     p.add_argument("--repeat", type=int, default=3, help="with --compare: runs per tree, interleaved; the least CPU "
@@ -270,7 +280,8 @@ def main(argv: list[str] | None = None) -> int:
 
     def run(n: int) -> dict[str, Any]:
         if args.stage == "ingest":
-            return measure_ingest(n, args.seconds, args.skip_s, args.seed, args.spp, profile=args.profile)
+            return measure_ingest(n, args.seconds, args.skip_s, args.seed, args.spp, profile=args.profile,
+                                  encoding=args.encoding)
         return measure(n, args.seconds, args.skip_s, args.seed)
 
     if args.child is not None:
@@ -279,8 +290,8 @@ def main(argv: list[str] | None = None) -> int:
     here = Path(__file__).resolve().parents[1]
     if args.stage == "ingest":
         print(f"GatewayService.handle all-in CPU per packet (process CPU incl. the blocking-put thread; handle = the "
-              f"ingest thread): 80 % rods / 20 % hooks at 100 Hz, {args.spp} samples/packet, JSON, one batch per "
-              f"packet period, {args.seconds:g} s (first {args.skip_s:g} s untimed), seed {args.seed}")
+              f"ingest thread): 80 % rods / 20 % hooks at 100 Hz, {args.spp} samples/packet, {args.encoding}, one "
+              f"batch per packet period, {args.seconds:g} s (first {args.skip_s:g} s untimed), seed {args.seed}")
     else:
         print(f"Pipeline.process CPU per packet: rods at 100 Hz, 5 samples/packet, {args.seconds:g} s simulated "
               f"(first {args.skip_s:g} s untimed), seed {args.seed}")

@@ -56,6 +56,7 @@ from gateway.kinds.base import (
     heave_rows,
     height_messages,
     heights,
+    heights_batch,
 )
 from gateway.kinds.rod import RodKind
 
@@ -340,10 +341,18 @@ class Pipeline:
                 rows = heave_rows(kb, live, [self.bank.bias(kb.items[i].dev) for i in live], s.rest_acc_tol_m_s2)
             except Exception:
                 rows = None
+        batch = None
+        if rows is not None and live:
+            try:
+                batch = heights_batch(kb, live, rows, s.height_interval_s)
+            except Exception:  # then device by device: a failure costs only its device
+                batch = None
+        if batch is not None:  # every value passed the batch check: only the attitude blocks are per device
+            out.heights += batch
         for i in live:
             f = kb.items[i]
             try:
-                if s.height_interval_s > 0:
+                if s.height_interval_s > 0 and batch is None:
                     out.heights += (height_messages(f, rows[kb.rows(i)], s.height_interval_s) if rows is not None
                                     else heights(f, self.bank.bias(f.dev), s.height_interval_s,
                                                  s.rest_acc_tol_m_s2))  # fmt: skip

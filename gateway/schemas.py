@@ -21,10 +21,13 @@ hypothesis).
 from __future__ import annotations
 
 import math
+import operator
 import re
 import struct
 import sys
 import typing
+import weakref
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, Final, Literal, TypeAlias
 
@@ -123,8 +126,49 @@ class WireModel(BaseModel):
     model_config = ConfigDict(strict=True, frozen=True, extra="forbid")
 
     def to_json(self) -> bytes:
-        """Compact JSON bytes, optional fields left out when None."""
+        """Compact JSON bytes, optional fields left out when None: `model_dump_json(exclude_none=True)`'s bytes,
+        written by msgspec for a model without nested models (`_json_mirror`; half pydantic's time per message)."""
+        mirror = _MIRRORS.get(type(self))
+        if mirror is None:
+            mirror = _MIRRORS[type(self)] = _json_mirror(type(self))
+        if mirror:
+            struct, values = mirror
+            data = _json_encoder.encode(struct(*values(self.__dict__)))
+            if _POSITIVE_EXPONENT.search(data) is None:
+                return data
         return self.model_dump_json(exclude_none=True).encode()
+
+
+_json_encoder: Final = msgspec.json.Encoder()
+# For the same values msgspec and pydantic (serde_json) write the same JSON (floats shortest round-trip, strings
+# escaped alike: tests/test_schemas.py checks it on random models) but for one thing: msgspec writes 1e16 where
+# serde_json writes 1e+16 (|x| >= 1e16: exponents 16..308). A payload with "e" and a digit 1-9 in it (such a
+# float, or a device id like "rode1") is written by pydantic; no field name has one (`_json_mirror` checks).
+_POSITIVE_EXPONENT: Final = re.compile(rb"e[1-9]")
+_MIRRORS: dict[type[BaseModel], tuple[type[msgspec.Struct], Any] | Literal[False]] = {}
+
+
+def _holds_model(annotation: Any) -> bool:
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return True
+    return any(_holds_model(a) for a in typing.get_args(annotation))
+
+
+def _json_mirror(model: type[BaseModel]) -> tuple[type[msgspec.Struct], Any] | Literal[False]:
+    """(a msgspec Struct with `model`'s fields in order, each left out when None; the getter of a model's values in
+    that order), or False for a model pydantic must write: nested models, custom serialisers, or a field name the
+    exponent check would trip on."""
+    fields = model.model_fields
+    decorators = model.__pydantic_decorators__
+    if (not fields or any(_holds_model(f.annotation) for f in fields.values())
+            or any(_POSITIVE_EXPONENT.search(name.encode()) for name in fields)
+            or decorators.field_serializers or decorators.model_serializers
+            or any(f.alias is not None or f.serialization_alias is not None for f in fields.values())):
+        return False
+    struct = msgspec.defstruct(f"_{model.__name__}Json", [(name, Any, None) for name in fields], omit_defaults=True)
+    names = tuple(fields)
+    get = operator.itemgetter(*names) if len(names) > 1 else (lambda d, n=names[0]: (d[n],))
+    return struct, get
 
 
 def _check_lengths(n: int, **arrays: list[Any] | None) -> None:
@@ -875,6 +919,9 @@ class _ImuWire(msgspec.Struct, forbid_unknown_fields=True):
 
 _imu_wire_decoder: Final = msgspec.json.Decoder(_ImuWire)
 _setattr = object.__setattr__
+_new = object.__new__  # what `model.__new__` resolves to (pydantic defines none), without the class lookup
+assert BaseModel.__new__ is object.__new__
+_W = typing.TypeVar("_W", bound=WireModel)
 
 
 class _Builder:
@@ -903,11 +950,19 @@ class _Builder:
 def _construct(model: type[WireModel], values: dict[str, Any], fields_set: set[str]) -> Any:
     """The instance `model_validate` would return for input that passed every check (`values` in field order, every
     field present); `model_construct` does the same with more Python per call."""
-    obj = model.__new__(model)
+    obj = _new(model)
     _setattr(obj, "__dict__", values)
     _setattr(obj, "__pydantic_fields_set__", fields_set)
     _setattr(obj, "__pydantic_extra__", None)
     _setattr(obj, "__pydantic_private__", None)
+    return obj
+
+
+def prevalidated(model: type[_W], values: dict[str, Any], fields_set: frozenset[str]) -> _W:
+    """The instance `model(**{k: values[k] for k in fields_set})` would return, without the validation: for outputs
+    whose values the caller range-checked in bulk (`gateway.kinds.base.attitudes`; tests/test_kinds_outputs.py checks
+    they are equal). `values` holds every field in `model`'s field order, `fields_set` the ones the caller set."""
+    obj: _W = _construct(model, values, set(fields_set))
     return obj
 
 
@@ -995,13 +1050,24 @@ def imu_to_binary(packet: ImuPacket) -> bytes:
 
 _V3: Final = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")])  # one row; `tolist()` gives a tuple of floats
 _ROWS: Final = {6: np.dtype([("gyr", _V3), ("acc", _V3)]), 9: np.dtype([("gyr", _V3), ("acc", _V3), ("mag", _V3)])}
+_ROW_NAMES: Final = {6: ("gyr", "acc"), 9: ("gyr", "acc", "mag")}
 _IMU_REQUIRED: Final = frozenset({"v", "device_id", "kind", "boot_id", "seq", "t0_us", "rate_hz", "gyr_rad_s",
                                   "acc_m_s2"})  # fmt: skip
 
 
-def _decode_imu_binary(parsed: ParsedKey, payload: bytes | bytearray | memoryview) -> ImuPacket:
-    """Validate a binary IMU packet as pydantic validates its JSON twin, with the same reasons in the same priority:
-    layout (`schema`), then `non_finite`, `out_of_range`, the device id's pattern (`schema`), `key_mismatch`."""
+_BinHeader: TypeAlias = tuple[int, int, int, int, int, int, int, int, float, int, tuple[float, ...]]
+"""(k floats per row, n rows, flags, kind code, id length, boot_id, seq, t0_us, rate_hz, wall, scalars) of a binary
+packet whose layout checked out (`_binary_header`)."""
+
+
+_BIN_FIELDS_SET: Final = tuple(
+    _IMU_REQUIRED | {name for name, bit in _BIN_OPTIONAL if flags & bit} | ({"mag_uT"} if flags & BIN_MAG else set())
+    | ({"wall_t0_us"} if flags & BIN_WALL else set()) for flags in range(64)
+)  # the fields a packet with these flags sets (the model's `model_fields_set`), by flags
+
+
+def _binary_header(payload: bytes | bytearray | memoryview) -> _BinHeader:
+    """The header of a binary IMU packet, after the layout checks (`schema`): size, flags, sample count, length."""
     size = IMU_BINARY_HEADER.size
     if len(payload) < size:
         raise DecodeError("schema", f"binary IMU packet of {len(payload)} bytes is shorter than its {size}-byte header")
@@ -1015,11 +1081,20 @@ def _decode_imu_binary(parsed: ParsedKey, payload: bytes | bytearray | memoryvie
     if len(payload) != size + id_len + 4 * k * n:
         raise DecodeError("schema", f"binary IMU packet of {len(payload)} bytes, its header says "
                           f"{size + id_len + 4 * k * n}")  # fmt: skip
-    block = np.frombuffer(payload, dtype="<f4", count=n * k, offset=size + id_len).reshape(n, k)
+    return k, n, flags, kind_code, id_len, boot_id, seq, t0_us, rate_hz, wall, tuple(scalars)
+
+
+def _binary_finish(parsed: ParsedKey, payload: bytes | bytearray | memoryview, h: _BinHeader, samples_in_range: bool,
+                   block: Callable[[], NDArray[np.float32]], rows: Callable[[], tuple[list[Any], ...]]
+                   ) -> ImuPacket:  # fmt: skip
+    """The rest of `_decode_imu_binary` once the sample rows were range-checked (`samples_in_range`; `block()`: the
+    (n, k) float32 rows, read only for a packet out of range; `rows()`: its gyr, acc (, mag) rows as lists of
+    float tuples): `non_finite`, `out_of_range`, the device id's pattern (`schema`), `key_mismatch`, then the packet."""
+    k, n, flags, kind_code, id_len, boot_id, seq, t0_us, rate_hz, wall, scalars = h
+    size = IMU_BINARY_HEADER.size
     optional = {}
-    in_range = np.count_nonzero(np.abs(block) <= _BIN_LIMITS[k]) == block.size  # NaN compares False
     lo, hi = _BIN_RANGES["rate_hz"]
-    in_range = in_range and lo <= rate_hz <= hi
+    in_range = samples_in_range and lo <= rate_hz <= hi
     if flags & _BIN_SCALAR_FLAGS:
         for (name, bit), v in zip(_BIN_OPTIONAL, scalars, strict=True):
             if flags & bit:
@@ -1027,7 +1102,7 @@ def _decode_imu_binary(parsed: ParsedKey, payload: bytes | bytearray | memoryvie
                 lo, hi = _BIN_RANGES[name]
                 in_range = in_range and lo <= v <= hi
     if not in_range:
-        if not (np.isfinite(block).all() and all(map(math.isfinite, (rate_hz, *optional.values())))):
+        if not (np.isfinite(block()).all() and all(map(math.isfinite, (rate_hz, *optional.values())))):
             raise DecodeError("non_finite", "binary IMU packet: a NaN or infinite value")
         raise DecodeError("out_of_range", "binary IMU packet: a sample or scalar beyond its limits")
     if t0_us < 0 or (flags & BIN_WALL and wall < 0):
@@ -1039,22 +1114,112 @@ def _decode_imu_binary(parsed: ParsedKey, payload: bytes | bytearray | memoryvie
         if not kind or not _DEVICE_ID_RE.fullmatch(other):
             raise DecodeError("schema", f"binary IMU packet: kind code {kind_code} or device id {other[:70]!r}")
         raise DecodeError("key_mismatch", f"payload {kind}/{other} on key rig/{parsed.kind}/{parsed.device_id}")
-    rows = np.frombuffer(payload, dtype=_ROWS[k], count=n, offset=size + id_len)
-    fields_set = set(_IMU_REQUIRED)
-    fields_set.update(optional)
-    if k == 9:
-        fields_set.add("mag_uT")
-    if flags & BIN_WALL:
-        fields_set.add("wall_t0_us")
+    fields_set = set(_BIN_FIELDS_SET[flags])
     get = optional.get
+    sensor = rows()
     packet: ImuPacket = _construct(ImuPacket, {
         "v": 1, "device_id": device_id, "kind": kind, "boot_id": boot_id, "seq": seq, "t0_us": t0_us,
-        "rate_hz": rate_hz, "gyr_rad_s": rows["gyr"].tolist(), "acc_m_s2": rows["acc"].tolist(),
-        "mag_uT": rows["mag"].tolist() if k == 9 else None, "temp_c": get("temp_c"), "battery_v": get("battery_v"),
-        "rssi_dbm": get("rssi_dbm"), "wall_t0_us": wall if flags & BIN_WALL else None, "gnss": None,
-        "depth_m": get("depth_m"),
+        "rate_hz": rate_hz, "gyr_rad_s": sensor[0], "acc_m_s2": sensor[1], "mag_uT": sensor[2] if k == 9 else None,
+        "temp_c": get("temp_c"), "battery_v": get("battery_v"), "rssi_dbm": get("rssi_dbm"),
+        "wall_t0_us": wall if flags & BIN_WALL else None, "gnss": None, "depth_m": get("depth_m"),
     }, fields_set)  # fmt: skip
     return packet
+
+
+def _decode_imu_binary(parsed: ParsedKey, payload: bytes | bytearray | memoryview) -> ImuPacket:
+    """Validate a binary IMU packet as pydantic validates its JSON twin, with the same reasons in the same priority:
+    layout (`schema`), then `non_finite`, `out_of_range`, the device id's pattern (`schema`), `key_mismatch`."""
+    h = _binary_header(payload)
+    k, n, offset = h[0], h[1], IMU_BINARY_HEADER.size + h[4]
+    block = np.frombuffer(payload, dtype="<f4", count=n * k, offset=offset).reshape(n, k)
+    in_range = bool(np.count_nonzero(np.abs(block) <= _BIN_LIMITS[k]) == block.size)  # NaN compares False
+
+    def rows() -> tuple[list[Any], ...]:
+        r = np.frombuffer(payload, dtype=_ROWS[k], count=n, offset=offset)
+        return tuple(r[name].tolist() for name in _ROW_NAMES[k])
+
+    return _binary_finish(parsed, payload, h, in_range, lambda: block, rows)
+
+
+def _decode_binary_batch(todo: list[tuple[int, ParsedKey, bytes | bytearray | memoryview, _BinHeader]],
+                         out: list[Packet | DecodeError]) -> None:  # fmt: skip
+    """`_decode_imu_binary` of many packets, each one's outcome at its index in `out`: the rows of all packets with
+    the same row width are range-checked and turned into tuples in one numpy call each (per packet it was a dozen
+    calls on ten rows), then each packet is finished alone."""
+    by_width: dict[int, list[tuple[int, ParsedKey, bytes | bytearray | memoryview, _BinHeader]]] = {}
+    for item in todo:
+        by_width.setdefault(item[3][0], []).append(item)
+    size = IMU_BINARY_HEADER.size
+    for k, items in by_width.items():
+        offsets = [size + h[4] for _, _, _, h in items]
+        blob = b"".join(bytes(payload[o:]) if not isinstance(payload, bytes) else payload[o:]
+                        for (_, _, payload, _), o in zip(items, offsets, strict=True))  # fmt: skip
+        counts = [h[1] for _, _, _, h in items]
+        block = np.frombuffer(blob, dtype="<f4").reshape(-1, k)
+        row_ok = (np.abs(block) <= _BIN_LIMITS[k]).all(axis=1)  # NaN compares False
+        stops = np.cumsum(counts)
+        starts = (stops - counts).tolist()
+        pkt_ok = np.logical_and.reduceat(row_ok, starts).tolist()
+        values = block.T.tolist()  # k lists of floats; zipped in threes: each sensor's rows as tuples
+        columns = [list(zip(values[j], values[j + 1], values[j + 2])) for j in range(0, k, 3)]  # noqa: B905
+        for (i, parsed, payload, h), a, b, ok in zip(items, starts, stops.tolist(), pkt_ok, strict=True):
+            try:
+                packet = _binary_finish(parsed, payload, h, ok, lambda a=a, b=b, blk=block: blk[a:b],  # type: ignore[misc]
+                                        lambda a=a, b=b, cols=columns: tuple(c[a:b] for c in cols))  # type: ignore[misc]
+                _keep_rows(packet, block[a:b])
+                out[i] = packet
+            except DecodeError as err:
+                out[i] = err
+            except Exception as exc:  # as `decode`: never anything but a DecodeError
+                out[i] = DecodeError("schema", f"{type(exc).__name__}: {exc}"[:300])
+
+
+_SAMPLE_ROWS: dict[int, tuple[weakref.ref[ImuPacket], NDArray[np.float32]]] = {}
+
+
+def _keep_rows(packet: ImuPacket, rows: NDArray[np.float32]) -> None:
+    """Remember a decoded binary packet's float32 rows [gyr acc (mag)] for `sample_rows`, for as long as the packet
+    lives (a weak reference removes the entry with it)."""
+    key = id(packet)
+
+    def forget(_: weakref.ref[ImuPacket]) -> None:
+        _SAMPLE_ROWS.pop(key, None)
+
+    _SAMPLE_ROWS[key] = (weakref.ref(packet, forget), rows)
+
+
+def sample_rows(packet: ImuPacket) -> NDArray[np.float32] | None:
+    """The (n, 6 or 9) float32 rows [gyr acc (mag)] a binary packet was decoded from (`decode_many`), else None:
+    its samples as an array without going through the float tuples (they are these values, exactly)."""
+    entry = _SAMPLE_ROWS.get(id(packet))
+    return entry[1] if entry is not None and entry[0]() is packet else None
+
+
+def decode_many(items: Sequence[tuple[str, bytes | bytearray | memoryview]]) -> list[Packet | DecodeError]:
+    """`decode` of each (key, payload) in order: the packet or the DecodeError it raises, the same ones. Binary IMU
+    packets are checked and converted together (`_decode_binary_batch`); the rest one by one."""
+    out: list[Packet | DecodeError] = []
+    binary: list[tuple[int, ParsedKey, bytes | bytearray | memoryview, _BinHeader]] = []
+    for i, (key, payload) in enumerate(items):
+        if payload and payload[0] == IMU_BINARY_MAGIC and len(payload) <= MAX_PAYLOAD_BYTES:  # no slice per packet
+            try:
+                parsed, topic = _parse(key)
+                if topic is T_IMU:
+                    binary.append((i, parsed, payload, _binary_header(payload)))
+                    out.append(DecodeError("schema"))  # replaced by the batch
+                    continue
+            except DecodeError as err:
+                out.append(err)
+                continue
+            except Exception:
+                pass  # `decode` gives its verdict
+        try:
+            out.append(decode(key, payload))
+        except DecodeError as err:
+            out.append(err)
+    if binary:
+        _decode_binary_batch(binary, out)
+    return out
 
 
 def decode(key: str, payload: bytes | bytearray | memoryview, *, fast: bool = True) -> Packet:

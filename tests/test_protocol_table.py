@@ -324,3 +324,37 @@ def test_binary_limits_are_the_models_to_the_last_float32(field: str, limit: flo
         c[field] = rows
         got, twin = _outcome(IMU_KEY, schemas.imu_binary(**c), fast=True), _outcome(IMU_KEY, json_twin(c), fast=False)
         assert got == twin and (got[0] == "ok" if want == "ok" else got[1] == want), (value, got)
+
+
+def _verdict(p: object) -> tuple[str, Any]:
+    if isinstance(p, schemas.DecodeError):
+        return "reject", (p.reason, str(p))
+    assert isinstance(p, schemas.ImuPacket | schemas.EnvPacket | schemas.ReelStatus)
+    floats = [type(x).__name__ for row in getattr(p, "gyr_rad_s", []) for x in row]
+    return "ok", (p, p.model_fields_set, p.to_json(), floats)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.tuples(imu_contents(), st.sampled_from(["binary", "binary", "json", "flip", "cut"]),
+                          st.sampled_from([IMU_KEY, IMU_KEY, "rig/hook/rod-1/imu", "rig/rod/rod-1/env", "x/y"]),
+                          st.integers(0, 10**6)), min_size=1, max_size=12))  # fmt: skip
+def test_decode_many_gives_what_decode_gives_each(items: list[tuple[dict[str, Any], str, str, int]]) -> None:
+    """A batch of binary (valid, out of range, damaged), JSON and misaddressed packets: `decode_many` (binary rows
+    checked and converted for the whole batch) returns, in order, the packet or the error (reason and detail) that
+    `decode` gives each one alone."""
+    batch = []
+    for c, how, key, pos in items:
+        b = bytearray(schemas.imu_binary(**c)) if how != "json" else bytearray(json_twin(c))
+        if how == "flip":
+            b[pos % len(b)] ^= 0x5A
+        elif how == "cut":
+            del b[pos % len(b):]
+        batch.append((key, bytes(b)))
+    got = [_verdict(p) for p in schemas.decode_many(batch)]
+    alone = []
+    for key, payload in batch:
+        try:
+            alone.append(_verdict(schemas.decode(key, payload)))
+        except schemas.DecodeError as e:
+            alone.append(_verdict(e))
+    assert got == alone

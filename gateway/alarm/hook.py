@@ -13,6 +13,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from gateway.alarm.bite import FloatArray
 from gateway.alarm.engine import Condition
@@ -50,16 +51,19 @@ class HeldLevel:
         self.below_since: float | None = None  # device time of the first sample under the current level's band
         self.episode_peak = 0.0
 
-    def update(self, device_id: str, t_s: FloatArray, values: FloatArray) -> list[Condition]:
-        """The level changes over one block of samples (t_s, values), in order."""
+    def update(self, device_id: str, t_s: FloatArray, values: FloatArray, peak: float | None = None,
+               low: float | None = None) -> list[Condition]:  # fmt: skip
+        """The level changes over one block of samples (t_s, values), in order; `peak` and `low`: the block's
+        max and min when the caller has them (`hook_rules`: one reduction for every hook of a batch)."""
         if values.size == 0 or not self.limits:
             return []
-        peak = float(values.max())
+        if peak is None:
+            peak = float(values.max())
         if self.level == 0 and peak < self.limits[0]:
             return []  # fast path: calm
         if self.level and peak < (self.limits[self.level] if self.level < len(self.limits) else math.inf):
             band = self.limits[self.level - 1] - self.hysteresis
-            if float(values.min()) >= band:  # fast path: holding the level
+            if (float(values.min()) if low is None else low) >= band:  # fast path: holding the level
                 self.episode_peak = max(self.episode_peak, peak)
                 self.below_since = None
                 return []
@@ -126,6 +130,41 @@ class HookAlarms:
 
     def update(self, t_s: FloatArray, swing_rad: FloatArray, torsion_rad: FloatArray) -> list[Condition]:
         """One block, shapes (n,): swing angle Theta >= 0 and torsion phi, both in radians."""
-        out = self.swing.update(self.device_id, t_s, np.abs(swing_rad) * (180.0 / math.pi))
-        out += self.torsion.update(self.device_id, t_s, wrap_abs_deg(torsion_rad))
+        return self.update_deg(t_s, swing_deg(swing_rad), wrap_abs_deg(torsion_rad))
+
+    def update_deg(self, t_s: FloatArray, swing_deg: FloatArray, torsion_deg: FloatArray,
+                   extremes: tuple[float, float, float, float] | None = None) -> list[Condition]:  # fmt: skip
+        """`update` with the metrics as the guards judge them (`swing_deg`, `wrap_abs_deg`) and optionally their
+        (swing max, swing min, torsion max, torsion min) over the block."""
+        s_max, s_min, t_max, t_min = extremes or (None, None, None, None)
+        out = self.swing.update(self.device_id, t_s, swing_deg, s_max, s_min)
+        out += self.torsion.update(self.device_id, t_s, torsion_deg, t_max, t_min)
         return sorted(out, key=lambda c: c.t_s)  # in device-time order, as they happened, whatever the block
+
+
+def swing_deg(swing_rad: FloatArray) -> FloatArray:
+    """|Theta| in degrees, as the swing guard judges it."""
+    deg: FloatArray = np.abs(swing_rad) * (180.0 / math.pi)
+    return deg
+
+
+def hook_rules(rules: Sequence[HookAlarms], t_s: FloatArray, swing_rad: FloatArray, torsion_rad: FloatArray,
+               start: NDArray[np.int64], stop: NDArray[np.int64]) -> list[list[Condition] | Exception]:  # fmt: skip
+    """`HookAlarms.update` of many hooks over their concatenated blocks (rows start[i]:stop[i] are hook i's): the
+    degrees and each block's max and min are computed once for all (element-wise and exact, so every hook gets
+    what it gets alone); the guards then run per hook. A hook whose rules raise gets its exception (it alone
+    restarts)."""
+    s_deg, t_deg = swing_deg(swing_rad), wrap_abs_deg(torsion_rad)
+    if len(rules) and bool((stop > start).all()):
+        ext = zip(*(f.reduceat(x, start).tolist() for x in (s_deg, t_deg) for f in (np.maximum, np.minimum)),
+                  strict=True)  # fmt: skip
+        extremes: list[tuple[float, float, float, float] | None] = list(ext)
+    else:
+        extremes = [None] * len(rules)
+    out: list[list[Condition] | Exception] = []
+    for r, a, b, e in zip(rules, start.tolist(), stop.tolist(), extremes, strict=True):
+        try:
+            out.append(r.update_deg(t_s[a:b], s_deg[a:b], t_deg[a:b], e))
+        except Exception as exc:
+            out.append(exc)
+    return out

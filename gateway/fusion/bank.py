@@ -82,14 +82,26 @@ def _rows3(blocks: Iterable[Sequence[tuple[float, float, float]]], rows: int) ->
 
 
 def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
-    """`gather` of many devices with one array conversion per sensor for all of them (the same values)."""
+    """`gather` of many devices with one array conversion per sensor for all of them (the same values). Packets
+    decoded from the binary encoding bring their float32 rows (`schemas.sample_rows`): when all do, the rows are
+    concatenated instead of read back from the float tuples (the same float64 values)."""
     pk = [p for g in groups for p in g]
     sizes = [sum(p.n for p in g) for g in groups]
     stop = np.cumsum(sizes).tolist()
     cuts = list(zip([0, *stop[:-1]], stop, strict=True))  # rows of each device (slices: np.split is slow)
     total = stop[-1] if stop else 0
-    gyr_all = _rows3((p.gyr_rad_s for p in pk), total)
-    acc_all = _rows3((p.acc_m_s2 for p in pk), total)
+    # rows of binary packets; a batch whose first packet has none (JSON) is not searched further
+    kept = [schemas.sample_rows(p) for p in pk] if pk and schemas.sample_rows(pk[0]) is not None else []
+    rows = [r for r in kept if r is not None]
+    from_rows = len(rows) == len(pk) > 0
+
+    def column(a: int, b: int, which: Iterable[int] | None = None) -> FloatArray:
+        """Columns a:b of the kept rows of packets `which` (all), as one contiguous float64 array."""
+        picked = rows if which is None else [rows[j] for j in which]
+        return np.concatenate([r[:, a:b] for r in picked], dtype=np.float64)
+
+    gyr_all = column(0, 3) if from_rows else _rows3((p.gyr_rad_s for p in pk), total)
+    acc_all = column(3, 6) if from_rows else _rows3((p.acc_m_s2 for p in pk), total)
     n = np.array([p.n for p in pk], dtype=np.int64)
     first = np.repeat(np.cumsum(n) - n, n)
     t0 = np.repeat(np.array([p.t0_us for p in pk], dtype=np.int64) * 1e-6, n)
@@ -98,7 +110,11 @@ def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
     mags: list[FloatArray | None] = [None] * len(groups)
     sel = [i for i, g in enumerate(groups) if all(p.mag_uT is not None for p in g)]
     if sel:
-        m_all = _rows3((p.mag_uT or () for i in sel for p in groups[i]), sum(sizes[i] for i in sel))
+        if from_rows:
+            first_pkt = np.cumsum([0, *map(len, groups)]).tolist()  # each device's first packet in `pk`
+            m_all = column(6, 9, (j for i in sel for j in range(first_pkt[i], first_pkt[i + 1])))
+        else:
+            m_all = _rows3((p.mag_uT or () for i in sel for p in groups[i]), sum(sizes[i] for i in sel))
         at = 0
         for i in sel:
             mags[i], at = m_all[at : at + sizes[i]], at + sizes[i]

@@ -46,12 +46,13 @@ iron (µT, body).
 * Jacobians are forward differences of numba kernels; the update is filterpy's (Joseph form) except that the
   rope's speed and hoist acceleration take corrections from the tension channel only (a consider-style gain
   restriction filterpy cannot express), so the filter runs its own `ekf_step`: `update()` one sample, `run()` a
-  numba loop of the same step (tests check they agree). The arithmetic is sparse and allocation-free (issue 16:
-  ~38 µs a sample before): F is the identity but for the pendulum, heading and rope rows and H sees 15 of the 24
-  states, so `F P Fᵀ`, `H P Hᵀ` and `P Hᵀ` run over their non-zeros; `H P Hᵀ` is formed once and serves the NIS,
-  the whitening, the surprise test and the gain (Cholesky); Joseph's form for the restricted gain K = K_opt + D is
-  computed exactly as `P - P Hᵀ S⁻¹ H P + D S Dᵀ` (D lives in the restricted rows). tests/fusion/test_hook_kernel.py
-  holds the dense step it replaced.
+  numba loop of the same step (tests check they agree). The arithmetic is sparse and allocation-free (issue 16):
+  F is the identity but for the pendulum, heading and rope rows and H sees 15 of the 24 states, so `F P Fᵀ`,
+  `H P` and `H P Hᵀ` run over their non-zeros (the swing-rate block before the gating for the NIS and whitening,
+  all rows after it for the surprise test and the Cholesky gain, kept in step by the surprise inflation); each
+  Jacobian column re-runs only the parts of the model its state feeds (bit-identical to plain differences);
+  Joseph's form for the restricted gain K = K_opt + D is computed exactly as `P - P Hᵀ S⁻¹ H P + D S Dᵀ` (D lives
+  in the restricted rows). tests/fusion/test_hook_kernel.py holds the dense step it replaced.
 * Adaptive process noise: when the swing-rate innovation fails a χ² gate, its square is added to the rope-rate
   variance (an unmodelled push), so the state follows the gyroscope instead of bending bias and tilt.
 
@@ -664,32 +665,42 @@ def _nonzero_columns(a: FloatArray, rows: int, idx: NDArray[np.int64], cnt: NDAr
 @njit
 def _predict_covariance(f_jac: FloatArray, p: FloatArray, q: FloatArray, idx: NDArray[np.int64],
                         cnt: NDArray[np.int64], fp: FloatArray, out: FloatArray) -> None:  # fmt: skip
-    """`out = F P Fᵀ + diag(q)`: `fp = (F P)ᵀ` = P Fᵀ row by row over F's non-zeros (an identity row copies P's
-    row), then `out = F fp` the same way; the upper triangle is mirrored so `out` is exactly symmetric. `fp`
-    (N, N) is scratch."""
+    """`out = F P Fᵀ + diag(q)` for an F that is diagonal but for a few rows (the pendulum, heading and rope rows
+    of the process): between two diagonal rows it is `d_i P_ik d_k`; a dense row `i` takes `(F P)_i` (row `i` of
+    `fp`, over F's non-zeros) times `Fᵀ`, mirrored into column `i`. `out` is exactly symmetric; `fp` (N, N) is
+    scratch."""
     n = p.shape[0]
     _nonzero_columns(f_jac, n, idx, cnt)
     for i in range(n):
-        out[i, :] = 0.0
+        diagonal = cnt[i] == 0 or (cnt[i] == 1 and idx[i, 0] == i)
+        if diagonal:
+            di = f_jac[i, i]
+            for k in range(i, n):
+                if cnt[k] == 0 or (cnt[k] == 1 and idx[k, 0] == k):
+                    v = di * p[i, k] * f_jac[k, k]
+                    out[i, k] = v
+                    out[k, i] = v
+            continue
+        fp[i, :] = 0.0
         for t in range(cnt[i]):
             j = idx[i, t]
             f = f_jac[i, j]
             for c in range(n):
-                out[i, c] += f * p[j, c]
+                fp[i, c] += f * p[j, c]
+        for k in range(n):
+            if cnt[k] == 0 or (cnt[k] == 1 and idx[k, 0] == k):
+                v = fp[i, k] * f_jac[k, k]
+            elif k >= i:
+                v = 0.0
+                for t in range(cnt[k]):
+                    j = idx[k, t]
+                    v += fp[i, j] * f_jac[k, j]
+            else:
+                continue  # a dense row before this one set it
+            out[i, k] = v
+            out[k, i] = v
     for i in range(n):
-        for c in range(n):
-            fp[c, i] = out[i, c]
-    for i in range(n):  # whole rows (a triangle's ragged rows vectorise worse), then the upper one mirrored
-        out[i, :] = 0.0
-        for t in range(cnt[i]):
-            j = idx[i, t]
-            f = f_jac[i, j]
-            for c in range(n):
-                out[i, c] += f * fp[j, c]
         out[i, i] += q[i]
-    for i in range(n):
-        for c in range(i + 1, n):
-            out[c, i] = out[i, c]
 
 
 @njit

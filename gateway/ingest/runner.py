@@ -346,14 +346,14 @@ class GatewayService:
         if self.inbox is not None:
             c.queue_drops = self.inbox.drops
         packets: list[schemas.Packet] = []
-        for key, payload, arrival in items:
-            try:
-                p = schemas.decode(key, payload)
-            except schemas.DecodeError as err:
-                c.reject(key, err, arrival)
-                self._publish_rejected(key, err, len(payload), now)
+        decoded = schemas.decode_many([(key, payload) for key, payload, _ in items])  # binary IMU: batched
+        max_devices = self.settings.max_devices
+        for (key, payload, arrival), p in zip(items, decoded, strict=True):
+            if isinstance(p, schemas.DecodeError):
+                c.reject(key, p, arrival)
+                self._publish_rejected(key, p, len(payload), now)
                 continue
-            if p.device_id not in c.devices and len(c.devices) >= self.settings.max_devices:  # type: ignore[union-attr]
+            if p.device_id not in c.devices and len(c.devices) >= max_devices:  # type: ignore[union-attr]
                 self._device_limit(p.device_id, arrival)  # type: ignore[union-attr]
                 continue
             topic = key.rsplit("/", 1)[-1]
@@ -385,7 +385,7 @@ class GatewayService:
     def _check_time(self, p: schemas.ImuPacket, now: float, arrival: float) -> schemas.ImuPacket | None:
         """Device-time sanity (`gateway.ingest.timecheck`): None drops the packet; counted by reason either way."""
         c = self.counters
-        end_us = p.t0_us + int(round((p.n - 1) * 1e6 / p.rate_hz))
+        end_us = p.t0_us + int(round((len(p.gyr_rad_s) - 1) * 1e6 / p.rate_hz))  # len: `p.n` without the property
         verdict = c.stream(p.kind, p.device_id).clock.check(p.boot_id, p.t0_us, end_us)
         if not verdict.accept:
             c.drop(p.kind, p.device_id, verdict.reason or "", f"t0_us {p.t0_us} (boot {p.boot_id}, seq {p.seq})",

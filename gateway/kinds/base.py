@@ -222,7 +222,18 @@ def attitudes(kb: KindBatch, interval_s: float) -> list[schemas.Attitude]:
     if not picks:
         return []
     rows = np.fromiter((r for _, r, _, _ in picks), dtype=np.int64, count=len(picks))
-    quats, eul, yaw_u = kb.q[rows].tolist(), kb.euler[rows].tolist(), kb.yaw_u[rows].tolist()
+    q_rows, eul_rows, yaw_rows = kb.q[rows], kb.euler[rows], kb.yaw_u[rows]
+    quats, eul, yaw_u = q_rows.tolist(), eul_rows.tolist(), yaw_rows.tolist()
+    if _attitudes_valid(picks, q_rows, eul_rows, yaw_rows):  # one check of the batch instead of pydantic's per message
+        build, model, fields = schemas.prevalidated, schemas.Attitude, _ATTITUDE_SET
+        return [
+            build(model, {
+                "v": 1, "device_id": dev.device_id, "kind": dev.kind, "seq": seq, "t_us": t_us,
+                "wall_t_us": t_us + dev.wall_offset_us, "quat_wxyz": tuple(q), "roll_rad": e[0], "pitch_rad": e[1],
+                "yaw_rad": e[2], "yaw_unwrapped_rad": yu, "filter": dev.filter_name,
+            }, fields)
+            for (dev, _, seq, t_us), q, e, yu in zip(picks, quats, eul, yaw_u, strict=True)
+        ]  # fmt: skip
     return [
         schemas.Attitude(
             device_id=dev.device_id, kind=dev.kind, seq=seq, t_us=t_us,  # type: ignore[arg-type]
@@ -231,6 +242,36 @@ def attitudes(kb: KindBatch, interval_s: float) -> list[schemas.Attitude]:
         )
         for (dev, _, seq, t_us), q, e, yu in zip(picks, quats, eul, yaw_u, strict=True)
     ]  # fmt: skip
+
+
+_ATTITUDE_SET = frozenset(schemas.Attitude.model_fields) - {"v"}  # the fields `attitudes` sets
+_HEIGHT_SET = frozenset(schemas.Height.model_fields) - {"v"}
+_TWO_PI = 2.0 * math.pi  # the limit of schemas._Angle
+TIME_END_US = 2**63  # schemas.TimeUs: 0 <= t < 2**63
+
+
+def ints_valid(values: Sequence[int], end: int) -> bool:
+    """Every value a Python int (strict: no bool, no numpy scalar) in [0, end): `schemas.Uint32` / `TimeUs`."""
+    return not values or (set(map(type, values)) == {int} and min(values) >= 0 and max(values) < end)
+
+
+def device_fields_valid(devs: Iterable[FusedDevice], filter_name: bool = True) -> bool:
+    """The device id, kind (and filter name) of each device are what an output model accepts."""
+    return all(type(d.device_id) is str and schemas.valid_device_id(d.device_id) and d.kind in schemas.IMU_KINDS
+               and type(d.kind) is str and (not filter_name or d.filter_name is None or type(d.filter_name) is str
+                                            and 1 <= len(d.filter_name) <= 64) for d in devs)  # fmt: skip
+
+
+def _attitudes_valid(picks: Sequence[tuple[FusedDevice, int, int, int]], q: FloatArray, euler: FloatArray,
+                     yaw_u: FloatArray) -> bool:  # fmt: skip
+    """Whether every Attitude of `picks` passes the model's checks (else `attitudes` builds them through pydantic,
+    which raises as it always did)."""
+    if not ((np.abs(q) <= 1.0).all() and (np.abs(euler) <= _TWO_PI).all() and np.isfinite(yaw_u).all()):
+        return False
+    t_us = [t for _, _, _, t in picks]
+    return (ints_valid([s for _, _, s, _ in picks], schemas.UINT32) and ints_valid(t_us, TIME_END_US)
+            and ints_valid([t + d.wall_offset_us for (d, _, _, _), t in zip(picks, t_us, strict=True)], TIME_END_US)
+            and device_fields_valid({id(d): d for d, _, _, _ in picks}.values()))  # fmt: skip
 
 
 def timed(dev: FusedDevice, conds: Iterable[Condition]) -> list[Timed]:
@@ -413,6 +454,49 @@ def height_messages(f: Fused, rows: FloatArray, interval_s: float) -> list[schem
             aided=AIDED_NAMES[int(aided)],  # type: ignore[arg-type]
         ))  # fmt: skip
     dev.height = out[-1] if out else dev.height
+    return out
+
+
+def heights_batch(kb: KindBatch, live: Sequence[int], rows: FloatArray, interval_s: float
+                  ) -> list[schemas.Height] | None:  # fmt: skip
+    """`height_messages` of the devices `live` of a batch (heave rows of the whole batch), with one range check of
+    all their values instead of pydantic's per message; None (nothing changed) when a value fails it: the caller
+    then builds them device by device through pydantic, which raises for the device it concerns."""
+    from gateway.fusion.heave import AIDED_NAMES
+
+    t_all, gap_s = kb.t_s.tolist(), interval_s - 1e-9
+    picks: list[tuple[FusedDevice, int, int, int]] = []  # (device, row in kb, seq, t_us)
+    last: dict[int, float] = {}  # item -> device time of its last pick
+    for i in live:
+        f = kb.items[i]
+        base, t_last = int(kb.start[i]), f.dev.last_height_t_s
+        for j, seq, t_us in f.ends:
+            t = t_all[base + j]
+            if t - t_last >= gap_s:
+                picks.append((f.dev, base + j, seq, t_us))
+                t_last = last[i] = t
+    if not picks:
+        return []
+    vals = rows[[r for _, r, _, _ in picks]]
+    aided = vals[:, 3]
+    times = [t for _, _, _, t in picks]
+    walls = [t + d.wall_offset_us for (d, _, _, _), t in zip(picks, times, strict=True)]
+    aided_ok = ((aided >= 0) & (aided < len(AIDED_NAMES)) & (aided == np.floor(aided))).all()
+    if not (np.isfinite(vals[:, :2]).all() and aided_ok
+            and ints_valid([s for _, _, s, _ in picks], schemas.UINT32) and ints_valid(times, TIME_END_US)
+            and ints_valid(walls, TIME_END_US)
+            and device_fields_valid({id(d): d for d, _, _, _ in picks}.values(), filter_name=False)):
+        return None
+    for i, t in last.items():
+        kb.items[i].dev.last_height_t_s = t
+    build, model, fields = schemas.prevalidated, schemas.Height, _HEIGHT_SET
+    out = [build(model, {
+        "v": 1, "device_id": dev.device_id, "kind": dev.kind, "seq": seq, "t_us": t, "wall_t_us": wall,
+        "vz_m_s": v, "height_m": h, "at_rest": bool(rest), "aided": AIDED_NAMES[int(a)],
+    }, fields) for (dev, _, seq, t), wall, (h, v, rest, a) in zip(picks, walls, vals.tolist(), strict=True)
+    ]  # fmt: skip
+    for m, (dev, _, _, _) in zip(out, picks, strict=True):
+        dev.height = m
     return out
 
 

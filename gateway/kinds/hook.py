@@ -15,15 +15,43 @@ import numpy as np
 
 from gateway import schemas
 from gateway.alarm.engine import Condition
-from gateway.alarm.hook import HookAlarms
+from gateway.alarm.hook import HookAlarms, hook_rules
 from gateway.config import HookThresholds
 from gateway.fusion import hook as hook_geo
-from gateway.kinds.base import FusedDevice, KindBase, KindBatch, KindContext, Output, Timed, timed
+from gateway.kinds.base import (
+    TIME_END_US,
+    FusedDevice,
+    KindBase,
+    KindBatch,
+    KindContext,
+    Output,
+    Timed,
+    ints_valid,
+    timed,
+)
 
 if TYPE_CHECKING:
     from pydantic import BaseModel
 
     from gateway.pipeline import PipelineSettings
+
+
+_SWING_SET = frozenset(schemas.Swing.model_fields) - {"v"}  # the fields `HookKind.post` sets
+_TWO_PI = 2.0 * math.pi  # the limit of schemas._Angle
+
+
+def _swings_valid(picks: list[tuple[int, int, int, int]], kb: KindBatch, angle: np.ndarray, bearing: list[float],
+                  phi: list[float], twist: np.ndarray) -> bool:  # fmt: skip
+    """Whether the batch's Swing floats and ints (all but each hook's heading and rope) pass the model's checks."""
+    angles = np.concatenate((angle, np.asarray(bearing, dtype=np.float64), np.asarray(phi, dtype=np.float64)))
+    if not ((np.abs(angles) <= _TWO_PI).all() and np.isfinite(twist).all()):
+        return False
+    devs = {i: kb.items[i].dev for i, _, _, _ in picks}
+    t_us = [t for _, _, _, t in picks]
+    return (ints_valid([s for _, _, s, _ in picks], schemas.UINT32) and ints_valid(t_us, TIME_END_US)
+            and ints_valid([t + devs[i].wall_offset_us for (i, _, _, _), t in zip(picks, t_us, strict=True)],
+                           TIME_END_US)
+            and all(type(d.device_id) is str and schemas.valid_device_id(d.device_id) for d in devs.values()))
 
 
 @dataclass
@@ -81,12 +109,11 @@ class HookKind(KindBase):
         interval_s = ctx.settings.swing_interval_s
         ran: list[tuple[int, list[Condition], int, int]] = []  # (device index, its new conditions, its picks [a, b))
         picks: list[tuple[int, int, int, int]] = []  # (device index, row in kb, seq, t_us) of each Swing to send
-        for i, f in enumerate(kb.items):
+        rules = hook_rules([f.dev.state.rules for f in kb.items], kb.t_s, swing, tors, kb.start, kb.stop)
+        for i, (f, new) in enumerate(zip(kb.items, rules, strict=True)):
             dev, rows, st = f.dev, kb.rows(i), f.dev.state
-            try:
-                new = st.rules.update(f.t_s, swing[rows], tors[rows])
-            except Exception as exc:  # only this hook restarts
-                ctx.fail(dev, exc, out)
+            if isinstance(new, Exception):  # only this hook restarts
+                ctx.fail(dev, new, out)
                 continue
             first = len(picks)
             for j, seq, t_us in f.ends:
@@ -101,20 +128,26 @@ class HookKind(KindBase):
         bearing = hook_geo.displacement_bearing(q_picked).tolist()
         phi = hook_geo.swing_direction_paper(q_picked, refs[[i for i, _, _, _ in picks]]).tolist()
         angle, twist = swing[k_rows].tolist(), tors[k_rows].tolist()
+        # pydantic's range checks of the batch's floats and ints at once; a message outside them (or a device whose
+        # heading or rope is) is built through pydantic, which raises as it always did
+        trusted = bool(picks) and _swings_valid(picks, kb, swing[k_rows], bearing, phi, tors[k_rows])
         conds: list[Timed] = []
         for i, new, first, stop in ran:
             dev, st = kb.items[i].dev, kb.items[i].dev.state
             try:
-                rope = getattr(dev.filt, "rope_length_m", None)  # the hook filter's estimate at the batch's end
-                ref = float(refs[i])
+                if stop > first:
+                    rope = getattr(dev.filt, "rope_length_m", None)  # the hook filter's estimate at the batch's end
+                    rope = None if rope is None else float(rope)
+                    heading = math.remainder(float(refs[i]), 2.0 * math.pi)
+                    fast = trusted and abs(heading) <= _TWO_PI and (rope is None or 0.0 < rope <= 1000.0)
                 for m in range(first, stop):
                     _, _, seq, t_us = picks[m]
-                    st.swing = schemas.Swing(
-                        device_id=dev.device_id, seq=seq, t_us=t_us, wall_t_us=t_us + dev.wall_offset_us,
-                        swing_angle_rad=angle[m], swing_direction_rad=bearing[m], torsion_rad=twist[m],
-                        swing_phi_rad=phi[m], rest_heading_rad=math.remainder(ref, 2.0 * math.pi),
-                        rope_length_m=None if rope is None else float(rope),
-                    )  # fmt: skip
+                    fields = {"device_id": dev.device_id, "seq": seq, "t_us": t_us,
+                              "wall_t_us": t_us + dev.wall_offset_us, "swing_angle_rad": angle[m],
+                              "swing_direction_rad": bearing[m], "torsion_rad": twist[m], "swing_phi_rad": phi[m],
+                              "rest_heading_rad": heading, "rope_length_m": rope}  # fmt: skip
+                    st.swing = (schemas.prevalidated(schemas.Swing, {"v": 1, **fields}, _SWING_SET) if fast
+                                else schemas.Swing(**fields))  # fmt: skip
                     out.swings.append(st.swing)
                 conds += timed(dev, new)
             except Exception as exc:  # only this hook restarts

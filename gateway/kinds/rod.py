@@ -59,21 +59,24 @@ class RodKind(KindBase):
 
     def post(self, ctx: KindContext, kb: KindBatch, now_s: float, out: Output) -> list[Timed]:
         acc_up = tip_acc_up(kb.q, kb.acc)
-        eul, conds, max_age_s = kb.euler, [], ctx.settings.reel_max_age_s
-        for i, f in enumerate(kb.items):
-            dev, rows = f.dev, kb.rows(i)
+        pitch, conds, max_age_s = kb.euler[:, 1], [], ctx.settings.reel_max_age_s
+        reels, auto = self.reel, self.auto_reel.on
+        # roll and yaw are not passed: the rules never use them (a rod turned about its axis is no bite)
+        for f, a, b in zip(kb.items, kb.start.tolist(), kb.stop.tolist(), strict=True):
+            dev = f.dev
             try:
-                reel, tension = self.reel.get(dev.device_id), None
+                reel, tension = reels.get(dev.device_id), None
                 if reel is not None and reel[0].tension_n is not None and now_s - reel[1] <= max_age_s:
                     tension = np.full(f.t_s.shape, reel[0].tension_n)
                 st: RodState = dev.state
                 # The rules decide sample by sample: a burst gives the same alarms in one call as packet by packet.
-                blk, new = st.rules.update(f.t_s, eul[rows, 1], eul[rows, 0], eul[rows, 2], acc_up[rows], tension)
+                blk, new = st.rules.update(f.t_s, pitch[a:b], None, None, acc_up[a:b], tension)
                 st.baseline_rad = blk.baseline_rad
-                if self.auto_reel.on.get(dev.device_id):
-                    self.auto_reel.step(dev.device_id, float(f.t_s[-1]), float(eul[rows.stop - 1, 1]) - st.baseline_rad,
+                if auto.get(dev.device_id):
+                    self.auto_reel.step(dev.device_id, float(f.t_s[-1]), float(pitch[b - 1]) - st.baseline_rad,
                                         reel[0] if reel else None, now_s, out)  # fmt: skip
-                conds += timed(dev, new)
+                if new:
+                    conds += timed(dev, new)
             except Exception as exc:  # only this rod restarts
                 ctx.fail(dev, exc, out)
         return conds

@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.alarm.hook import HookAlarms
+from gateway.alarm.hook import HookAlarms, hook_rules
 
 RATE_HZ = 100.0
 
@@ -49,3 +49,27 @@ def test_block_size_does_not_move_a_fall_or_its_message() -> None:
     whole = _conditions(t, swing, torsion, [])
     for n in (1, 5, 10, 25, 100):
         assert _conditions(t, swing, torsion, list(range(n, t.size, n))) == whole, n
+
+
+@settings(max_examples=20, deadline=None)
+@given(seeds=st.lists(st.integers(0, 1000), min_size=1, max_size=5), block=st.sampled_from([1, 5, 10, 37]),
+       nan_at=st.integers(0, 11_999))  # fmt: skip
+def test_batched_hook_rules_equal_each_hook_alone(seeds: list[int], block: int, nan_at: int) -> None:
+    """`hook_rules` over several hooks' concatenated blocks (one max/min reduction for all) gives every hook the
+    conditions, in order, that its own `HookAlarms.update` gives, and leaves it in the same state."""
+    streams = [_signals(s, 120.0) for s in seeds]
+    streams[0][1][nan_at] = np.nan  # a gap: max/min propagate it alike
+    alone = [HookAlarms(f"hook-{i}") for i in range(len(seeds))]
+    batched = [HookAlarms(f"hook-{i}") for i in range(len(seeds))]
+    seen = 0
+    for a in range(0, streams[0][0].size, block):
+        blocks = [(t[a : a + block], sw[a : a + block], to[a : a + block]) for t, sw, to in streams]
+        expected = [h.update(*b) for h, b in zip(alone, blocks, strict=True)]
+        sizes = np.array([b[0].size for b in blocks])
+        stop = np.cumsum(sizes)
+        got = hook_rules(batched, *(np.concatenate([b[k] for b in blocks]) for k in range(3)), stop - sizes, stop)
+        assert got == expected
+        seen += sum(map(len, expected))
+    assert seen > 0
+    state = [(vars(h.swing), vars(h.torsion)) for h in alone]
+    assert [(vars(h.swing), vars(h.torsion)) for h in batched] == state

@@ -86,6 +86,26 @@ def test_gather_all_is_gather_per_device(groups: list[list[schemas.ImuPacket]]) 
         assert (got[2] is None) == (mag is None) and (mag is None or np.array_equal(got[2], mag))
 
 
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.lists(packets, min_size=1, max_size=3), min_size=1, max_size=4), st.booleans())
+def test_gather_all_from_binary_rows_is_gather_per_device(groups: list[list[schemas.ImuPacket]], mixed: bool
+                                                          ) -> None:  # fmt: skip
+    """Packets decoded from the binary encoding (`schemas.decode_many`) bring their float32 rows, and `gather_all`
+    concatenates those: the same float64 arrays, bit for bit, as gathering their float tuples (and with one JSON
+    packet in the batch, the tuples of all)."""
+    key = schemas.imu_key("rod", "d")
+    decoded = [schemas.decode_many([(key, schemas.imu_to_binary(p)) for p in g]) for g in groups]
+    binary = [[p for p in g if isinstance(p, schemas.ImuPacket)] for g in decoded]
+    assert all(schemas.sample_rows(p) is not None for g in binary for p in g)
+    if mixed:  # one packet without rows: the whole batch reads the tuples
+        binary[0][0] = schemas.decode(key, binary[0][0].to_json())  # type: ignore[assignment]
+        assert schemas.sample_rows(binary[0][0]) is None
+    for got, (gyr, acc, mag, t_s) in zip(gather_all(binary), map(gather, binary), strict=True):
+        for a, b in ((got[0], gyr), (got[1], acc), (got[3], t_s)):
+            assert a.dtype == b.dtype and a.flags.c_contiguous == b.flags.c_contiguous and np.array_equal(a, b)
+        assert (got[2] is None) == (mag is None) and (mag is None or np.array_equal(got[2], mag))
+
+
 def test_swing_fields_are_the_per_message_formulas_of_the_packet_end_attitude() -> None:
     """Bearing and Φ, now computed for all Swings of a batch at once, equal the one-quaternion formulas on the
     attitude at the same packet end (every packet end published: intervals 0), with each hook's own reference."""
