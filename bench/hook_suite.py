@@ -7,6 +7,7 @@
     python -m bench.hook_suite --family windy --seeds 1-12  # light loads in a steady wind from the start
     python -m bench.hook_suite --tracking                   # the second round's boom-tip tracking (and slow test)
     python -m bench.hook_suite --settings previous          # the defaults before issue 11's third round
+    python -m bench.hook_suite --settings trial             # the fourth round's trial jumps (TRIAL_JUMP)
 
 Each seed draws a crane (issue 11): rope 2-30 m (log-uniform), hook + load 0.5-20 t, torsion stiffness and
 inertia (twist period 4-20 s), the IMU 0.1 ± 0.02 m off the rope axis (the filter assumes 0.1 m and learns the
@@ -58,6 +59,7 @@ from gateway.fusion.hook_filter import (
     PREVIOUS_DEFAULT,
     STEADY_BIAS_TRACKING,
     TRACKING,
+    TRIAL_JUMP,
     HookFilter,
     HookFilterSettings,
 )
@@ -267,7 +269,7 @@ def rope_errors(length_m: np.ndarray, truth: HookTruth) -> dict[str, float]:
             "rope_rel": float(np.sqrt(np.mean(((length_m - true_l) / true_l)[scored] ** 2)))}  # fmt: skip
 
 
-PRESETS = {"tracking": TRACKING, "steady": STEADY_BIAS_TRACKING, "previous": PREVIOUS_DEFAULT}
+PRESETS = {"tracking": TRACKING, "steady": STEADY_BIAS_TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JUMP}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -306,7 +308,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="crane (default) or windy (light load, short rope, steady wind from the start)")
     p.add_argument("--tracking", action="store_true", help="the second round's boom-tip tracking (TRACKING)")
     p.add_argument("--settings", default="", help="HookFilterSettings overrides: name=value,... and/or the presets "
-                   "tracking (TRACKING), steady (STEADY_BIAS_TRACKING, the defaults), previous (PREVIOUS_DEFAULT)")
+                   "tracking (TRACKING), steady (STEADY_BIAS_TRACKING, the defaults), previous (PREVIOUS_DEFAULT), "
+                   "trial (TRIAL_JUMP, the fourth round's trial jumps)")
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)

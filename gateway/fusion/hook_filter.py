@@ -29,7 +29,9 @@ iron (µT, body).
   state takes what the pendulum law cannot explain. For 10 s after a jump the tip state keeps tracking (while its
   estimate is not near 0) and takes process noise across its own direction (a slew's acceleration turns with the
   boom); optionally (`TRACKING`) a slower test on the same innovation opens it when the acceleration turns too
-  slowly for the jump test. A small white part stays on `v` (`tip_accel_psd / l²`).
+  slowly for the jump test; optionally (`TRIAL_JUMP`) a step below the jump gate is *tried*: the filter goes back,
+  opens the tip state, and keeps the re-run if the likelihood of its innovations says so (`ekf_run`).
+  A small white part stays on `v` (`tip_accel_psd / l²`).
   `α` integrates `α'`; `α'`, the biases and the offset random-walk (the gyro bias only as fast as the sensor's
   does: faster, it takes a slew's slowly changing acceleration for bias); `c` is constant; `l` integrates `l'`, which
   integrates `l''` (mean-reverting: hoist drives accelerate briefly).
@@ -82,8 +84,9 @@ N_INPUT = 8  # per-sample process input: accelerometer x/y, gyroscope (3), its b
 (_G, _RX, _RY, _RZ, _MX, _MY, _MZ, _USE_MAG, _GATE, _TIP_PSD, _FORCE_STD, _HOIST_TAU, _L_MIN, _TIP_TAU,
  _FORCE_ON, _L_MAX, _NIS_TAU, _NIS_GATE, _TIP_MOVE, _TIP_STD, _TIP_GATE, _MOVE_FREEZE, _MOVE_HOLD,
  _TIP_GATE_STD, _MEAN_TAU, _MEAN_GATE, _L_RATE_TAU, _JUMP_ROPE, _SLOW_TAU, _SLOW_GATE, _SLOW_OPEN, _TRACK_S,
- _TRACK_PSD, _TURN_PSD, _TRACK_CAP, _TURN_CAP) = range(36)
-N_MONITOR = 9  # `ekf_step`'s innovation statistics and move timers
+ _TRACK_PSD, _TURN_PSD, _TRACK_CAP, _TURN_CAP, _TRIAL_GATE, _TRIAL_LR, _TRIAL_EVERY, _TRIAL_OPEN,
+ _ROLLBACK, _TRIAL_WIN, _TRIAL_QUIET) = range(43)
+N_MONITOR = 11  # `ekf_step`'s innovation statistics and move timers
 
 
 @dataclass(frozen=True)
@@ -152,6 +155,19 @@ class HookFilterSettings:
     # gain on tuning seeds 1-30: 0.162 with and without). Second round, tracking alone: tuning seeds 1-12 0.198 ->
     # 0.154°, fresh seeds 401-410 0.196 -> 0.203°; third round, with the slow bias and the 13.8 gate: fresh seeds
     # 501-510 0.260 -> 0.170° (docs/fusion.md).
+    jump_trial_gate: float = 0.0  # χ² (2 dof) on the jump test's mean, below `move_mean_gate`: above it `ekf_run`
+    # *tries* the jump (goes back, opens the tip state, runs again) and keeps it only if the swing-rate innovations
+    # of the re-run are likelier than the kept ones by `jump_trial_lr` (0: off). A step of the tip acceleration below
+    # the jump gate (0.1 m/s² on an 8.6 m rope, tuning seed 6) was never opened for, and its a/g taken for tilt
+    jump_trial_lr: float = 0.0  # ... 2 × the log-likelihood gain the re-run needs (a generalised likelihood ratio
+    # with the filter's own signature of the step, where a matched test over windows would need it worked out)
+    jump_trial_every_s: float = 0.1  # ... tried again at most this often while the mean stays above the trial gate
+    jump_trial_open_std_m_s2: float = 0.5  # ... the tip state's std the trial opens (the jump's is
+    # `tip_accel_move_std_m_s2`)
+    jump_trial_window_s: float = 0.3  # ... and how far it goes back (the likelihoods compared are over this window)
+    jump_trial_quiet_s: float = 0.0  # ... and not within this long of the start or of the last jump (either test):
+    # a filter still settling (a swinging start, after a hoist on a short rope) has innovations that are not white,
+    # and trials there were kept one after the other (tuning seeds 17 and 20)
     slow_mean_tau_s: float = 3.0  # a second, slower running mean of the same whitened innovation: a tip acceleration
     # that turns slowly (a slew's tangential part rotating into its centripetal part) biases it too little for the
     # 0.5 s mean's gate
@@ -200,6 +216,11 @@ STEADY_BIAS_TRACKING: dict[str, float] = {"move_track_s": 10.0, "tip_turn_psd": 
 # The defaults before the third round, as settings overrides: `HookFilterSettings(**PREVIOUS_DEFAULT)`.
 PREVIOUS_DEFAULT: dict[str, float] = {"move_track_s": 0.0, "tip_turn_psd": 0.0, "gyro_bias_psd": 1e-8,
                                       "move_mean_gate": 20.0}  # fmt: skip
+
+# Issue 11's fourth round, off by default (the fresh seeds decide): trial jumps below the jump gate, kept by a
+# likelihood ratio over 1 s (`jump_trial_*` above): `HookFilterSettings(**TRIAL_JUMP)`.
+TRIAL_JUMP: dict[str, float] = {"jump_trial_gate": 6.0, "jump_trial_open_std_m_s2": 0.2, "jump_trial_window_s": 1.0,
+                                "jump_trial_quiet_s": 8.0}  # fmt: skip
 
 # The boom-tip tracking of issue 11's second round, as overrides of the previous defaults (the tracking and the
 # slow test): `HookFilterSettings(**TRACKING)`.
@@ -802,8 +823,13 @@ def _mean_test(w0: float, w1: float, tau_s: float, gate: float, dt_s: float, mon
     a = min(1.0, dt_s / tau_s)
     monitor[i] += (w0 - monitor[i]) * a
     monitor[i + 1] += (w1 - monitor[i + 1]) * a
-    stat = float((monitor[i] * monitor[i] + monitor[i + 1] * monitor[i + 1]) * (2.0 - a) / a)
-    return stat > gate
+    return _mean_stat(monitor, i, a) > gate
+
+
+@njit
+def _mean_stat(monitor: FloatArray, i: int, a: float) -> float:
+    """The χ² (2 dof) statistic of the running mean `monitor[i:i+2]` with weight `a` (see `_mean_test`)."""
+    return float((monitor[i] * monitor[i] + monitor[i + 1] * monitor[i + 1]) * (2.0 - a) / a)
 
 
 _Work = tuple[FloatArray, FloatArray, FloatArray, FloatArray, NDArray[np.int64], NDArray[np.int64]]
@@ -841,8 +867,10 @@ def _ekf_step_into(
     `monitor` (N_MONITOR,) is updated in place: [0] a running mean (time constant `params[_NIS_TAU]`) of the
     swing-rate innovation's normalised square (2 on average when the model holds), [1] the seconds a detected move
     still lasts, [2:4] the running mean of the whitened swing-rate innovation (`_mean_test`), [4] the seconds
-    since (minus `params[_MOVE_HOLD]`) the last jump, [5] 1 if this step found a jump, [6:8] the slow running mean,
-    [8] the seconds the tip state still tracks faster. Jump test: when the fast mean fails its χ² gate, the boom
+    since (minus `params[_MOVE_HOLD]`) the last jump, [5] 1 if this step found a jump (2: a candidate for
+    `ekf_run` to try), [6:8] the slow running mean, [8] the seconds the tip state still tracks faster, [9] the running
+    sum of the swing-rate innovation's `yᵀS⁻¹y + ln det S` (-2 log-likelihood, up to a constant), [10] the seconds
+    until the next candidate may be raised. Jump test: when the fast mean fails its χ² gate, the boom
     tip's acceleration has jumped (a move started, turned or stopped): `params[_TIP_MOVE]`² is added to the tip
     state's variance once and the means restart; when the slow mean fails its gate (a tip acceleration turning
     slowly), `params[_SLOW_OPEN]`² is added and the slow mean restarts. After either, for `params[_TRACK_S]` the tip
@@ -864,6 +892,7 @@ def _ekf_step_into(
     _innovation_covariance(p_pred, h_jac, 2, r_diag, idx, cnt, hp, s)
     s2 = s[:2, :2]
     w0, w1 = _whiten(y, s2)
+    monitor[9] += w0 * w0 + w1 * w1 + math.log(max(s2[0, 0] * s2[1, 1] - s2[0, 1] * s2[1, 0], 1e-300))
     monitor[0] += (w0 * w0 + w1 * w1 - monitor[0]) * min(1.0, dt_s / params[_NIS_TAU])
     moving = monitor[0] > params[_NIS_GATE]
     monitor[5] = 0.0
@@ -881,6 +910,12 @@ def _ekf_step_into(
         monitor[8] = params[_TRACK_S]
         for i in (17, 18):
             p_pred[i, i] += params[_SLOW_OPEN] * params[_SLOW_OPEN]
+    monitor[10] -= dt_s
+    if (params[_TRIAL_GATE] > 0.0 and monitor[5] == 0.0 and monitor[10] <= 0.0
+            and params[_MOVE_HOLD] - monitor[4] > params[_TRIAL_QUIET]
+            and _mean_stat(monitor, 2, min(1.0, dt_s / params[_MEAN_TAU])) > params[_TRIAL_GATE]):
+        monitor[5] = 2.0  # a candidate jump: `ekf_run` tries it and keeps it if the innovations say so
+        monitor[10] = params[_TRIAL_EVERY]
     if monitor[8] > 0.0:
         monitor[8] -= dt_s
         a2 = x_pred[17] * x_pred[17] + x_pred[18] * x_pred[18]
@@ -942,7 +977,11 @@ def ekf_run(
     hold the state before each of the last B samples and that sample's inputs. When `ekf_step` finds a boom-tip
     jump, the jump test has needed those samples to see it, and the pendulum law has meanwhile bent the tilt: the
     filter goes back B samples, opens the tip state there, and runs them again (the jump test off), so the tilt
-    keeps the gyroscope's integral from before the move. Past outputs are not rewritten (a live filter cannot)."""
+    keeps the gyroscope's integral from before the move. Past outputs are not rewritten (a live filter cannot).
+    A trial jump (`ekf_step`'s candidate, off by default) goes back `params[_TRIAL_WIN]` instead, opens the tip state by
+    `params[_TRIAL_OPEN]` and is kept only if the re-run's -2 log-likelihood of the swing-rate innovations
+    (`monitor[9]`) is lower than the kept path's by more than `params[_TRIAL_LR]`; otherwise state, covariance and
+    monitor stay as they were."""
     n, m = z.shape[0], z.shape[1]
     b = hist_x.shape[0]
     out = np.empty((n, 4))
@@ -952,7 +991,8 @@ def ekf_run(
     if hist_n[1] != m:
         hist_n[0], hist_n[1] = 0, m
     quiet = params.copy()
-    quiet[_MEAN_GATE] = quiet[_SLOW_GATE] = 0.0
+    quiet[_MEAN_GATE] = quiet[_SLOW_GATE] = quiet[_TRIAL_GATE] = 0.0
+    x_kept, p_kept = np.empty_like(x), np.empty_like(p)
     for i in range(n):
         k = hist_n[0] % b
         hist_x[k], hist_p[k], hist_mon[k] = x, p, monitor
@@ -960,19 +1000,36 @@ def ekf_run(
         hist_n[0] += 1
         _ekf_step_into(x, p, z[i], u[i], dt_s, params, q_psd, r_diag, monitor, vecs, mats, hm, ss, idx, cnt)
         if monitor[5] > 0.0 and b > 1:
-            j0 = hist_n[0] - min(hist_n[0], b)
+            trial = monitor[5] > 1.5
+            if trial:
+                x_kept[:] = x
+                p_kept[:, :] = p
+            back = max(1, round((params[_TRIAL_WIN] if trial else params[_ROLLBACK]) / dt_s))
+            j0 = hist_n[0] - min(hist_n[0], b, back)
             x[:] = hist_x[j0 % b]
             p[:, :] = hist_p[j0 % b]
             mon = hist_mon[j0 % b].copy()
             mon[8] = params[_TRACK_S]
+            open_std = params[_TRIAL_OPEN] if trial else params[_TIP_MOVE]
             for t in (17, 18):
-                p[t, t] += params[_TIP_MOVE] * params[_TIP_MOVE]
+                p[t, t] += open_std * open_std
             p[_LOG_L, _LOG_L] += params[_JUMP_ROPE] * params[_JUMP_ROPE]
             for j in range(j0, hist_n[0]):
                 _ekf_step_into(x, p, hist_z[j % b, :m], hist_u[j % b], dt_s, quiet, q_psd, r_diag, mon, vecs, mats, hm,
                                ss, idx, cnt)
-            monitor[0], monitor[1] = mon[0], mon[1]
-            hist_n[0] = 0  # a later jump goes back no further than this one
+            # a trial is kept when the re-run explains the swing rate better (generalised likelihood ratio)
+            if trial and monitor[9] - mon[9] <= params[_TRIAL_LR]:
+                x[:] = x_kept
+                p[:, :] = p_kept
+                monitor[5] = 0.0
+            else:
+                if trial:  # as the jump test does when it fires
+                    monitor[5] = 1.0
+                    monitor[2] = monitor[3] = monitor[6] = monitor[7] = 0.0
+                    monitor[4] = params[_MOVE_HOLD]
+                    monitor[8] = params[_TRACK_S]
+                monitor[0], monitor[1], monitor[9] = mon[0], mon[1], mon[9]
+                hist_n[0] = 0  # a later jump goes back no further than this one
         out[i, 0], out[i, 1], out[i, 2], out[i, 3], _, _, _ = _attitude_rate(x[0], x[1], x[2], x[3], x[4], x[5])
         lengths[i] = math.exp(x[_LOG_L])
     return out, lengths, x, p
@@ -1032,7 +1089,9 @@ class HookFilter(AttitudeFilter):
                          s.move_hold_s, s.tip_gate_move_std_m_s2, s.move_mean_tau_s,
                          s.move_mean_gate, s.rope_rate_tau_s, s.jump_rope_rel_std, s.slow_mean_tau_s,
                          s.slow_mean_gate, s.slow_open_std_m_s2, s.move_track_s, s.move_track_psd,
-                         s.tip_turn_psd, s.move_track_cap_m_s2, s.tip_turn_cap_m_s2])  # fmt: skip
+                         s.tip_turn_psd, s.move_track_cap_m_s2, s.tip_turn_cap_m_s2, s.jump_trial_gate,
+                         s.jump_trial_lr, s.jump_trial_every_s, s.jump_trial_open_std_m_s2, s.move_rollback_s,
+                         s.jump_trial_window_s, s.jump_trial_quiet_s])  # fmt: skip
 
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings
@@ -1147,8 +1206,10 @@ class HookFilter(AttitudeFilter):
 
     def _rings(self, dt_s: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
                                             NDArray[np.int64]]:  # fmt: skip
-        """The jump-rollback history of `ekf_run` (`settings.move_rollback_s` of samples), made on first use."""
-        b = max(1, round(self.settings.move_rollback_s / dt_s))
+        """The jump-rollback history of `ekf_run` (`settings.move_rollback_s` of samples, or the trial window if
+        trials are on and it is longer), made on first use."""
+        s = self.settings
+        b = max(1, round(max(s.move_rollback_s, s.jump_trial_window_s if s.jump_trial_gate > 0.0 else 0.0) / dt_s))
         if self._history is None or self._history[0].shape[0] != b:
             self._history = (np.zeros((b, N_STATE)), np.zeros((b, N_STATE, N_STATE)), np.zeros((b, 7)),
                              np.zeros((b, N_INPUT)), np.zeros((b, N_MONITOR)), np.zeros(2, dtype=np.int64))  # fmt: skip
