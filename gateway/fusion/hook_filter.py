@@ -265,7 +265,7 @@ def _attitude_rate_trig(px: float, py: float, vx: float, vy: float, trig: tuple[
 
 @njit
 def attitude_and_rate(x: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """`q = q_swing(n) ⊗ q_z(α)` and the body rate `2 vec(q* ⊗ q')` in rad/s for one state (21,)."""
+    """`q = q_swing(n) ⊗ q_z(α)` and the body rate `2 vec(q* ⊗ q')` in rad/s for one state (N_STATE,)."""
     qw, qx, qy, qz, wx, wy, wz = _attitude_rate(x[0], x[1], x[2], x[3], x[4], x[5])
     return np.array([qw, qx, qy, qz]), np.array([wx, wy, wz])
 
@@ -363,7 +363,7 @@ def _rope_step(l0: float, ld: float, ldd: float, dt_s: float, params: FloatArray
 
 @njit
 def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
-    """Predicted `[gyr (3), acc_z (1), mag (3, zero unless params[_USE_MAG])]` (7,) for one state (21,).
+    """Predicted `[gyr (3), acc_z (1), mag (3, zero unless params[_USE_MAG])]` (7,) for one state (N_STATE,).
 
     acc_z is the tension `l |n'|² + g n_z - l''` plus the lever-arm terms `[ω' × r + ω × (ω × r)]_z`, with `ω'` the
     body-rate derivative along the free pendulum's own motion (central difference over ±1 ms, twist
@@ -576,8 +576,6 @@ def _measurement_jacobian_exact(x: FloatArray, params: FloatArray, h0: FloatArra
     if params[_USE_MAG] > 0.0:
         for i in range(3):  # ... but is itself estimated: body-fixed, it turns against the field as the hook twists
             h_jac[4 + i, 21 + i] = 1.0
-        if 4 <= j <= 8:  # tension informs swing, rope and its own offset only; lever terms must not steer twist/bias
-            h_jac[3, j] = 0.0
 
 
 @njit
@@ -1048,7 +1046,7 @@ def process_inputs(gyr: FloatArray, acc: FloatArray, gyr_prev: FloatArray, dt_s:
 
 class HookFilter(AttitudeFilter):
     """Pendulum-aware EKF for the crane hook (see the module docstring). `update()` runs one `ekf_step`, `run()`
-    the batch `ekf_run` (the same step in a numba loop). State: `self.x` (21,), `self.P` (21, 21)."""
+    the batch `ekf_run` (the same step in a numba loop). State: `self.x` (N_STATE,) = (24,), `self.P` (24, 24)."""
 
     name = "hook"
 
