@@ -661,6 +661,19 @@ def _nonzero_columns(a: FloatArray, rows: int, idx: NDArray[np.int64], cnt: NDAr
 
 
 @njit
+def _sparse_row_times(a: FloatArray, i: int, idx: NDArray[np.int64], cnt: NDArray[np.int64], p: FloatArray,
+                      out: FloatArray) -> None:  # fmt: skip
+    """`out[i] = a[i] @ p` over row `i`'s non-zero columns `idx[i, :cnt[i]]` (in that order, so the sums are the
+    same as the loops this replaced)."""
+    out[i, :] = 0.0
+    for t in range(cnt[i]):
+        j = idx[i, t]
+        f = a[i, j]
+        for c in range(p.shape[1]):
+            out[i, c] += f * p[j, c]
+
+
+@njit
 def _predict_covariance(f_jac: FloatArray, p: FloatArray, q: FloatArray, idx: NDArray[np.int64],
                         cnt: NDArray[np.int64], fp: FloatArray, out: FloatArray) -> None:  # fmt: skip
     """`out = F P Fᵀ + diag(q)` for an F that is diagonal but for a few rows (the pendulum, heading and rope rows
@@ -679,12 +692,7 @@ def _predict_covariance(f_jac: FloatArray, p: FloatArray, q: FloatArray, idx: ND
                     out[i, k] = v
                     out[k, i] = v
             continue
-        fp[i, :] = 0.0
-        for t in range(cnt[i]):
-            j = idx[i, t]
-            f = f_jac[i, j]
-            for c in range(n):
-                fp[i, c] += f * p[j, c]
+        _sparse_row_times(f_jac, i, idx, cnt, p, fp)
         for k in range(n):
             if cnt[k] == 0 or (cnt[k] == 1 and idx[k, 0] == k):
                 v = fp[i, k] * f_jac[k, k]
@@ -706,15 +714,9 @@ def _innovation_covariance(p: FloatArray, h_jac: FloatArray, m: int, r_diag: Flo
                            cnt: NDArray[np.int64], hp: FloatArray, s: FloatArray) -> None:  # fmt: skip
     """For the first `m` rows of H: `hp[:m] = H P` (= (P Hᵀ)ᵀ, P symmetric) and `s[:m, :m] = H P Hᵀ + diag(r)`
     (upper triangle, mirrored), over H's non-zero columns."""
-    n = p.shape[0]
     _nonzero_columns(h_jac, m, idx, cnt)
     for r in range(m):
-        hp[r, :] = 0.0
-        for t in range(cnt[r]):
-            j = idx[r, t]
-            h = h_jac[r, j]
-            for c in range(n):
-                hp[r, c] += h * p[j, c]
+        _sparse_row_times(h_jac, r, idx, cnt, p, hp)
     for r in range(m):
         for c in range(r, m):
             acc = 0.0
