@@ -14,7 +14,6 @@ BLOCK topics (alarms, swing, commands) stay express: a full queue makes them wai
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 import time
@@ -22,21 +21,13 @@ import time
 import zenoh
 
 from bench.bite_latency import REPO, free_port
+from devices.common import zenoh_config
 from gateway import schemas
 from gateway.ingest.bus import ZenohBus
 
 PAYLOAD = (b'{"device_id":"rod-0001","kind":"rod","seq":123,"t_us":123456789,"wall_t_us":1764662400000000,'
            b'"quat_wxyz":[0.99,0.01,0.02,0.03],"roll_rad":0.01,"pitch_rad":0.02,"yaw_rad":0.03,'
            b'"yaw_unwrapped_rad":0.03,"filter":"default"}')
-
-
-def _config(mode: str, port: int) -> zenoh.Config:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps(mode))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    side = "listen" if mode == "router" else "connect"
-    conf.insert_json5(f"{side}/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-    return conf
 
 
 def count_child(port: int, seconds: float) -> None:
@@ -47,7 +38,7 @@ def count_child(port: int, seconds: float) -> None:
         nonlocal received
         received += 1
 
-    with zenoh.open(_config("client", port)) as session:
+    with zenoh.open(zenoh_config("client", connect=(f"tcp/127.0.0.1:{port}",))) as session:
         session.declare_subscriber("gw/**", on_sample)
         time.sleep(seconds)
     print(received, flush=True)
@@ -56,7 +47,7 @@ def count_child(port: int, seconds: float) -> None:
 def burst(devices: int, seconds: float, period_s: float, express: bool) -> tuple[int, int]:
     """(sent, received) for bursts of `devices` DROP puts every `period_s` over `seconds`."""
     port = free_port()
-    with zenoh.open(_config("router", port)) as session:
+    with zenoh.open(zenoh_config("router", connect=(), listen=(f"tcp/127.0.0.1:{port}",))) as session:
         bus = ZenohBus(session)
         child = subprocess.Popen([sys.executable, "-m", "bench.zenoh_burst", "--child", str(port),
                                   "--seconds", str(seconds + 3.0)], cwd=REPO, stdout=subprocess.PIPE, text=True)

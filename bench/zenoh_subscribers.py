@@ -23,7 +23,6 @@ figures for its subscriber cap.
 from __future__ import annotations
 
 import argparse
-import json
 import multiprocessing as mp
 import os
 import time
@@ -33,19 +32,9 @@ from typing import Any
 import zenoh
 
 from bench.bite_latency import free_port
+from devices.common import zenoh_config
 
 CASES = ("catch-all", "half-wildcard", "half-per-device", "half-per-device-threads")
-
-
-def _config(mode: str, listen: str | None = None, connect: str | None = None) -> zenoh.Config:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps(mode))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    if listen:
-        conf.insert_json5("listen/endpoints", json.dumps([listen]))
-    if connect:
-        conf.insert_json5("connect/endpoints", json.dumps([connect]))
-    return conf
 
 
 def _cpu_s() -> float:
@@ -58,7 +47,7 @@ def _key(i: int) -> str:
 
 
 def router(ep: str, seconds: float, out: Any, start: Event, stop: Event) -> None:
-    with zenoh.open(_config("router", listen=ep)):
+    with zenoh.open(zenoh_config("router", connect=(), listen=(ep,))):
         out.put("up")
         start.wait()
         time.sleep(1.0)
@@ -69,7 +58,7 @@ def router(ep: str, seconds: float, out: Any, start: Event, stop: Event) -> None
 
 
 def publisher(ep: str, devices: int, rate: int, start: Event, stop: Event) -> None:
-    with zenoh.open(_config("client", connect=ep)) as s:
+    with zenoh.open(zenoh_config("client", connect=(ep,))) as s:
         pubs = [s.declare_publisher(_key(i)) for i in range(devices)]
         payload = b"x" * 1000
         start.wait()
@@ -83,7 +72,7 @@ def publisher(ep: str, devices: int, rate: int, start: Event, stop: Event) -> No
 
 
 def subscriber(ep: str, case: str, devices: int, seconds: float, out: Any, start: Event, stop: Event) -> None:
-    with zenoh.open(_config("client", connect=ep)) as s:
+    with zenoh.open(zenoh_config("client", connect=(ep,))) as s:
         got = [0]
 
         def on_sample(sample: zenoh.Sample) -> None:

@@ -89,7 +89,9 @@ class Hub:
         """Publish on the topic's key with the row's encoding and congestion control (BLOCK or DROP)."""
         key = self._keys.get((topic.name, kind, device_id))
         if key is None:
-            key = self._key(topic, kind, device_id)
+            if len(self._keys) >= MAX_KEYS:  # devices come and go: start over rather than grow for good
+                self._keys.clear()
+            key = self._keys[(topic.name, kind, device_id)] = topic.key(kind, device_id)
         self._send(key, model.to_json(), topic)
         self.published += 1
         for cb in self.listeners:
@@ -98,33 +100,10 @@ class Hub:
             except Exception:
                 log.exception("listener failed on %s", topic.name)
 
-    def _key(self, topic: schemas.Topic, kind: str | None, device_id: str | None) -> str:
-        if len(self._keys) >= MAX_KEYS:  # devices come and go: start over rather than grow for good
-            self._keys.clear()
-        key = self._keys[(topic.name, kind, device_id)] = topic.key(kind, device_id)
-        return key
-
     def _put_devices(self, topic: schemas.Topic, models: Sequence[_Dev]) -> None:
-        """`_put` of each of a batch's device messages of one topic, in order (the loop of the most frequent
-        outputs, attitude and height: one `_put` call per message was a tenth of the hub's time)."""
-        keys, name, listeners = self._keys, topic.name, self.listeners
-        publisher = self.publisher if topic.block else None
-        put = self.bus.put
+        """`_put` of each of a batch's device messages of one topic, in order."""
         for m in models:
-            kind = getattr(m, "kind", "hook")  # Swing has no kind: only hooks send it
-            key = keys.get((name, kind, m.device_id))
-            if key is None:
-                key = self._key(topic, kind, m.device_id)
-            if publisher is not None:
-                publisher.put(key, m.to_json(), topic.encoding, topic.express)
-            else:
-                put(key, m.to_json(), encoding=topic.encoding, block=topic.block, express=topic.express)
-            self.published += 1
-            for cb in listeners:
-                try:
-                    cb(name, m)
-                except Exception:
-                    log.exception("listener failed on %s", name)
+            self._put(topic, m, getattr(m, "kind", "hook"), m.device_id)  # Swing has no kind: only hooks send it
 
     def emit(self, out: Output) -> None:
         """Alarms first (they matter most and are rare), then reel commands, attitude, attitude blocks (BLOCK: a
