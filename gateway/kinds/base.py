@@ -246,13 +246,20 @@ def attitudes(kb: KindBatch, interval_s: float) -> list[schemas.Attitude]:
 
 _ATTITUDE_SET = frozenset(schemas.Attitude.model_fields) - {"v"}  # the fields `attitudes` sets
 _HEIGHT_SET = frozenset(schemas.Height.model_fields) - {"v"}
-_TWO_PI = 2.0 * math.pi  # the limit of schemas._Angle
+TWO_PI = 2.0 * math.pi  # the limit of schemas._Angle
 TIME_END_US = 2**63  # schemas.TimeUs: 0 <= t < 2**63
 
 
 def ints_valid(values: Sequence[int], end: int) -> bool:
     """Every value a Python int (strict: no bool, no numpy scalar) in [0, end): `schemas.Uint32` / `TimeUs`."""
     return not values or (set(map(type, values)) == {int} and min(values) >= 0 and max(values) < end)
+
+
+def headers_valid(devs: Sequence[FusedDevice], seqs: Sequence[int], t_us: Sequence[int]) -> bool:
+    """Each output message's `seq` (Uint32), `t_us` and `wall_t_us` = `t_us` + its device's offset (TimeUs) are
+    what the models accept; `devs[k]`, `seqs[k]`, `t_us[k]` belong to message k."""
+    walls = [t + d.wall_offset_us for d, t in zip(devs, t_us, strict=True)]
+    return ints_valid(seqs, schemas.UINT32) and ints_valid(t_us, TIME_END_US) and ints_valid(walls, TIME_END_US)
 
 
 def device_fields_valid(devs: Iterable[FusedDevice], filter_name: bool = True) -> bool:
@@ -266,12 +273,11 @@ def _attitudes_valid(picks: Sequence[tuple[FusedDevice, int, int, int]], q: Floa
                      yaw_u: FloatArray) -> bool:  # fmt: skip
     """Whether every Attitude of `picks` passes the model's checks (else `attitudes` builds them through pydantic,
     which raises as it always did)."""
-    if not ((np.abs(q) <= 1.0).all() and (np.abs(euler) <= _TWO_PI).all() and np.isfinite(yaw_u).all()):
+    if not ((np.abs(q) <= 1.0).all() and (np.abs(euler) <= TWO_PI).all() and np.isfinite(yaw_u).all()):
         return False
-    t_us = [t for _, _, _, t in picks]
-    return (ints_valid([s for _, _, s, _ in picks], schemas.UINT32) and ints_valid(t_us, TIME_END_US)
-            and ints_valid([t + d.wall_offset_us for (d, _, _, _), t in zip(picks, t_us, strict=True)], TIME_END_US)
-            and device_fields_valid({id(d): d for d, _, _, _ in picks}.values()))  # fmt: skip
+    devs = [d for d, _, _, _ in picks]
+    return (headers_valid(devs, [s for _, _, s, _ in picks], [t for _, _, _, t in picks])
+            and device_fields_valid({id(d): d for d in devs}.values()))
 
 
 def timed(dev: FusedDevice, conds: Iterable[Condition]) -> list[Timed]:
@@ -482,10 +488,10 @@ def heights_batch(kb: KindBatch, live: Sequence[int], rows: FloatArray, interval
     times = [t for _, _, _, t in picks]
     walls = [t + d.wall_offset_us for (d, _, _, _), t in zip(picks, times, strict=True)]
     aided_ok = ((aided >= 0) & (aided < len(AIDED_NAMES)) & (aided == np.floor(aided))).all()
+    devs = [d for d, _, _, _ in picks]
     if not (np.isfinite(vals[:, :2]).all() and aided_ok
-            and ints_valid([s for _, _, s, _ in picks], schemas.UINT32) and ints_valid(times, TIME_END_US)
-            and ints_valid(walls, TIME_END_US)
-            and device_fields_valid({id(d): d for d, _, _, _ in picks}.values(), filter_name=False)):
+            and headers_valid(devs, [s for _, _, s, _ in picks], times)
+            and device_fields_valid({id(d): d for d in devs}.values(), filter_name=False)):
         return None
     for i, t in last.items():
         kb.items[i].dev.last_height_t_s = t

@@ -19,14 +19,14 @@ from gateway.alarm.hook import HookAlarms, hook_rules
 from gateway.config import HookThresholds
 from gateway.fusion import hook as hook_geo
 from gateway.kinds.base import (
-    TIME_END_US,
+    TWO_PI,
     FusedDevice,
     KindBase,
     KindBatch,
     KindContext,
     Output,
     Timed,
-    ints_valid,
+    headers_valid,
     timed,
 )
 
@@ -37,21 +37,18 @@ if TYPE_CHECKING:
 
 
 _SWING_SET = frozenset(schemas.Swing.model_fields) - {"v"}  # the fields `HookKind.post` sets
-_TWO_PI = 2.0 * math.pi  # the limit of schemas._Angle
 
 
 def _swings_valid(picks: list[tuple[int, int, int, int]], kb: KindBatch, angle: np.ndarray, bearing: list[float],
                   phi: list[float], twist: np.ndarray) -> bool:  # fmt: skip
     """Whether the batch's Swing floats and ints (all but each hook's heading and rope) pass the model's checks."""
     angles = np.concatenate((angle, np.asarray(bearing, dtype=np.float64), np.asarray(phi, dtype=np.float64)))
-    if not ((np.abs(angles) <= _TWO_PI).all() and np.isfinite(twist).all()):
+    if not ((np.abs(angles) <= TWO_PI).all() and np.isfinite(twist).all()):
         return False
-    devs = {i: kb.items[i].dev for i, _, _, _ in picks}
-    t_us = [t for _, _, _, t in picks]
-    return (ints_valid([s for _, _, s, _ in picks], schemas.UINT32) and ints_valid(t_us, TIME_END_US)
-            and ints_valid([t + devs[i].wall_offset_us for (i, _, _, _), t in zip(picks, t_us, strict=True)],
-                           TIME_END_US)
-            and all(type(d.device_id) is str and schemas.valid_device_id(d.device_id) for d in devs.values()))
+    devs = [kb.items[i].dev for i, _, _, _ in picks]
+    return (headers_valid(devs, [s for _, _, s, _ in picks], [t for _, _, _, t in picks])
+            and all(type(d.device_id) is str and schemas.valid_device_id(d.device_id)
+                    for d in {id(d): d for d in devs}.values()))
 
 
 @dataclass
@@ -139,7 +136,7 @@ class HookKind(KindBase):
                     rope = getattr(dev.filt, "rope_length_m", None)  # the hook filter's estimate at the batch's end
                     rope = None if rope is None else float(rope)
                     heading = math.remainder(float(refs[i]), 2.0 * math.pi)
-                    fast = trusted and abs(heading) <= _TWO_PI and (rope is None or 0.0 < rope <= 1000.0)
+                    fast = trusted and abs(heading) <= TWO_PI and (rope is None or 0.0 < rope <= 1000.0)
                 for m in range(first, stop):
                     _, _, seq, t_us = picks[m]
                     fields = {"device_id": dev.device_id, "seq": seq, "t_us": t_us,
