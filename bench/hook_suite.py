@@ -57,7 +57,6 @@ from devices.hook_physics import (
 from gateway.fusion import hook
 from gateway.fusion.hook_filter import (
     PREVIOUS_DEFAULT,
-    STEADY_BIAS_TRACKING,
     TRACKING,
     TRIAL_JUMP,
     HookFilter,
@@ -269,7 +268,7 @@ def rope_errors(length_m: np.ndarray, truth: HookTruth) -> dict[str, float]:
             "rope_rel": float(np.sqrt(np.mean(((length_m - true_l) / true_l)[scored] ** 2)))}  # fmt: skip
 
 
-PRESETS = {"tracking": TRACKING, "steady": STEADY_BIAS_TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JUMP}
+PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JUMP}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -308,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="crane (default) or windy (light load, short rope, steady wind from the start)")
     p.add_argument("--tracking", action="store_true", help="the second round's boom-tip tracking (TRACKING)")
     p.add_argument("--settings", default="", help="HookFilterSettings overrides: name=value,... and/or the presets "
-                   "tracking (TRACKING), steady (STEADY_BIAS_TRACKING, the defaults), previous (PREVIOUS_DEFAULT), "
+                   "tracking (TRACKING), previous (PREVIOUS_DEFAULT, the defaults before the third round), "
                    "trial (TRIAL_JUMP, the fourth round's trial jumps)")
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     args = p.parse_args(argv)

@@ -210,8 +210,7 @@ class HookFilterSettings:
 # (random walk 2e-5 rad/s/√s, `devices.common.ImuErrorModel`; 25x slower than before, so a tip acceleration that
 # changes over tens of seconds is no longer the cheaper explanation), and the jump test at χ² p = 0.001 (13.8) so it
 # sees smaller steps. Fresh seeds 501-510: whole-run Θ 0.260 -> 0.170°, better on 10/10 seeds (docs/fusion.md).
-STEADY_BIAS_TRACKING: dict[str, float] = {"move_track_s": 10.0, "tip_turn_psd": 0.05, "gyro_bias_psd": 4e-10,
-                                          "move_mean_gate": 13.8}  # fmt: skip
+# `PREVIOUS_DEFAULT` below undoes exactly these four settings.
 
 # The defaults before the third round, as settings overrides: `HookFilterSettings(**PREVIOUS_DEFAULT)`.
 PREVIOUS_DEFAULT: dict[str, float] = {"move_track_s": 0.0, "tip_turn_psd": 0.0, "gyro_bias_psd": 1e-8,
