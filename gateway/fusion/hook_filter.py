@@ -843,6 +843,17 @@ def _workspace() -> _Work:
 
 
 @njit
+def _mark_jump(monitor: FloatArray, params: FloatArray) -> None:
+    """The monitor after a boom-tip jump (the jump test's or a kept trial's): both running means restart, the jump
+    flag is set, the move hold and the tracking time start."""
+    monitor[2] = monitor[3] = 0.0
+    monitor[6] = monitor[7] = 0.0
+    monitor[5] = 1.0
+    monitor[4] = params[_MOVE_HOLD]
+    monitor[8] = params[_TRACK_S]
+
+
+@njit
 def ekf_step(
     x: FloatArray, p: FloatArray, z: FloatArray, u: FloatArray, dt_s: float, params: FloatArray, q_psd: FloatArray,
     r_diag: FloatArray, monitor: FloatArray,
@@ -896,11 +907,7 @@ def _ekf_step_into(
     moving = monitor[0] > params[_NIS_GATE]
     monitor[5] = 0.0
     if params[_MEAN_GATE] > 0.0 and _mean_test(w0, w1, params[_MEAN_TAU], params[_MEAN_GATE], dt_s, monitor, 2):
-        monitor[2] = monitor[3] = 0.0  # a jump of the boom-tip acceleration: open its state once, test afresh
-        monitor[6] = monitor[7] = 0.0
-        monitor[5] = 1.0
-        monitor[4] = params[_MOVE_HOLD]
-        monitor[8] = params[_TRACK_S]
+        _mark_jump(monitor, params)  # a jump of the boom-tip acceleration: open its state once, test afresh
         for i in (17, 18):
             p_pred[i, i] += params[_TIP_MOVE] * params[_TIP_MOVE]
         p_pred[_LOG_L, _LOG_L] += params[_JUMP_ROPE] * params[_JUMP_ROPE]
@@ -1023,10 +1030,7 @@ def ekf_run(
                 monitor[5] = 0.0
             else:
                 if trial:  # as the jump test does when it fires
-                    monitor[5] = 1.0
-                    monitor[2] = monitor[3] = monitor[6] = monitor[7] = 0.0
-                    monitor[4] = params[_MOVE_HOLD]
-                    monitor[8] = params[_TRACK_S]
+                    _mark_jump(monitor, params)
                 monitor[0], monitor[1], monitor[9] = mon[0], mon[1], mon[9]
                 hist_n[0] = 0  # a later jump goes back no further than this one
         out[i, 0], out[i, 1], out[i, 2], out[i, 3], _, _, _ = _attitude_rate(x[0], x[1], x[2], x[3], x[4], x[5])
