@@ -13,6 +13,12 @@ devices round-robin, and a client subscriber (as a local shard is), each its own
   (`Callback(indirect=False)`: what a shard beside another now holds);
 - `half-per-device-threads`: the same with zenoh-python's default callbacks, a Python thread per subscriber.
 
+- `catch-all+tokens`: the catch-all while the subscriber also watches the devices' liveliness tokens (the
+  publisher declares one a device, `rig/rod/{id}`), as every gateway does for presence;
+- `catch-all+tokens+keys`: the same with the received keys declared (`Session.declare_keyexpr`), as
+  `gateway.ingest.bus.RouteKeys` does: zenoh then caches each key's route instead of matching the key against every
+  token on every sample.
+
 The catch-all and wildcard cases use the default callbacks, as the gateway's catch-all subscriptions do.
 
 Prints the subscriber's and the router's CPU (share of one core) and the subscriber's CPU per received sample.
@@ -34,7 +40,8 @@ import zenoh
 from bench.bite_latency import free_port
 from devices.common import zenoh_config
 
-CASES = ("catch-all", "half-wildcard", "half-per-device", "half-per-device-threads")
+CASES = ("catch-all", "half-wildcard", "half-per-device", "half-per-device-threads", "catch-all+tokens",
+         "catch-all+tokens+keys")
 
 
 def _cpu_s() -> float:
@@ -60,6 +67,7 @@ def router(ep: str, seconds: float, out: Any, start: Event, stop: Event) -> None
 def publisher(ep: str, devices: int, rate: int, start: Event, stop: Event) -> None:
     with zenoh.open(zenoh_config("client", connect=(ep,))) as s:
         pubs = [s.declare_publisher(_key(i)) for i in range(devices)]
+        tokens = [s.liveliness().declare_token(_key(i).rsplit("/", 1)[0]) for i in range(devices)]  # noqa: F841
         payload = b"x" * 1000
         start.wait()
         t0, k = time.perf_counter(), 0
@@ -80,8 +88,11 @@ def subscriber(ep: str, case: str, devices: int, seconds: float, out: Any, start
             sample.payload.to_bytes()
             got[0] += 1
 
-        if case == "catch-all":
+        if case.startswith("catch-all"):
             subs = [s.declare_subscriber("rig/*/*/imu", on_sample)]
+            if "+tokens" in case:
+                subs.append(s.liveliness().declare_subscriber("rig/*/*", lambda sample: None, history=True))
+            keys = [s.declare_keyexpr(_key(i)) for i in range(devices)] if "+keys" in case else []  # noqa: F841
         elif case == "half-wildcard":
             subs = [s.declare_subscriber("rig/*/a$*/imu", on_sample)]
         elif case == "half-per-device":

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import queue
 import threading
 from collections.abc import Callable
 from typing import Protocol
@@ -84,14 +85,58 @@ def _guarded(name: str, fn: Callable[..., None]) -> Callable[..., None]:
     return run
 
 
+ROUTE_KEYS_MAX = 20_000  # keys declared by `RouteKeys` per session (a hostile peer's key spray stops here)
+
+
+class RouteKeys:
+    """Declares each key a wildcard subscriber receives as a zenoh key expression (`Session.declare_keyexpr`), once,
+    from a thread of its own (never on zenoh's callback thread), so zenoh caches the key's route.
+
+    Why: a session that watches many liveliness tokens (the gateway's device presence: one token a device) holds
+    each as a resource, and zenoh 1.x routes a sample whose key is not a declared resource by matching the key
+    against all of them, on every sample, on the receive thread. A client session watching 1000 device tokens
+    spent 0.056 ms of its receive thread a sample that way, 0.004 ms once the keys were declared
+    (`python -m bench.zenoh_subscribers`, cases `catch-all+tokens`); in a shard beside another (a client of the
+    router) it was a third of the shard's CPU at 1000 devices (`bench.fleet --threads`, its `rx` thread)."""
+
+    def __init__(self, session: zenoh.Session, max_keys: int = ROUTE_KEYS_MAX) -> None:
+        self.session = session
+        self.max_keys = max_keys
+        self.seen: set[str] = set()
+        self.declared: list[zenoh.KeyExpr] = []
+        self.failed = 0
+        self._todo: queue.SimpleQueue[str | None] = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._run, name="route-keys", daemon=True)
+        self._thread.start()
+
+    def note(self, key: str) -> None:
+        """A sample arrived on `key` (bus thread; a set lookup unless the key is new)."""
+        if key not in self.seen and len(self.seen) < self.max_keys:
+            self.seen.add(key)
+            self._todo.put(key)
+
+    def _run(self) -> None:
+        while (key := self._todo.get()) is not None:
+            try:
+                self.declared.append(self.session.declare_keyexpr(key))
+            except Exception:  # the session is closing, or zenoh refused the key: it is only routed slower
+                self.failed += 1
+
+    def close(self) -> None:
+        self._todo.put(None)
+        self._thread.join(timeout=2.0)
+
+
 class ZenohBus:
-    """A zenoh session with publishers cached per key; BLOCK congestion control for commands and alarms."""
+    """A zenoh session with publishers cached per key; BLOCK congestion control for commands and alarms; the keys
+    its wildcard subscribers receive declared (`RouteKeys`)."""
 
     def __init__(self, session: zenoh.Session) -> None:
         self.session = session
         self._pubs: dict[tuple[str, bool, bool], zenoh.Publisher] = {}
         self._handles: list[object] = []
         self._lock = threading.Lock()
+        self.route_keys = RouteKeys(session)
 
     @classmethod
     def open(cls, settings: Settings) -> ZenohBus:
@@ -104,8 +149,13 @@ class ZenohBus:
         per-device subscribers of a shard (gateway/shard/subscriptions.py): no thread each (creating one made a
         declaration take ~1-2 ms), no hand-over. The callback must then be as short as `Inbox.offer`."""
 
+        note = self.route_keys.note if "*" in selector else None  # an exact key is declared by its subscriber
+
         def on_sample(sample: zenoh.Sample) -> None:
-            callback(str(sample.key_expr), sample.payload.to_bytes())
+            key = str(sample.key_expr)
+            if note is not None:
+                note(key)
+            callback(key, sample.payload.to_bytes())
 
         handler = _guarded(selector, on_sample)
         sub = self.session.declare_subscriber(selector, zenoh.handlers.Callback(handler, indirect=False)
@@ -173,6 +223,7 @@ class ZenohBus:
             except Exception:
                 pass
         self._pubs.clear()
+        self.route_keys.close()
         self.session.close()  # type: ignore[no-untyped-call]
 
 

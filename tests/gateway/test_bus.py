@@ -1,12 +1,18 @@
-"""MemoryBus (the in-process twin of ZenohBus): its key matching agrees with zenoh's own key-expression rules."""
+"""MemoryBus (the in-process twin of ZenohBus): its key matching agrees with zenoh's own key-expression rules;
+ZenohBus declares the keys its wildcard subscribers receive."""
 
 from __future__ import annotations
+
+import time
+from collections.abc import Callable
 
 import zenoh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway.ingest.bus import MemoryBus, key_matches
+from devices.common import zenoh_config
+from gateway import schemas
+from gateway.ingest.bus import MemoryBus, ZenohBus, key_matches
 
 chunk = st.sampled_from(["rig", "gw", "rod", "hook", "a", "b1"])
 sel_chunk = st.one_of(chunk, st.just("*"), st.just("**"))
@@ -34,3 +40,31 @@ def test_memory_bus_delivers_records_and_tracks_tokens() -> None:
     assert got == ["rig/rod/r1/imu"]
     assert [(k, b) for k, _, b in bus.sent] == [("rig/rod/r1/imu", False), ("rig/rod/r1/reel", True)]
     assert seen == [("rig/rod/r1", True), ("rig/rod/r1", False)]
+
+
+def _wait(cond: Callable[[], bool], timeout_s: float = 5.0) -> bool:
+    end = time.monotonic() + timeout_s
+    while not cond() and time.monotonic() < end:
+        time.sleep(0.01)
+    return cond()
+
+
+def test_zenoh_bus_declares_each_key_its_wildcard_subscribers_receive_once_and_within_the_cap() -> None:
+    """`RouteKeys`: zenoh caches the route of a declared key only (without it a session watching many liveliness
+    tokens matched every sample's key against all of them: bench.zenoh_subscribers, `catch-all+tokens`)."""
+    conf = zenoh_config("peer", connect=(), listen=())
+    with zenoh.open(conf) as session:
+        bus = ZenohBus(session)
+        bus.route_keys.max_keys = 3
+        got: list[str] = []
+        bus.subscribe("rig/*/*/imu", lambda k, p: got.append(k))
+        bus.subscribe("gw/exact/key", lambda k, p: got.append(k))
+        keys = [f"rig/rod/r{i}/imu" for i in range(5)]
+        for key in [*keys[:2], *keys[:2], "gw/exact/key", *keys[2:]]:
+            bus.put(key, b"x", encoding=schemas.ENCODING_IMU)
+        assert _wait(lambda: len(got) == 8), got
+        assert _wait(lambda: len(bus.route_keys.declared) == 3)
+        time.sleep(0.2)  # nothing more comes
+        assert sorted(str(k) for k in bus.route_keys.declared) == keys[:3]  # once each, exact keys not, cap 3
+        assert bus.route_keys.failed == 0
+        bus.close()
