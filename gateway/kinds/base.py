@@ -197,8 +197,9 @@ def unwrap_segments(
     dd = yaw_rad - before
     ddmod = np.mod(dd + np.pi, 2.0 * np.pi) - np.pi
     ddmod[(ddmod == -np.pi) & (dd > 0)] = np.pi
-    k = np.rint((ddmod - dd) / (2.0 * np.pi)).astype(np.int64)
-    k[np.abs(dd) < np.pi] = 0
+    r = np.rint((ddmod - dd) / (2.0 * np.pi))
+    r[~(np.abs(dd) >= np.pi)] = 0.0  # a step under π is no turn; nor is a NaN step (its cast was garbage turns)
+    k = r.astype(np.int64)
     ck = np.cumsum(k)
     base = ck[start] - k[start]  # the sum up to (not including) each segment's first row
     total = ck - base[seg] + turns[seg]

@@ -5,6 +5,7 @@ pipeline facade with one handler module and one table row."""
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -127,6 +128,18 @@ def test_segmented_unwrap_equals_numpy_per_device(segs: list[tuple[int, float, i
     for i, (ref_u, ref_t) in enumerate(refs):
         np.testing.assert_allclose(u[starts[i] : starts[i] + len(yaws[i])], ref_u, rtol=0, atol=1e-12)
         assert new_turns[i] == ref_t
+
+
+def test_a_nan_yaw_costs_its_device_that_sample_only() -> None:
+    """A NaN yaw (a filter that failed on hostile data) once cast to garbage turns (and a RuntimeWarning): the
+    device's turn count then carried ~2**63 turns into every later message. Now it is that one sample's NaN."""
+    yaw = np.array([3.0, np.nan, -3.0, 1.0, 1.5, 2.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        u, turns = unwrap_segments(yaw, np.array([0, 3]), np.array([np.nan, 0.9]), np.array([2, -1]))
+    assert math.isnan(u[1]) and not np.isnan(np.delete(u, 1)).any()
+    np.testing.assert_allclose(u[3:], yaw[3:] - 2 * math.pi, atol=1e-12)  # the other device as without the NaN
+    assert turns.tolist() == [2, -1]
 
 
 def buoy_packets(seconds: float) -> list[schemas.ImuPacket]:
