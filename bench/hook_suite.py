@@ -8,6 +8,7 @@
     python -m bench.hook_suite --tracking                   # the second round's boom-tip tracking (and slow test)
     python -m bench.hook_suite --settings previous          # the defaults before issue 11's third round
     python -m bench.hook_suite --settings trial             # the fourth round's trial jumps (TRIAL_JUMP)
+    python -m bench.hook_suite --settings round4            # the default before the fifth round (FOURTH_ROUND)
 
 Each seed draws a crane (issue 11): rope 2-30 m (log-uniform), hook + load 0.5-20 t, torsion stiffness and
 inertia (twist period 4-20 s), the IMU 0.1 ± 0.02 m off the rope axis (the filter assumes 0.1 m and learns the
@@ -56,6 +57,7 @@ from devices.hook_physics import (
 )
 from gateway.fusion import hook
 from gateway.fusion.hook_filter import (
+    FOURTH_ROUND,
     PREVIOUS_DEFAULT,
     TRACKING,
     TRIAL_JUMP,
@@ -268,7 +270,7 @@ def rope_errors(length_m: np.ndarray, truth: HookTruth) -> dict[str, float]:
             "rope_rel": float(np.sqrt(np.mean(((length_m - true_l) / true_l)[scored] ** 2)))}  # fmt: skip
 
 
-PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JUMP}
+PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JUMP, "round4": FOURTH_ROUND}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -308,7 +310,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tracking", action="store_true", help="the second round's boom-tip tracking (TRACKING)")
     p.add_argument("--settings", default="", help="HookFilterSettings overrides: name=value,... and/or the presets "
                    "tracking (TRACKING), previous (PREVIOUS_DEFAULT, the defaults before the third round), "
-                   "trial (TRIAL_JUMP, the fourth round's trial jumps)")
+                   "trial (TRIAL_JUMP, the fourth round's trial jumps), round4 (FOURTH_ROUND, the "
+                   "default before the fifth round: the start's magnetometer reference not levelled)")
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
