@@ -10,6 +10,7 @@ shard stores every shard's alarm rows.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 from collections.abc import Awaitable, Callable
@@ -34,8 +35,14 @@ def _node(request: Request) -> ShardNode:
     return node
 
 
+async def _query(node: ShardNode, selector: str, timeout_s: float) -> list[tuple[str, bytes]]:
+    """A zenoh query from a worker thread; this shard's ingest does not hold its batches for the answer."""
+    with node.service.awaiting_remote() if node.service is not None else contextlib.nullcontext():
+        return await asyncio.to_thread(query, node.bus, selector, timeout_s)
+
+
 async def _ask(node: ShardNode, selector: str, timeout_s: float = QUERY_TIMEOUT_S) -> list[Any]:
-    replies = await asyncio.to_thread(query, node.bus, selector, timeout_s)
+    replies = await _query(node, selector, timeout_s)
     return [json.loads(p) for k, p in replies if k.split("/")[2] != node.shard_id]
 
 
@@ -96,7 +103,7 @@ async def list_shards(request: Request) -> dict[str, Any]:
 async def _forward(node: ShardNode, owner: str, call: dict[str, Any]) -> dict[str, Any]:
     """Run a write on the shard that serves its device (`ShardNode.run_call` there) and answer as it did."""
     selector = f"gw/shard/{owner}/call/{json.dumps(call, separators=(',', ':')).encode().hex()}"
-    replies = await asyncio.to_thread(query, node.bus, selector, CALL_TIMEOUT_S + 1.0)
+    replies = await _query(node, selector, CALL_TIMEOUT_S + 1.0)
     if not replies:
         raise HTTPException(503, f"shard {owner} (which serves the device) did not answer")
     answer = json.loads(replies[0][1])

@@ -7,8 +7,9 @@ from __future__ import annotations
 import asyncio
 import json
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Coroutine, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
@@ -16,9 +17,11 @@ from fastapi.testclient import TestClient
 
 from bench.bite_latency import free_port, observer_config
 from gateway import schemas
-from gateway.app import create_app
+from gateway.app import compose, create_app
 from gateway.config import Settings
+from gateway.ingest.bus import MemoryBus
 from gateway.ingest.runner import Inbox
+from gateway.store import Store
 from tests.gateway.conftest import rod_messages
 
 pytestmark = pytest.mark.timeout(120)
@@ -165,3 +168,28 @@ def test_rejected_packets_are_published_at_most_20_a_second_but_all_counted(tmp_
         assert {p["reason"] for p in published()} == {"bad_json"}
         assert [p["wall_t_us"] for p in published()][-1] == 1_001_000_000
         assert all(block for k, _, block in bus.sent if k == schemas.DIAG_REJECTED_KEY), "BLOCK: a reader loses none"
+
+
+async def _returns_within(coro: Coroutine[Any, Any, None], timeout_s: float) -> bool:
+    try:
+        await asyncio.wait_for(coro, timeout_s)
+        return True
+    except TimeoutError:
+        return False
+
+
+def test_ingest_waits_for_local_rest_requests_but_not_for_ones_awaiting_another_shard(tmp_path: Path) -> None:
+    """With two shards the REST front's `/api/stats` waits for the other shard's answer; ingest held its next batch
+    for it (the grace) at every probe, and the front's shard fell seconds behind at 1000 devices."""
+    bus, store = MemoryBus(), Store(tmp_path / "gw.db")
+    svc = compose(Settings(data_dir=tmp_path, zenoh_listen=[]), bus, store, blocking_thread=False)
+    svc.rest_grace_s = 30.0
+    try:
+        svc.rest_inflight = 1  # one HTTP request running here
+        assert not asyncio.run(_returns_within(svc._let_rest_finish(), 0.3))  # it is given the loop
+        with svc.awaiting_remote():  # ... until it waits for another process
+            assert asyncio.run(_returns_within(svc._let_rest_finish(), 0.3))
+        assert svc.rest_remote == 0
+    finally:
+        svc.writer.close()
+        store.close()
