@@ -20,7 +20,7 @@ one row:
   `gw/*/*/attitude` message; alarms the same over `gw/*/*/alarm`;
 - attitudes received vs expected (one per packet end at the default attitude interval);
 - gateway RSS (MiB) at the start and end of the window and its maximum;
-- the generators' own CPU (share of one core);
+- the generators' own CPU (share of one core), and this process's (`obs core`: the observer and the REST probe);
 - REST under load: time for `/api/stats` and `/api/health` to answer, probed once a second in the window (p50/max s).
 
 The generator does not simulate physics while it runs: it replays pre-built streams (a pool of simulated rods and
@@ -43,7 +43,7 @@ import struct
 import tempfile
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -52,6 +52,7 @@ import zenoh
 
 from bench.bite_latency import REPO, free_port, observer_config, stop_process, wait_http
 from gateway import schemas
+from gateway.ingest.bus import RouteKeys
 
 RATE_HZ = 100.0
 ENCODINGS = {"json": schemas.ENCODING_IMU, "binary": schemas.ENCODING_IMU_BINARY}
@@ -399,6 +400,7 @@ class Row:
     rss_end_mib: float
     rss_max_mib: float
     generator_core_share: float
+    observer_core_share: float  # this process: the observer's zenoh session and callbacks, the REST probe
     devices_seen: int
     rest_p50_s: float = float("nan")
     rest_max_s: float = float("nan")
@@ -421,11 +423,20 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
             time.sleep(0.5)
         obs = Observer()
         with zenoh.open(observer_config(zport)) as session:
-            session.declare_subscriber("gw/*/*/attitude", obs.on_sample)
-            session.declare_subscriber("gw/*/*/alarm", obs.on_sample)
+            keys = RouteKeys(session)  # as the gateway's bus: without it this session's zenoh receive took ~0.8 core
+
+            def noted(callback: Callable[[zenoh.Sample], None]) -> Callable[[zenoh.Sample], None]:
+                def on_sample(sample: zenoh.Sample) -> None:
+                    keys.note(str(sample.key_expr))
+                    callback(sample)
+
+                return on_sample
+
+            session.declare_subscriber("gw/*/*/attitude", noted(obs.on_sample))
+            session.declare_subscriber("gw/*/*/alarm", noted(obs.on_sample))
             session.declare_subscriber(schemas.DIAG_INGEST_KEY, obs.on_diag)
             imu_seen = [0]
-            session.declare_subscriber("rig/*/*/imu", lambda _s: imu_seen.__setitem__(0, imu_seen[0] + 1))
+            session.declare_subscriber("rig/*/*/imu", noted(lambda _s: imu_seen.__setitem__(0, imu_seen[0] + 1)))
             time.sleep(1.0)
             start = time.time() + 3.0  # generators connect and declare first
             ctx = mp.get_context("spawn")  # zenoh sessions do not survive fork
@@ -438,6 +449,7 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
             probe = RestProbe(hport)  # from the window's start: the first stats call below may be slow itself
             probe.start()
             cpu0, th0, ok0 = tree_cpu_s(gw.pid), thread_cpu_s(gw.pid), obs.processed(shards)
+            own0, t0 = time.process_time(), time.monotonic()
             s0 = stats(hport)
             obs.measuring = True
             rss: list[float] = []
@@ -445,6 +457,7 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
                 rss.append(tree_rss_mib(gw.pid))
                 time.sleep(1.0)
             cpu1, th1, ok1 = tree_cpu_s(gw.pid), thread_cpu_s(gw.pid), obs.processed(shards)
+            own_share = (time.process_time() - own0) / max(1e-9, time.monotonic() - t0)
             obs.measuring = False
             probe.stop.set()
             probe.join(timeout=60)
@@ -452,6 +465,7 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
                 g.join(timeout=60)
             time.sleep(5.0)  # let the gateway drain its queue before the final count
             s1 = stats(hport)
+            keys.close()
     finally:
         stop_process(gw)
     if s1.get("shards", 0) != shards:
@@ -485,7 +499,7 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
         attitudes=len(obs.attitude_ms), attitudes_expected=expected_att, alarms=len(obs.alarm_ms),
         alarm_p99_ms=pct(obs.alarm_ms, 0.99), rss_start_mib=rss[0] if rss else float("nan"),
         rss_end_mib=rss[-1] if rss else float("nan"), rss_max_mib=max(rss) if rss else float("nan"),
-        generator_core_share=gen_share, devices_seen=len(s1.get("devices", [])),
+        generator_core_share=gen_share, observer_core_share=own_share, devices_seen=len(s1.get("devices", [])),
         rest_p50_s=pct(probe.latency_s, 0.5), rest_max_s=max(probe.latency_s, default=float("nan")),
     )  # fmt: skip
 
@@ -505,14 +519,14 @@ def print_profile(path: Path, top: int = 25) -> None:
 def print_table(rows: Sequence[Row]) -> None:
     print(f"{'N':>5} {'sh':>2} {'sent':>8} {'received':>8} {'processed':>9} {'lost':>7} {'q.drop':>6} "
           f"{'CPU ms/pkt':>10} {'att p50':>8} {'att p99':>8} {'att rx/exp':>13} {'alarms':>6} "
-          f"{'RSS MiB start/end/max':>22} {'gen core':>8} {'REST p50/max s':>14}")
+          f"{'RSS MiB start/end/max':>22} {'gen core':>8} {'obs core':>8} {'REST p50/max s':>14}")
     for r in rows:
         lost = r.sent - r.processed
         print(f"{r.n:>5} {r.shards:>2} {r.sent:>8} {r.received:>8} {r.processed:>9} {lost:>7} {r.queue_drops:>6} "
               f"{r.cpu_ms_per_packet:>10.3f} {r.attitude_p50_ms:>8.1f} {r.attitude_p99_ms:>8.1f} "
               f"{r.attitudes:>6}/{r.attitudes_expected:<6} "
               f"{r.alarms:>6} {r.rss_start_mib:>7.0f}/{r.rss_end_mib:>6.0f}/{r.rss_max_mib:>6.0f} "
-              f"{r.generator_core_share:>8.2f} {r.rest_p50_s:>6.2f}/{r.rest_max_s:<7.2f}")
+              f"{r.generator_core_share:>8.2f} {r.observer_core_share:>8.2f} {r.rest_p50_s:>6.2f}/{r.rest_max_s:<7.2f}")
 
 
 def main(argv: list[str] | None = None) -> int:
