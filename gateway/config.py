@@ -44,6 +44,9 @@ class Settings(BaseSettings):
     warmup_bias_seed: bool = Field(default=True, description="Seed a filter's gyro bias with the mean gyro of a "
                                    "resting warm-up window (False: start from zero bias, as offline evaluate).")
     ingest_queue_size: int = Field(default=10_000, ge=1, description="Packets buffered between zenoh and the pipeline.")
+    ingest_coalesce_s: float = Field(default=0.01, ge=0.0, le=0.1, description="A batch waits up to this long after "
+                                     "its oldest packet arrived for more packets to join it (the cost is paid mostly "
+                                     "per device per batch; docs/gateway.md, Data path). 0: a batch per wake-up.")
     ws_queue_size: int = Field(default=256, ge=1, description="Messages buffered per websocket client before dropping.")
     max_devices: int = Field(default=1000, ge=1, description="Devices the gateway keeps state for; packets and tokens "
                              "of further new ids are dropped and counted (`device_limit`): ids are free to choose.")

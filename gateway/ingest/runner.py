@@ -83,10 +83,12 @@ class Inbox:
     """Bounded, thread-safe hand-off from bus threads to the event loop."""
 
     def __init__(
-        self, loop: asyncio.AbstractEventLoop, maxsize: int, accept: Callable[[str], bool] | None = None
-    ) -> None:
+        self, loop: asyncio.AbstractEventLoop, maxsize: int, accept: Callable[[str], bool] | None = None,
+        coalesce_s: float = 0.0,
+    ) -> None:  # fmt: skip
         self.loop = loop
         self.maxsize = maxsize
+        self.coalesce_s = coalesce_s  # a short batch waits this long after its oldest packet for more (`drain`)
         self.accept = accept  # device id -> served here? (gateway.shard: other shards' devices are not queued)
         self.drops = 0
         self.offered = 0
@@ -120,10 +122,15 @@ class Inbox:
         self._ready.set()
 
     async def drain(self, max_n: int) -> list[Received]:
-        """Wait for packets (or `wake`), then take up to `max_n` of them (oldest first)."""
+        """Wait for packets (or `wake`), then take up to `max_n` of them (oldest first); fewer than `max_n` wait
+        until the oldest is `coalesce_s` old, so a lightly loaded gateway runs a batch per window, not per packet."""
         await self._ready.wait()
         self._ready.clear()
         items = self._items
+        if self.coalesce_s > 0.0 and 0 < len(items) < max_n:
+            wait_s = items[0][2] + self.coalesce_s - time.monotonic()
+            if wait_s > 0.0:
+                await asyncio.sleep(wait_s)
         out = [items.popleft() for _ in range(min(max_n, len(items)))]
         if items:
             self._ready.set()
@@ -211,7 +218,7 @@ class GatewayService:
         packets wait in the inbox meanwhile (a restart answers in seconds; a cold first compile shows in /health)."""
         self.warming_since_s = time.time() if warm_up else None
         loop = asyncio.get_running_loop()
-        self.inbox = Inbox(loop, self.settings.ingest_queue_size, self.accept)
+        self.inbox = Inbox(loop, self.settings.ingest_queue_size, self.accept, self.settings.ingest_coalesce_s)
         self.commands.on_post = self.inbox.wake
         if self.subscribe_data is not None:
             self.subscribe_data(self.inbox.offer)

@@ -144,6 +144,25 @@ def test_inbox_drains_in_batches_in_order() -> None:
     assert asyncio.run(run()) == [["k0", "k1", "k2"], ["k3", "k4", "k5"], ["k6"]]
 
 
+def test_a_short_batch_waits_the_coalescing_window_for_more_packets() -> None:
+    """Cost is paid per device per batch: a lightly loaded gateway ran one batch per packet (0.76 ms of CPU a
+    packet at 100 devices). A batch now waits until its oldest packet is `coalesce_s` old, unless it is full."""
+
+    async def run(coalesce_s: float, max_n: int) -> list[int]:
+        loop = asyncio.get_running_loop()
+        inbox = Inbox(loop, maxsize=100, coalesce_s=coalesce_s)
+        inbox.offer("k0", b"")
+        inbox.offer("k1", b"")
+        loop.call_later(0.05, inbox.offer, "k2", b"")  # arrives within the window
+        sizes = [len(await asyncio.wait_for(inbox.drain(max_n), 2.0))]
+        sizes.append(len(await asyncio.wait_for(inbox.drain(max_n), 2.0)))
+        return sizes
+
+    assert asyncio.run(run(0.0, 10)) == [2, 1]  # no window: a batch per wake-up
+    assert asyncio.run(run(0.3, 10))[0] == 3  # the third joined the first batch ...
+    assert asyncio.run(run(0.3, 2)) == [2, 1]  # ... but a full batch does not wait
+
+
 def test_rejected_packets_are_published_at_most_20_a_second_but_all_counted(tmp_path: Path) -> None:
     """docs/protocol.md: gw/diag/rejected is rate-limited (REJECTED_PER_S per second of the gateway clock)."""
     from gateway.app import compose
