@@ -21,7 +21,7 @@ from gateway.config import Settings
 
 # settings a local shard inherits (through RIG_* variables; the zenoh and REST options are its own)
 INHERITED = ("default_filter", "attitude_interval_s", "attitude_blocks", "warmup_bias_seed", "ingest_queue_size",
-             "max_devices", "shard_devices", "shard_subscribe", "shard_lease_s", "shard_mirror_hz",
+             "ingest_coalesce_s", "max_devices", "shard_devices", "shard_subscribe", "shard_lease_s", "shard_mirror_hz",
              "zenoh_config_file")  # fmt: skip
 
 

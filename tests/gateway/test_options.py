@@ -64,3 +64,14 @@ def test_the_gateway_is_a_zenoh_router_unless_a_mode_is_asked_for(monkeypatch: p
     assert mode(["--mode", "peer"], 1) == "peer"
     assert mode(["--mode", "peer"], 2) == "router"
     assert mode(["--mode", "client", "--connect", "tcp/127.0.0.1:7999"], 1) == "client"
+
+
+def test_the_coalescing_window_option_reaches_the_settings_and_a_local_shard(tmp_path: Path) -> None:
+    from gateway.shard.launch import local_shard_command
+
+    settings = settings_from_args(build_parser().parse_args(["--data-dir", str(tmp_path), "--ingest-coalesce-s",
+                                                             "0.003"]))  # fmt: skip
+    assert settings.ingest_coalesce_s == 0.003
+    assert Settings(data_dir=tmp_path).ingest_coalesce_s == 0.01  # the default
+    _, env = local_shard_command(settings, "s1", "WARNING")
+    assert env["RIG_INGEST_COALESCE_S"] == "0.003"
