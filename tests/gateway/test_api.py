@@ -138,7 +138,14 @@ def test_reel_command_goes_out_with_block(running: Callable[[], Running]) -> Non
     app = running()
     r = app.client.post("/api/rods/rod-1/reel", json={"action": "out", "speed_m_s": 0.8}, headers=app.auth)
     assert r.status_code == 200, r.text
-    sent = [(k, p, b) for k, p, b in app.bus.sent if k == "rig/rod/rod-1/reel/cmd"]
+
+    def sent_cmds() -> list[tuple[str, bytes, bool]]:
+        return [(k, p, b) for k, p, b in app.bus.sent if k == "rig/rod/rod-1/reel/cmd"]
+
+    deadline = time.monotonic() + 5.0  # BLOCK puts go out from the publisher thread, after the answer
+    while not sent_cmds() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    sent = sent_cmds()
     assert len(sent) == 1 and sent[0][2] is True
     cmd = schemas.decode(sent[0][0], sent[0][1])
     assert isinstance(cmd, schemas.ReelCommand) and cmd.action == "out" and cmd.speed_m_s == 0.8
