@@ -18,7 +18,9 @@ one row:
   `--threads` splits it by process and thread, `--profile` profiles the parent's main thread;
 - latency p50/p99 (ms): observer receipt time minus the device wall time of the packet's last sample, over every
   `gw/*/*/attitude` message; alarms the same over `gw/*/*/alarm`;
-- attitudes received vs expected (one per packet end at the default attitude interval);
+- attitudes received vs expected (one per packet end at the default attitude interval); fewer is not loss when the
+  gateway runs behind: the hub publishes each device's newest attitude once per batch, so a batch holding several
+  packets of a device sends one (docs/gateway.md);
 - gateway RSS (MiB) at the start and end of the window and its maximum;
 - the generators' own CPU (share of one core), and this process's (`obs core`: the observer and the REST probe);
 - REST under load: time for `/api/stats` and `/api/health` to answer, probed once a second in the window (p50/max s).
