@@ -45,7 +45,7 @@ import struct
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,7 +54,7 @@ import zenoh
 
 from bench.bite_latency import REPO, free_port, observer_config, stop_process, wait_http
 from gateway import schemas
-from gateway.ingest.bus import RouteKeys
+from gateway.ingest.bus import ZenohBus
 
 RATE_HZ = 100.0
 ENCODINGS = {"json": schemas.ENCODING_IMU, "binary": schemas.ENCODING_IMU_BINARY}
@@ -189,11 +189,11 @@ class Observer:
     ok_by_shard: dict[str, int] = field(default_factory=dict)
     diag_at: dict[str, float] = field(default_factory=dict)
 
-    def on_diag(self, sample: zenoh.Sample) -> None:
+    def on_diag(self, _key: str, payload: bytes) -> None:
         """gw/diag/ingest (each shard's counters, once a second, made between two batches): packets processed so
         far per shard, for the CPU-per-packet window (REST answers late under overload, the diag does not)."""
         try:
-            d = json.loads(sample.payload.to_bytes())
+            d = json.loads(payload)
             ok = sum(int(x.get("ok", 0)) for x in d.get("devices", []))
         except (ValueError, TypeError, AttributeError):
             return
@@ -210,12 +210,11 @@ class Observer:
                 return None
             return sum(self.ok_by_shard.values())
 
-    def on_sample(self, sample: zenoh.Sample) -> None:
+    def on_sample(self, key: str, payload: bytes) -> None:
         t_us = time.time() * 1e6
         if not self.measuring:
             return
-        key = str(sample.key_expr)
-        m = WALL_RE.search(sample.payload.to_bytes())
+        m = WALL_RE.search(payload)
         if m is None:
             return
         lat = (t_us - int(m.group(1))) / 1e3
@@ -427,21 +426,15 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
             time.sleep(0.5)
         obs = Observer()
         with zenoh.open(observer_config(zport)) as session:
-            keys = RouteKeys(session)  # as the gateway's bus: without it this session's zenoh receive took ~0.8 core
-
-            def noted(callback: Callable[[zenoh.Sample], None]) -> Callable[[zenoh.Sample], None]:
-                def on_sample(sample: zenoh.Sample) -> None:
-                    keys.note(str(sample.key_expr))
-                    callback(sample)
-
-                return on_sample
-
-            session.declare_subscriber("gw/*/*/attitude", noted(obs.on_sample))
-            session.declare_subscriber("gw/*/*/alarm", noted(obs.on_sample))
-            session.declare_subscriber(schemas.DIAG_INGEST_KEY, obs.on_diag)
+            # subscribed as the gateway subscribes (its bus declares the received keys, `RouteKeys`: without that
+            # this session's zenoh receive took ~0.8 core)
+            bus = ZenohBus(session)
+            bus.subscribe("gw/*/*/attitude", obs.on_sample)
+            bus.subscribe("gw/*/*/alarm", obs.on_sample)
+            bus.subscribe(schemas.DIAG_INGEST_KEY, obs.on_diag)
             imu_seen = [0]
             if count_imu:
-                session.declare_subscriber("rig/*/*/imu", noted(lambda _s: imu_seen.__setitem__(0, imu_seen[0] + 1)))
+                bus.subscribe("rig/*/*/imu", lambda _k, _p: imu_seen.__setitem__(0, imu_seen[0] + 1))
             time.sleep(1.0)
             start = time.time() + 3.0  # generators connect and declare first
             ctx = mp.get_context("spawn")  # zenoh sessions do not survive fork
@@ -470,7 +463,7 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
                 g.join(timeout=60)
             time.sleep(5.0)  # let the gateway drain its queue before the final count
             s1 = stats(hport)
-            keys.close()
+            bus.route_keys.close()
     finally:
         stop_process(gw)
     if s1.get("shards", 0) != shards:
