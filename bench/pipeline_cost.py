@@ -10,11 +10,11 @@
 `--stage ingest`: 80 % rods / 20 % hooks, JSON packets as `bench.fleet` sends them (its pooled simulator streams,
 `--spp` samples per packet), one batch per packet period holding every device's packet, through the service
 `gateway.app.compose` builds (decode, sequence and time checks, pipeline, hub with its blocking-put thread) with
-the sinks `create_app` wires (dashboard history, live stream without clients, metrics) and `runner.tune_gc` as the
-ingest task calls it. The bus only digests what is put, so zenoh's own cost is not in it (`bench.fleet` has it).
-The figure is process CPU (all threads) per packet over the timed batches; "handle" is the calling thread's.
-With `--compare` it also says whether both trees published the same messages, byte for byte (alarm ids made
-deterministic, the hub's clock set to the batch's time).
+the sinks `create_app` wires (dashboard history, live stream without clients, metrics), `runner.tune_gc` and
+`runner.collect_between_batches` as the ingest task calls them. The bus only digests what is put, so zenoh's own
+cost is not in it (`bench.fleet` has it). The figure is process CPU (all threads) per packet over the timed
+batches; "handle" is the calling thread's. With `--compare` it also says whether both trees published the same
+messages, byte for byte (alarm ids made deterministic, the hub's clock set to the batch's time).
 
 Packets come from the rod simulator (`devices.sim_rod.RodFleet`, 5 samples per packet at 100 Hz, reel status at
 10 Hz, random bites/fights/wind on), are decoded once before timing, and go to the pipeline in batches as the
@@ -192,6 +192,7 @@ def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 
             tune_gc = getattr(runner, "tune_gc", None)  # as the ingest task does after the warm-up (if the tree has it)
             if tune_gc is not None:
                 tune_gc()
+            between = getattr(runner, "collect_between_batches", lambda: None)  # as the ingest loop, after each batch
             ids = iter(range(10**9))
             service.pipeline.engine._new_id = lambda: f"a{next(ids)}"  # type: ignore[method-assign]
             app = type("App", (), {"state": type("State", (), {})()})()
@@ -212,6 +213,7 @@ def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 
                         prof.enable()
                 t0 = time.thread_time()
                 service.handle(items, now)
+                between()
                 if k >= skip:
                     handle_s += time.thread_time() - t0
                     packets += len(batch)
