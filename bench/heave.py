@@ -61,18 +61,39 @@ HEADER = ("| run | setting | rms m | zero m | win m | ref m | rest % |\n"
           "|---|---|---|---|---|---|---|")  # fmt: skip
 
 
+PACKET = 10  # samples per packet, as the gateway's fleet bench sends them
+
+
+def fused_as_gateway(filter_name: str, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, dt_s: float,
+                     k_rest: int) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+    """Quaternions and the gyro rates the gateway's heave sees: the filter fed packet by packet (`PACKET` samples),
+    each packet's rates less the filter's gyro bias estimate as it stood before the packet (`FusionBank.bias`, as
+    `gateway.kinds.base.heave_rows` is given it); raw rates for a filter without one. Initialised on the first
+    `k_rest` samples."""
+    f = make_filter(filter_name, use_mag=mag is not None)
+    f.initialise(acc[:k_rest].mean(axis=0), mag[:k_rest].mean(axis=0) if mag is not None else None)
+    q, seen = np.empty((gyr.shape[0], 4)), gyr.copy()
+    for a in range(0, gyr.shape[0], PACKET):
+        b = a + PACKET
+        bias = getattr(f, "bias_rad_s", None)
+        if bias is not None:
+            seen[a:b] -= np.asarray(bias, dtype=float)
+        q[a:b] = f.run(gyr[a:b], acc[a:b], None if mag is None else mag[a:b], dt_s)
+    return q, seen
+
+
 def broad_rows(data_dir: Path, filter_name: str) -> list[str]:
     rows = []
     for path in broad.find_trials(data_dir, TRANSLATION):
         t = broad.load_trial(path)
-        q = broad.run_filter(make_filter(filter_name, use_mag=True), t, "9D")
         k = int(broad.REST_WINDOW_S * t.rate_hz)
+        q, gyr = fused_as_gateway(filter_name, t.gyr_rad_s, t.acc_m_s2, t.mag_uT, t.dt_s, k)
         g = height.gravity_from_rest(q[:k], t.acc_m_s2[:k])
         z = t.pos_m[:, 2]
         ref = z - z[np.isfinite(z)][0]
         ok = np.isfinite(z) & t.movement
         for label, s in SETTINGS.items():
-            out = heave.run_heave(q, t.gyr_rad_s, t.acc_m_s2, t.dt_s, replace(s, gravity_m_s2=g))
+            out = heave.run_heave(q, gyr, t.acc_m_s2, t.dt_s, replace(s, gravity_m_s2=g))
             rows.append(_row(t.name[:2], label, scores(out[:, 0], out[:, 2], ref, ok, t.rate_hz)))
     return rows
 
@@ -116,10 +137,8 @@ def sim_rows(filter_name: str, seeds: Sequence[int]) -> list[str]:
         dt = float(d["dt"])
         rng = np.random.default_rng(100 + seed)
         g, a, m = SensorModel(ImuErrorModel.calibrated(), 1, rng).measure(d["gyr"], d["acc"], d["mag"], dt)
-        f = make_filter(filter_name, use_mag=True)
         k = int(0.5 / dt)
-        f.initialise(a[:k].mean(axis=0), m[:k].mean(axis=0) if m is not None else None)
-        q = f.run(g, a, m, dt)
+        q, gyr = fused_as_gateway(filter_name, g, a, m, dt, k)
         g0 = height.gravity_from_rest(q[:k], a[:k])
         ok = np.ones(d["z"].shape[0], dtype=bool)
         depth = np.full(ok.shape[0], np.nan)
@@ -127,7 +146,7 @@ def sim_rows(filter_name: str, seeds: Sequence[int]) -> list[str]:
         runs = {**SETTINGS, "default + depth sensor (10 Hz, 2 cm)": heave.HeaveSettings()}
         for label, s in runs.items():
             dep = depth if "depth" in label else None
-            out = heave.run_heave(q, g, a, dt, replace(s, gravity_m_s2=g0), dep)
+            out = heave.run_heave(q, gyr, a, dt, replace(s, gravity_m_s2=g0), dep)
             h = out[:, 0] + (3.0 if dep is not None else 0.0)  # depth-aided height is −depth: 3 m below the start
             rows.append(_row(f"hoist seed {seed}", label, scores(h, out[:, 2], d["z"], ok, 1.0 / dt)))
     return rows
