@@ -144,6 +144,10 @@ def test_threshold_form_shows_validation_message_then_saves(system: System, brow
 
 def test_scripted_bite_raises_loud_alarm_and_ack_clears_banner(system: System, browser: Browser) -> None:
     page = browser.page
+    if not page.url.startswith(system.base):  # run alone (`-k`): no earlier test of this module loaded the dashboard
+        page.goto(system.base + "/")  # nor gave it the operator token the acknowledgement needs (asked once, kept)
+        page.evaluate("(t) => sessionStorage.setItem('rig_token', t)", system.token)
+    page.locator("#alarm-rows").wait_for(state="attached", timeout=15_000)
     # record when each alarm row first appears (page clock), to compare with the alarm's own start time
     page.evaluate("""() => { window.__seen = {}; new MutationObserver(() => {
         for (const r of document.querySelectorAll('#alarm-rows tr[data-type]'))
