@@ -17,6 +17,14 @@ from gateway.config import Settings
 from gateway.ingest.bus import MemoryBus
 
 
+def wait_for(cond: Callable[[], bool], timeout_s: float = 20.0, show: Callable[[], object] = lambda: "") -> None:
+    """Poll `cond` until true; on timeout fail with `show()` (what was seen instead)."""
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < deadline, f"condition not met in {timeout_s} s: {show()}"
+        time.sleep(0.05)
+
+
 def rod_messages(seconds: float, script: Sequence[dict[str, Any]] = (), seed: int = 1) -> list[tuple[str, bytes]]:
     """(key, payload) of a simulated rod's data packets (imu + reel), 5 samples per packet at 100 Hz."""
     fleet = RodFleet(FleetSettings(count=1, seed=seed, samples_per_packet=5, progress=False, id_prefix="rod"),

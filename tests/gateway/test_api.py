@@ -11,7 +11,7 @@ from collections.abc import Callable
 import pytest
 
 from gateway import schemas
-from tests.gateway.conftest import Running, rod_messages
+from tests.gateway.conftest import Running, rod_messages, wait_for
 
 BITE = [{"type": "bite", "t_s": 3.0, "depth_deg": 15.0, "duration_s": 1.5}]
 
@@ -142,9 +142,7 @@ def test_reel_command_goes_out_with_block(running: Callable[[], Running]) -> Non
     def sent_cmds() -> list[tuple[str, bytes, bool]]:
         return [(k, p, b) for k, p, b in app.bus.sent if k == "rig/rod/rod-1/reel/cmd"]
 
-    deadline = time.monotonic() + 5.0  # BLOCK puts go out from the publisher thread, after the answer
-    while not sent_cmds() and time.monotonic() < deadline:
-        time.sleep(0.01)
+    wait_for(lambda: bool(sent_cmds()), timeout_s=5.0)  # BLOCK puts go out from the publisher thread, after the answer
     sent = sent_cmds()
     assert len(sent) == 1 and sent[0][2] is True
     cmd = schemas.decode(sent[0][0], sent[0][1])

@@ -6,7 +6,6 @@ at the file's size gives SQLITE_FULL ("database or disk is full") on the gateway
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -14,7 +13,7 @@ from typing import Any
 from gateway import schemas
 from gateway.alarm.engine import Alarm, AlarmStatus, Severity
 from gateway.store import Store, StoreWriter
-from tests.gateway.conftest import Running, rod_messages
+from tests.gateway.conftest import Running, rod_messages, wait_for
 
 BITE = [{"type": "bite", "t_s": 3.0, "depth_deg": 15.0, "duration_s": 1.5}]
 
@@ -52,13 +51,6 @@ def fill(store: Store) -> None:
 def free(store: Store) -> None:
     with store._lock:
         store._conn.execute("PRAGMA max_page_count = 1073741823")
-
-
-def wait_for(cond: Callable[[], bool], timeout_s: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not cond():
-        assert time.monotonic() < deadline, "condition not met in time"
-        time.sleep(0.05)
 
 
 def test_alarms_survive_a_full_disk(running: Callable[[], Running]) -> None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import asyncio
 import json
 import time
-from collections.abc import Callable, Coroutine, Iterator
+from collections.abc import Coroutine, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +22,7 @@ from gateway.config import Settings
 from gateway.ingest.bus import MemoryBus
 from gateway.ingest.runner import Inbox
 from gateway.store import Store
-from tests.gateway.conftest import rod_messages
+from tests.gateway.conftest import rod_messages, wait_for
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -39,14 +39,6 @@ def live(tmp_path: Path) -> Iterator[tuple[TestClient, zenoh.Session]]:
         wait_for(lambda: probe.matching_status.matching, timeout_s=30.0)
         probe.undeclare()
         yield client, session
-
-
-def wait_for(cond: Callable[[], bool], timeout_s: float = 20.0, show: Callable[[], object] = lambda: "") -> None:
-    """Poll `cond` until true; on timeout fail with `show()` (what was seen instead)."""
-    deadline = time.monotonic() + timeout_s
-    while not cond():
-        assert time.monotonic() < deadline, f"condition not met in {timeout_s} s: {show()}"
-        time.sleep(0.05)
 
 
 def put(session: zenoh.Session, key: str, payload: bytes) -> None:

@@ -9,7 +9,6 @@ import json
 import shutil
 import subprocess
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -21,18 +20,11 @@ from gateway import schemas
 from gateway.app import create_app
 from gateway.config import Settings
 from gateway.ingest import secure_config
-from tests.gateway.conftest import rod_messages
+from tests.gateway.conftest import rod_messages, wait_for
 
 REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.timeout(120),
               pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is needed to make certificates")]
-
-
-def wait_for(cond: Callable[[], bool], timeout_s: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not cond():
-        assert time.monotonic() < deadline, "condition not met in time"
-        time.sleep(0.05)
 
 
 def test_rogue_peer_is_refused_by_the_gateway_router(tmp_path: Path) -> None:
