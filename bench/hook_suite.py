@@ -65,7 +65,7 @@ from gateway.fusion.hook_filter import (
     HookFilterSettings,
 )
 
-RATE_HZ = 100.0  # the IMU's sampling rate; `--rate-hz` sets it for the whole run (the filters take dt from it)
+RATE_HZ = 100.0  # the IMU's sampling rate unless `rate_hz` / `--rate-hz` says otherwise (the filters take dt from it)
 WARMUP_S = 0.5
 AFTER_EVENT_S = 5.0
 PHASES = ("free", "pull", "move")
@@ -96,7 +96,7 @@ class SuiteCase:
 FAMILIES = ("crane", "windy")
 
 
-def make_case(seed: int, duration_s: float = 180.0, family: str = "crane") -> SuiteCase:
+def make_case(seed: int, duration_s: float = 180.0, family: str = "crane", rate_hz: float = RATE_HZ) -> SuiteCase:
     """The randomised crane and timeline of `seed` (see the module docstring). `family="windy"`: the same draws on a
     light load (0.5-1.5 t) on a short rope (2-6 m) in a steady wind of 30-60 N present from the start, which a
     filter that takes the warm-up's mean force for accelerometer bias reads as a steady tilt error."""
@@ -157,7 +157,7 @@ def make_case(seed: int, duration_s: float = 180.0, family: str = "crane") -> Su
     wind_n = steady * float(rng.uniform(0.1, 0.4)) + float(rng.uniform(0.0, 10.0))  # gusts: turbulence intensity
     wb = float(rng.uniform(-math.pi, math.pi))
     scenario = HookScenario(
-        duration_s=duration_s, output_rate_hz=RATE_HZ, initial_swing_rad=swing0,
+        duration_s=duration_s, output_rate_hz=rate_hz, initial_swing_rad=swing0,
         initial_swing_bearing_rad=float(rng.uniform(-math.pi, math.pi)),
         initial_sideways_rate_rad_s=float(rng.uniform(-0.3, 0.3)) * swing0 * omega,
         initial_torsion_rad=math.radians(rng.uniform(-90.0, 90.0)),
@@ -171,7 +171,7 @@ def make_case(seed: int, duration_s: float = 180.0, family: str = "crane") -> Su
 
 
 def hook_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rope_length_m: float | None,
-                  tracking: bool = False, overrides: dict[str, float] | None = None
+                  tracking: bool = False, overrides: dict[str, float] | None = None, rate_hz: float = RATE_HZ
                   ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Hook filter quaternions (N, 4) and rope-length estimates (N,), started as the gateway starts it (`tracking`:
     with the optional boom-tip tracking, `hook_filter.TRACKING`; `overrides`: further settings on top)."""
@@ -179,27 +179,28 @@ def hook_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rope
     settings = (HookFilterSettings(**extra) if rope_length_m is None
                 else HookFilterSettings(rope_length_m=rope_length_m, rope_length_known=True, **extra))  # fmt: skip
     f = HookFilter(settings, use_mag=mag is not None)
-    n = int(WARMUP_S * RATE_HZ)
-    f.start(gyr[:n], acc[:n], None if mag is None else mag[:n], 1.0 / RATE_HZ)
-    q, length = f.run_with_length(gyr, acc, mag, 1.0 / RATE_HZ)
+    n = int(WARMUP_S * rate_hz)
+    f.start(gyr[:n], acc[:n], None if mag is None else mag[:n], 1.0 / rate_hz)
+    q, length = f.run_with_length(gyr, acc, mag, 1.0 / rate_hz)
     return np.asarray(q), np.asarray(length)
 
 
-def paper_ekf_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None) -> np.ndarray:
+def paper_ekf_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rate_hz: float = RATE_HZ
+                       ) -> np.ndarray:  # fmt: skip
     """Paper 001's quaternion EKF as published (`gateway.fusion.ekf`, `paper=True`): accelerometer as gravity."""
     from gateway.fusion.ekf import EkfSettings, QuaternionEkf
 
     f = QuaternionEkf(EkfSettings(paper=True), use_mag=mag is not None)
-    n = int(WARMUP_S * RATE_HZ)
+    n = int(WARMUP_S * rate_hz)
     f.initialise(acc[:n].mean(axis=0), None if mag is None else mag[:n].mean(axis=0))
-    return np.asarray(f.run(gyr, acc, mag, 1.0 / RATE_HZ))
+    return np.asarray(f.run(gyr, acc, mag, 1.0 / rate_hz))
 
 
-def vqf_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None) -> np.ndarray:
+def vqf_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rate_hz: float = RATE_HZ) -> np.ndarray:
     from vqf import offlineVQF
 
     out = offlineVQF(np.ascontiguousarray(gyr), np.ascontiguousarray(acc),
-                     None if mag is None else np.ascontiguousarray(mag), 1.0 / RATE_HZ)  # fmt: skip
+                     None if mag is None else np.ascontiguousarray(mag), 1.0 / rate_hz)  # fmt: skip
     return np.asarray(out["quat6D" if mag is None else "quat9D"])
 
 
@@ -226,29 +227,31 @@ def score(q: np.ndarray, truth: HookTruth, keep: np.ndarray, absolute: bool) -> 
 
 
 def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length: bool, paper_ekf: bool = False,
-             family: str = "crane", tracking: bool = False, overrides: dict[str, float] | None = None
-             ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
-    """`{filter: {phase or "all": figures}}` for one seed."""
-    case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family)
+             family: str = "crane", tracking: bool = False, overrides: dict[str, float] | None = None,
+             rate_hz: float = RATE_HZ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+    """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`."""
+    case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz)
     out: dict[str, dict[str, dict[str, float]]] = {}
     q_hook, length = hook_estimate(gyr, acc, mag, case.physics.rope_length_m if tell_length else None, tracking,
-                                   overrides)  # fmt: skip
-    others = [("vqf", vqf_estimate(gyr, acc, mag))]
+                                   overrides, rate_hz)  # fmt: skip
+    others = [("vqf", vqf_estimate(gyr, acc, mag, rate_hz))]
     if paper_ekf:
-        others.append(("ekf001", paper_ekf_estimate(gyr, acc, mag)))
+        others.append(("ekf001", paper_ekf_estimate(gyr, acc, mag, rate_hz)))
     for name, q in [("hook", q_hook), *others]:
         out[name] = score_phases(q, truth, case, use_mag)
     out["hook"]["all"].update(rope_errors(length, truth))
     return out
 
 
-def simulate_seed(seed: int, duration_s: float, imu: str, use_mag: bool, family: str = "crane"
+def simulate_seed(seed: int, duration_s: float, imu: str, use_mag: bool, family: str = "crane",
+                  rate_hz: float = RATE_HZ
                   ) -> tuple[SuiteCase, HookTruth, np.ndarray, np.ndarray, np.ndarray | None]:  # fmt: skip
-    """The crane of `seed`, its ground truth and the IMU's samples (gyr, acc, mag or None) as the suite draws them."""
-    case = make_case(seed, duration_s, family)
+    """The crane of `seed`, its ground truth and the IMU's samples (gyr, acc, mag or None, at `rate_hz`) as the suite
+    draws them."""
+    case = make_case(seed, duration_s, family, rate_hz)
     truth = simulate(case.physics, case.scenario)
     sensor = SensorModel(ImuErrorModel.preset(imu), 1, np.random.default_rng(10_000 + seed))
-    gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / RATE_HZ)
+    gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / rate_hz)
     return case, truth, gyr, acc, mag if use_mag else None
 
 
@@ -297,7 +300,6 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    global RATE_HZ
     p = argparse.ArgumentParser(prog="python -m bench.hook_suite", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     p.add_argument("--seeds", default="101-110", help="seeds, e.g. 101-110 (held out) or 1-6 (tuning)")
@@ -314,22 +316,21 @@ def main(argv: list[str] | None = None) -> int:
                    "trial (TRIAL_JUMP, the fourth round's trial jumps), round4 (FOURTH_ROUND, the "
                    "default before the fifth round: the start's magnetometer reference not levelled)")
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
-    p.add_argument("--rate-hz", type=float, default=100.0,
+    p.add_argument("--rate-hz", type=float, default=RATE_HZ,
                    help="IMU sampling rate (default 100; the suite was tuned at 100 only)")
     args = p.parse_args(argv)
-    RATE_HZ = args.rate_hz  # every simulation and filter call of this run reads it
     seeds = parse_seeds(args.seeds)
     print(f"hook suite ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}, {args.duration:g} s per seed, "
-          f"rope length {'not told' if args.no_length else 'told at t = 0'}, {RATE_HZ:g} Hz; degrees; whole run after "
-          f"{WARMUP_S:g} s")
+          f"rope length {'not told' if args.no_length else 'told at t = 0'}, {args.rate_hz:g} Hz; degrees; whole run "
+          f"after {WARMUP_S:g} s")
     print(f"{'seed':>4} {'crane':<44}{'':>6}{'Θ RMSE':>8}{'Θ max':>7}{'dir':>7}{'tors':>7}{'rope m':>8}")
     names = ["hook", "vqf"] + (["ekf001"] if args.paper_ekf else [])
     rows: dict[str, list[dict[str, dict[str, float]]]] = {n: [] for n in names}
     t0 = time.perf_counter()
     for seed in seeds:
-        case = make_case(seed, args.duration, args.family)
+        case = make_case(seed, args.duration, args.family, args.rate_hz)
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
-                     args.tracking, parse_settings(args.settings))
+                     args.tracking, parse_settings(args.settings), args.rate_hz)
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]
