@@ -70,12 +70,11 @@ def tune_gc() -> None:
     (numba, pydantic and FastAPI included): 30 % of the ingest thread's CPU at 300 devices (bench.pipeline_cost
     --stage ingest). `gc.freeze()` moves what exists after start-up (modules, compiled kernels, schemas) out of
     the collector's walks for good. The young threshold is then set so high that a batch never triggers a
-    collection itself: one triggered mid-batch walks every sample tuple still alive in it (with a threshold of
-    20,000: 0.7 ms a collection; collecting between batches instead cut the CPU per packet by 6-15 % for batches
-    of 500-1000 devices, as a lagging gateway runs, and changed nothing measurable at 50-300:
-    `bench.pipeline_cost --stage ingest --compare`). The ingest loop collects between
-    batches instead (`collect_between_batches`), when reference counting has freed the batch and the young
-    generation holds only what outlived it."""
+    collection itself (one triggered mid-batch walks every sample tuple still alive in it: 0.7 ms each at a
+    threshold of 20,000); the ingest loop collects after each batch instead (`collect_between_batches`), when
+    reference counting has freed the batch. That cut the CPU per packet by 6-15 % for batches of 500-1000 devices,
+    as a lagging gateway runs them, and changed nothing measurable at 50-300 (`bench.pipeline_cost --stage ingest
+    --compare`)."""
     global _gc_tuned
     if _gc_tuned:
         return
