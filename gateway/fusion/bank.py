@@ -6,6 +6,8 @@
   call per distinct block length); any other name (the hook EKF, a registry filter) is an object per device.
 * Batching: `fuse` takes one drained batch (packets grouped per device), gathers every device's samples in one
   array conversion, applies calibrations and steps all filters.
+* Lost packets: a device's samples that never arrived (a gap in device time up to `gaps.MAX_BRIDGE_S`) are
+  interpolated for its filter only, so its state crosses the gap in time; every output stays on its own samples.
 * Restart on failure: a filter that raises or returns a non-finite quaternion fails alone: `out.filter_failures`
   gets a record and the device starts a fresh warm-up with its next packets.
 
@@ -28,6 +30,7 @@ from gateway.calibrate import DeviceCalibration
 from gateway.fusion import _default_kernels as K
 from gateway.fusion.base import AttitudeFilter, FloatArray
 from gateway.fusion.batch import DefaultFilterBatch
+from gateway.fusion.gaps import MAX_BRIDGE_S, bridge_block, has_gap
 from gateway.kinds.base import Ends, FilterFailure, Fused, FusedDevice, Output
 
 log = logging.getLogger("gateway.fusion.bank")
@@ -155,6 +158,7 @@ class FusionBank:
     ) -> None:  # fmt: skip
         self.warmup_s, self.rest_gyr_std_rad_s, self.rest_acc_tol_m_s2 = warmup_s, rest_gyr_std_rad_s, rest_acc_tol_m_s2
         self.warmup_bias_seed = warmup_bias_seed
+        self.max_bridge_s = MAX_BRIDGE_S  # longest lost-sample gap interpolated for a filter (0: none, back to back)
         self._effective, self._filter_options, self._new_state, self._on_drop = (effective, filter_options,
                                                                                  new_state, on_drop)  # fmt: skip
         self.devices: dict[str, FusedDevice] = {}
@@ -339,7 +343,20 @@ class FusionBank:
         """One fused block per device: objects one by one, default-filter rows together per block length."""
         quats: dict[str, FloatArray] = {}
         by_len: dict[int, list[str]] = {}
-        for dev_id, (dev, _, (gyr, acc, mag, _)) in items.items():
+        inputs: dict[str, Block] = {}  # a device's filter input when it differs from its block (lost packets)
+        kept: dict[str, np.ndarray] = {}  # ... and where the block's own samples are in it
+        for dev_id, (dev, _, (gyr, acc, mag, t_s)) in items.items():
+            prev_t_s, prev = dev.last_t_s, dev.last_block
+            dev.last_t_s, dev.last_block = float(t_s[-1]), (gyr, acc, mag)
+            if has_gap(t_s, prev_t_s, dev.dt_s) and self.max_bridge_s > 0.0:
+                try:
+                    bridged = bridge_block(gyr, acc, mag, t_s, dev.dt_s, prev_t_s, prev, self.max_bridge_s)
+                except Exception as exc:
+                    self.fail(dev.kind, dev_id, exc, out)
+                    continue
+                if bridged is not None:
+                    gyr, acc, mag, kept[dev_id] = bridged
+                    inputs[dev_id] = (gyr, acc, mag, t_s)
             if dev.filt is None:
                 by_len.setdefault(gyr.shape[0], []).append(dev_id)
                 continue
@@ -350,18 +367,21 @@ class FusionBank:
                 self.fail(dev.kind, dev_id, exc, out)
         if by_len:
             try:
-                quats.update(self._step_batch(items, by_len))
+                quats.update(self._step_batch(items, by_len, inputs))
             except Exception as exc:  # the shared kernel failed: every device in it restarts
                 for ids in by_len.values():
                     for dev_id in ids:
                         self.fail(items[dev_id][0].kind, dev_id, exc, out)
+        for dev_id, keep in kept.items():
+            if dev_id in quats:
+                quats[dev_id] = quats[dev_id][keep]
         for dev_id in [d for d, q in quats.items() if not np.isfinite(q).all()]:
             del quats[dev_id]
             self.fail(items[dev_id][0].kind, dev_id, None, out)
         return quats
 
     def _step_batch(self, items: dict[str, tuple[FusedDevice, list[schemas.ImuPacket], Block]],
-                    by_len: dict[int, list[str]]) -> dict[str, FloatArray]:  # fmt: skip
+                    by_len: dict[int, list[str]], inputs: dict[str, Block]) -> dict[str, FloatArray]:  # fmt: skip
         quats: dict[str, FloatArray] = {}
         batch = self.batch
         assert batch is not None
@@ -371,7 +391,7 @@ class FusionBank:
             active = np.zeros(n_dev, dtype=np.bool_)
             rows = [batch.row(d) for d in ids]
             for d, r in zip(ids, rows, strict=True):
-                gyr, acc, mag, _ = items[d][2]
+                gyr, acc, mag, _ = inputs.get(d) or items[d][2]
                 gyr_a[r], acc_a[r] = gyr, acc
                 if mag is not None:
                     mag_a[r] = mag

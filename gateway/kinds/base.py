@@ -112,6 +112,8 @@ class FusedDevice:
     heave: Any = None  # gateway.fusion.heave.HeaveEstimator, made on the first fused block
     height: schemas.Height | None = None  # the last one published
     last_height_t_s: float = -math.inf
+    last_t_s: float = math.nan  # device time of the newest sample its filter got, s (`gateway.fusion.gaps`)
+    last_block: Any = None  # the (gyr, acc, mag) block that sample ended: the left end of a bridged gap
 
     # Read views of the kind state, for REST and tests (None when the kind has no such thing).
     @property
