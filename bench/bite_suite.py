@@ -151,14 +151,21 @@ class RodRun:
     messages: list[str]
 
 
-def run_gateway(sc: Scenario, th: RodThresholds | None = None) -> RodRun:
-    """Feed the recording to a fresh Pipeline as 0.5 s packets; alarms in recording seconds, every fused pitch."""
+def run_gateway(sc: Scenario, th: RodThresholds | None = None, packet: int = PACKET,
+                lost: np.ndarray | None = None, bridge: bool = False) -> RodRun:  # fmt: skip
+    """Feed the recording to a fresh Pipeline as packets of `packet` samples (default 0.5 s), but those `lost` (bool
+    per packet) marks; alarms in recording seconds, every fused pitch (NaN where lost). `bridge`: the lost samples
+    interpolated for the filter (`gateway.fusion.gaps`), which the rod kind does not do by default."""
     p = Pipeline(PipelineSettings(attitude_blocks=True), {"rod": th} if th else None)
+    if bridge:
+        p.bank.bridge_kinds.add("rod")
     n = sc.t_s.size
     bite_s, drop_s, msgs = [], [], []
     quats = np.full((n, 4), np.nan)
-    for seq, i in enumerate(range(0, n, PACKET)):
-        j = min(i + PACKET, n)
+    for seq, i in enumerate(range(0, n, packet)):
+        if lost is not None and lost[seq]:
+            continue
+        j = min(i + packet, n)
         t0_us = T0_US + int(round(sc.t_s[i] * 1e6))
         payload = imu_payload(device_id="rod-1", kind="rod", boot_id=1, seq=seq, t0_us=t0_us, rate_hz=100.0,
                               gyr_rad_s=sc.gyr_rad_s[i:j], acc_m_s2=sc.acc_m_s2[i:j], mag_uT=sc.mag_uT[i:j],
@@ -208,6 +215,12 @@ def main(argv: list[str] | None = None) -> int:
                          f"tuned on {TUNED_SEEDS.start}-{TUNED_SEEDS.stop - 1})")  # fmt: skip
     ap.add_argument("--sensitivity", type=int, default=3, choices=range(1, 6))
     ap.add_argument("--list", action="store_true", help="print every alarm and every miss")
+    ap.add_argument("--packet", type=int, default=PACKET, help=f"samples per packet (default {PACKET})")
+    ap.add_argument("--loss", type=float, default=0.0,
+                    help="packets lost on a Gilbert-Elliott link (devices.common.LinkSim), long-run share (default 0)")
+    ap.add_argument("--burst", type=float, default=2.0, help="with --loss: mean burst length, packets (default 2)")
+    ap.add_argument("--bridge", action="store_true",
+                    help="interpolate lost samples for the filter (gateway.fusion.gaps; not the rod kind's default)")
     a = ap.parse_args(argv)
     seeds = parse_seeds(a.seeds)
     th = RodThresholds(sensitivity=a.sensitivity)
@@ -219,21 +232,29 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     for seed in seeds:
         sc = make_scenario(seed, ScenarioSettings(theta1_deg=th.effective_bite_deg))  # crossings of this theta1
-        r = run_gateway(sc, th)
+        lost = None
+        if a.loss > 0:
+            from bench.link_loss import lost_packets
+
+            lost = lost_packets(-(-sc.t_s.size // a.packet), a.loss, a.burst, 5_000 + seed)
+        r = run_gateway(sc, th, a.packet, lost, a.bridge)
         gw.add(score(sc, r.bite_s, r.drop_s))
         plain_fused.add(score(sc, plain_rule(sc.t_s, r.fused_pitch_rad, theta1), None))
         plain_true.add(score(sc, plain_rule(sc.t_s, sc.euler_rad[:, 1], theta1), None))
         err = np.degrees(r.fused_pitch_rad - sc.euler_rad[:, 1])
-        settled = sc.t_s > 3.0
+        settled = (sc.t_s > 3.0) & np.isfinite(err)  # lost samples have no fused pitch
         err -= np.median(err[settled])  # the constant tilt of the accelerometer offset is not a deviation
         err_all.append(np.abs(err[settled]))
         clipped += int((np.abs(sc.acc_m_s2) >= 0.999 * 2 * 9.80665).any(axis=1).sum())
         for e in sc.events:
             w = (sc.t_s >= e.t_start_s) & (sc.t_s <= e.t_end_s + 2.0)
-            err_by[e.family] = max(err_by.get(e.family, 0.0), float(np.abs(err[w]).max()))
+            err_by[e.family] = max(err_by.get(e.family, 0.0), float(np.fmax.reduce(np.abs(err[w]), initial=0.0)))
         if a.list:
             print(f"-- seed {seed}:", *r.messages, sep="\n   ")
     errs = np.concatenate(err_all)
+    if a.loss > 0:
+        print(f"link: {a.loss:.1%} of {a.packet}-sample packets lost in bursts of {a.burst:g} on average, "
+              + ("bridged (gateway.fusion.gaps)" if a.bridge else "fed back to back (the rod default)"))  # fmt: skip
     print(f"rod scenario suite, seeds {a.seeds}: {len(seeds)} rods, {gw.hours:.2f} rod-hours, sensitivity "
           f"{a.sensitivity} (θ1 {th.effective_bite_deg:g}°); tuned on seeds {TUNED_SEEDS.start}-"
           f"{TUNED_SEEDS.stop - 1} ({time.perf_counter() - start:.0f} s)")  # fmt: skip

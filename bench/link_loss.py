@@ -9,8 +9,8 @@ Gilbert-Elliott link (`devices.common.LinkSim`: long-run loss `--loss`, mean bur
 per device) drops some, and the rest go one packet a batch through `FusionBank.fuse` of a real `Pipeline` (the
 gateway's fusion stage: warm-up, filter start, calibration, the hook's rope length set as a user sets it). Three
 runs per device on the same packets: every packet (`lossless`), the lossy stream fed back to back (`max_bridge_s`
-0: the gateway before the bridge), and bridged (the default). Scored on the samples that arrived, after the 0.5 s
-warm-up:
+0: the gateway before the bridge, and the rod kind's default: `RodKind.bridge_lost_samples`), and bridged (the hook
+kind's default). Scored on the samples that arrived, after the 0.5 s warm-up:
 
 - hooks (`bench.hook_suite`'s cranes, calibrated IMU, 9D, rope length told): swing angle Θ RMSE / max, degrees;
 - rods (BROAD's real recordings with optical truth, `../shared/data/broad`, 9D, the default filter): total
@@ -71,6 +71,8 @@ def fused_quats(pkts: list[schemas.ImuPacket], n_samples: int, kind: str, max_br
     if thresholds:
         pipe.set_device_settings(dev_id, kind, DeviceSettings(thresholds=thresholds))
     pipe.bank.max_bridge_s = max_bridge_s
+    if max_bridge_s > 0.0:  # what the bridge does for this kind, whether its row bridges by default or not
+        pipe.bank.bridge_kinds.add(kind)
     q = np.full((n_samples, 4), np.nan)
     for p in pkts:
         for f in pipe.bank.fuse({dev_id: [p]}, 1e9, Output()):

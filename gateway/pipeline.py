@@ -138,6 +138,7 @@ class Pipeline:
             filter_options=lambda kind, th: self.handlers[kind].filter_options(th),
             new_state=lambda dev, th: self.handlers[dev.kind].new_state(self._ctx, dev, th),
             on_drop=self.reel_control.forget,
+            bridge_kinds={name for name, h in self.handlers.items() if h.bridge_lost_samples},
         )  # fmt: skip
         for d, (_, ds) in self.device_settings.items():
             if ds.calibration is not None:

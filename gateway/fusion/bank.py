@@ -6,8 +6,9 @@
   call per distinct block length); any other name (the hook EKF, a registry filter) is an object per device.
 * Batching: `fuse` takes one drained batch (packets grouped per device), gathers every device's samples in one
   array conversion, applies calibrations and steps all filters.
-* Lost packets: a device's samples that never arrived (a gap in device time up to `gaps.MAX_BRIDGE_S`) are
-  interpolated for its filter only, so its state crosses the gap in time; every output stays on its own samples.
+* Lost packets: for the kinds in `bridge_kinds`, a device's samples that never arrived (a gap in device time up to
+  `gaps.MAX_BRIDGE_S`) are interpolated for its filter only, so its state crosses the gap in time; every output
+  stays on its own samples.
 * Restart on failure: a filter that raises or returns a non-finite quaternion fails alone: `out.filter_failures`
   gets a record and the device starts a fresh warm-up with its next packets.
 
@@ -30,7 +31,7 @@ from gateway.calibrate import DeviceCalibration
 from gateway.fusion import _default_kernels as K
 from gateway.fusion.base import AttitudeFilter, FloatArray
 from gateway.fusion.batch import DefaultFilterBatch
-from gateway.fusion.gaps import MAX_BRIDGE_S, bridge_block, has_gap
+from gateway.fusion.gaps import BRIDGE_AVERAGE_S, MAX_BRIDGE_S, bridge_block, has_gap
 from gateway.kinds.base import Ends, FilterFailure, Fused, FusedDevice, Output
 
 log = logging.getLogger("gateway.fusion.bank")
@@ -154,11 +155,13 @@ class FusionBank:
         self, *, warmup_s: float = 0.5, rest_gyr_std_rad_s: float = 0.01, rest_acc_tol_m_s2: float = 0.5,
         warmup_bias_seed: bool = True, effective: Callable[[str, str], tuple[str, Any]],
         filter_options: Callable[[str, Any], dict[str, Any]], new_state: Callable[[FusedDevice, Any], Any],
-        on_drop: Callable[[str], None] = lambda _: None,
+        on_drop: Callable[[str], None] = lambda _: None, bridge_kinds: Iterable[str] = (),
     ) -> None:  # fmt: skip
         self.warmup_s, self.rest_gyr_std_rad_s, self.rest_acc_tol_m_s2 = warmup_s, rest_gyr_std_rad_s, rest_acc_tol_m_s2
         self.warmup_bias_seed = warmup_bias_seed
+        self.bridge_kinds = set(bridge_kinds)  # kinds whose lost samples are interpolated for their filter
         self.max_bridge_s = MAX_BRIDGE_S  # longest lost-sample gap interpolated for a filter (0: none, back to back)
+        self.bridge_average_s = BRIDGE_AVERAGE_S  # the samples either side of a gap averaged for its line
         self._effective, self._filter_options, self._new_state, self._on_drop = (effective, filter_options,
                                                                                  new_state, on_drop)  # fmt: skip
         self.devices: dict[str, FusedDevice] = {}
@@ -347,10 +350,11 @@ class FusionBank:
         kept: dict[str, np.ndarray] = {}  # ... and where the block's own samples are in it
         for dev_id, (dev, _, (gyr, acc, mag, t_s)) in items.items():
             prev_t_s, prev = dev.last_t_s, dev.last_block
-            dev.last_t_s, dev.last_block = float(t_s[-1]), (gyr, acc, mag)
-            if has_gap(t_s, prev_t_s, dev.dt_s) and self.max_bridge_s > 0.0:
+            dev.last_t_s, dev.last_block = float(t_s[-1]), (gyr, acc, mag, t_s)
+            if dev.kind in self.bridge_kinds and has_gap(t_s, prev_t_s, dev.dt_s) and self.max_bridge_s > 0.0:
                 try:
-                    bridged = bridge_block(gyr, acc, mag, t_s, dev.dt_s, prev_t_s, prev, self.max_bridge_s)
+                    bridged = bridge_block(gyr, acc, mag, t_s, dev.dt_s, prev, self.max_bridge_s,
+                                           max(1, round(self.bridge_average_s / dev.dt_s)))  # fmt: skip
                 except Exception as exc:
                     self.fail(dev.kind, dev_id, exc, out)
                     continue

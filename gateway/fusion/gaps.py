@@ -12,14 +12,13 @@ Gaps longer than `MAX_BRIDGE_S` are left as they are (an interpolation over seco
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
 
 MAX_BRIDGE_S = 2.0  # longest gap bridged, s (20 lost 10-sample packets at 100 Hz)
+BRIDGE_AVERAGE_S = 0.01  # samples either side of a gap averaged for the line across it, s (0.01: the next ones)
 GAP_FACTOR = 1.5  # a spacing above this many sample periods is a gap (packet times are sample-exact to 1 µs)
 
 
@@ -33,49 +32,58 @@ def has_gap(t_s: FloatArray, prev_t_s: float, dt_s: float) -> bool:
     return bool(t_s[0] - prev_t_s > limit or t_s[n - 1] - t_s[0] > (n - 1) * dt_s + (limit - dt_s))
 
 
-def fill_gaps(t_s: FloatArray, rows: FloatArray, dt_s: float, prev_t_s: float, prev_row: FloatArray | None,
-              max_gap_s: float = MAX_BRIDGE_S) -> tuple[FloatArray, NDArray[np.int64]] | None:  # fmt: skip
-    """`rows` (n, k) at device times `t_s` (n,) with the samples missing before each one inserted, linearly
-    interpolated between its neighbours (the first one's left neighbour: `prev_row` at `prev_t_s`, when given).
+def fill_gaps(t_s: FloatArray, rows: FloatArray, dt_s: float, prev_t_s: FloatArray | None = None,
+              prev_rows: FloatArray | None = None, max_gap_s: float = MAX_BRIDGE_S, average_n: int = 1
+              ) -> tuple[FloatArray, NDArray[np.int64]] | None:  # fmt: skip
+    """`rows` (n, k) at device times `t_s` (n,) with the samples missing before each one inserted (after the rows
+    `prev_rows` (p, k) at `prev_t_s` (p,) that came before, when given).
 
+    The missing samples lie on the line through the mean of up to `average_n` samples either side of the gap, each at
+    the mean of its samples' times: with 1, the samples next to the gap; with more, a vibration averages out while a
+    steady rate or slope is still carried across (a linear signal is filled exactly either way).
     Returns (filled rows (n + m, k), `keep` (n,): the index of each original row in them), or None when nothing was
     inserted (no gap, or every gap longer than `max_gap_s`). A gap of g seconds holds round(g / dt_s) - 1 samples."""
     n = t_s.shape[0]
     if n == 0:
         return None
-    with_prev = prev_row is not None and math.isfinite(prev_t_s)
-    times = np.concatenate(([prev_t_s], t_s)) if with_prev else t_s
+    p, times, stitched = 0, t_s, rows
+    if prev_rows is not None and prev_t_s is not None and prev_t_s.shape[0]:
+        p, times, stitched = prev_t_s.shape[0], np.concatenate((prev_t_s, t_s)), np.concatenate((prev_rows, rows))
     missing = np.rint(np.diff(times) / dt_s).astype(np.int64) - 1
     missing[(missing < 1) | (missing * dt_s > max_gap_s)] = 0
-    if not missing.any():
+    before = np.zeros(n, dtype=np.int64)  # samples missing just before original row i
+    before[(1 if not p else 0):] = missing[max(p - 1, 0):]
+    if not before.any():
         return None
-    before = np.zeros(n, dtype=np.int64)  # samples inserted just before original row i
-    before[(1 if not with_prev else 0):] = missing
     keep = np.arange(n, dtype=np.int64) + np.cumsum(before)
     out = np.empty((n + int(before.sum()), rows.shape[1]))
     out[keep] = rows
-    first = prev_row[None, :] if prev_row is not None and with_prev else rows[:1]
-    left = np.concatenate((first, rows[:-1]))  # each row's left neighbour
+    w = max(1, average_n)
     for i in np.flatnonzero(before).tolist():  # gaps are rare: a loop over them, not over samples
-        m = int(before[i])
-        frac = (np.arange(1, m + 1) / (m + 1))[:, None]
-        out[keep[i] - m : keep[i]] = left[i] + frac * (rows[i] - left[i])
+        j, m = p + i, int(before[i])  # the row after the gap in `stitched`, the samples missing before it
+        left, right = slice(max(0, j - w), j), slice(j, j + w)
+        t_l, t_r = float(times[left].mean()), float(times[right].mean())
+        v_l, v_r = stitched[left].mean(axis=0), stitched[right].mean(axis=0)
+        t_missing = times[j - 1] + dt_s * np.arange(1, m + 1)
+        out[keep[i] - m : keep[i]] = v_l + ((t_missing - t_l) / (t_r - t_l))[:, None] * (v_r - v_l)
     return out, keep
 
 
 def bridge_block(gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, t_s: FloatArray, dt_s: float,
-                 prev_t_s: float, prev: tuple[FloatArray, FloatArray, FloatArray | None] | None,
-                 max_gap_s: float = MAX_BRIDGE_S
+                 prev: tuple[FloatArray, FloatArray, FloatArray | None, FloatArray] | None,
+                 max_gap_s: float = MAX_BRIDGE_S, average_n: int = 1
                  ) -> tuple[FloatArray, FloatArray, FloatArray | None, NDArray[np.int64]] | None:  # fmt: skip
-    """`fill_gaps` of one device's block (gyr, acc, mag or None; (n, 3) each) after its previous block `prev` (the
-    arrays whose last row came just before, at `prev_t_s`; None: none, or a block of another shape): the filled
+    """`fill_gaps` of one device's block (gyr, acc, mag or None; (n, 3) each; times `t_s`) after its previous block
+    `prev` (gyr, acc, mag, t_s; None: none; its mag must be there as this one's is, or it is not used): the filled
     gyr, acc, mag and `keep`, or None when nothing was missing."""
     cols = [gyr, acc] if mag is None else [gyr, acc, mag]
     rows = np.hstack(cols)
-    prev_row = None
+    prev_rows = prev_t = None
     if prev is not None and (prev[2] is None) == (mag is None):
-        prev_row = np.concatenate([c[-1] for c in prev if c is not None])
-    filled = fill_gaps(t_s, rows, dt_s, prev_t_s if prev_row is not None else math.nan, prev_row, max_gap_s)
+        tail = slice(-max(1, average_n), None)
+        prev_rows = np.hstack([c[tail] for c in prev[:3] if c is not None])
+        prev_t = prev[3][tail]
+    filled = fill_gaps(t_s, rows, dt_s, prev_t, prev_rows, max_gap_s, average_n)
     if filled is None:
         return None
     out, keep = filled

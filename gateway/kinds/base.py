@@ -113,7 +113,7 @@ class FusedDevice:
     height: schemas.Height | None = None  # the last one published
     last_height_t_s: float = -math.inf
     last_t_s: float = math.nan  # device time of the newest sample its filter got, s (`gateway.fusion.gaps`)
-    last_block: Any = None  # the (gyr, acc, mag) block that sample ended: the left end of a bridged gap
+    last_block: Any = None  # the (gyr, acc, mag, t_s) block that sample ended: the left side of a bridged gap
 
     # Read views of the kind state, for REST and tests (None when the kind has no such thing).
     @property
@@ -317,6 +317,9 @@ class DeviceKind(Protocol):
     # The common IMU outputs (Attitude, Height, AttitudeBlock) for this kind: their wire models list the kinds they
     # accept (the protocol's Topic table), so a kind gets them once it is listed there.
     imu_outputs: ClassVar[bool]
+    # Samples lost on the link interpolated for this kind's filter (`gateway.fusion.gaps`), or its packets fed back
+    # to back: a choice per kind, measured (docs/fusion.md, "Lost packets").
+    bridge_lost_samples: ClassVar[bool]
     packet_types: ClassVar[tuple[type[Any], ...]]
 
     def thresholds_model(self) -> type[BaseModel]:
@@ -358,6 +361,7 @@ class KindBase:
     name: ClassVar[str] = ""
     fused: ClassVar[bool] = True
     imu_outputs: ClassVar[bool] = True
+    bridge_lost_samples: ClassVar[bool] = False
     packet_types: ClassVar[tuple[type[Any], ...]] = ()
 
     def thresholds_model(self) -> type[BaseModel]:

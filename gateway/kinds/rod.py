@@ -36,6 +36,7 @@ class RodKind(KindBase):
 
     name: ClassVar[str] = "rod"
     fused: ClassVar[bool] = True
+    bridge_lost_samples: ClassVar[bool] = False  # bridged, lossy rods raised more false bite alarms (fusion.md)
     packet_types: ClassVar[tuple[type[Any], ...]] = (schemas.ReelStatus,)
 
     def __init__(self, auto_reel: AutoReel) -> None:

@@ -17,10 +17,11 @@ DT = 0.01
 
 
 @settings(max_examples=60, deadline=None)
-@given(n_packets=st.integers(3, 30), spp=st.integers(1, 12), data=st.data())
-def test_a_linear_signal_is_filled_back_exactly(n_packets: int, spp: int, data: st.DataObject) -> None:
+@given(n_packets=st.integers(3, 30), spp=st.integers(1, 12), average_n=st.integers(1, 15), data=st.data())
+def test_a_linear_signal_is_filled_back_exactly(n_packets: int, spp: int, average_n: int, data: st.DataObject) -> None:
     """Samples of a linear signal with whole packets dropped (not the first or last): the filled rows are the
-    signal at every lost sample (to 1e-9), `keep` points at the rows that arrived."""
+    signal at every lost sample (to 1e-9), whatever the averaging either side; `keep` points at the rows that
+    arrived."""
     n = n_packets * spp
     t = np.arange(n) * DT
     rows = np.stack([1.0 + 2.0 * t, -3.0 * t, np.full(n, 0.5)], axis=1)
@@ -30,7 +31,7 @@ def test_a_linear_signal_is_filled_back_exactly(n_packets: int, spp: int, data: 
         lost[:] = False
     arrived = ~np.repeat(lost, spp)
     assert has_gap(t[arrived], math.nan, DT) == bool(lost.any())
-    out = fill_gaps(t[arrived], rows[arrived], DT, math.nan, None)
+    out = fill_gaps(t[arrived], rows[arrived], DT, average_n=average_n)
     if not lost.any():
         assert out is None
         return
@@ -45,9 +46,9 @@ def test_the_gap_before_a_block_is_filled_from_the_previous_block() -> None:
     gyr = np.array([[3.0, 0.0, 0.0], [4.0, 0.0, 0.0]])
     acc = np.zeros((2, 3))
     t = np.array([0.03, 0.04])
-    prev = (np.array([[0.0, 0.0, 0.0]]), np.zeros((1, 3)), None)
+    prev = (np.array([[0.0, 0.0, 0.0]]), np.zeros((1, 3)), None, np.array([0.0]))
     assert has_gap(t, 0.0, DT)
-    out = bridge_block(gyr, acc, None, t, DT, 0.0, prev)
+    out = bridge_block(gyr, acc, None, t, DT, prev)
     assert out is not None
     g, a, m, keep = out
     np.testing.assert_allclose(g[:, 0], [1.0, 2.0, 3.0, 4.0])
@@ -58,10 +59,10 @@ def test_no_gap_and_gaps_too_long_are_left_alone() -> None:
     t = np.arange(10) * DT
     rows = np.ones((10, 3))
     assert not has_gap(t, -DT, DT)
-    assert fill_gaps(t, rows, DT, -DT, rows[0]) is None
+    assert fill_gaps(t, rows, DT, np.array([-DT]), rows[:1]) is None
     late = np.r_[t[:5], t[5:] + MAX_BRIDGE_S + 0.5]
     assert has_gap(late, -DT, DT)
-    assert fill_gaps(late, rows, DT, -DT, rows[0]) is None, "a gap over MAX_BRIDGE_S is not interpolated"
+    assert fill_gaps(late, rows, DT, np.array([-DT]), rows[:1]) is None, "a gap over MAX_BRIDGE_S is not interpolated"
 
 
 def _hook_case(seed: int, duration_s: float) -> tuple[list, np.ndarray, object, float]:
@@ -142,3 +143,11 @@ def test_the_bench_runs_on_a_small_case(capsys: pytest.CaptureFixture[str]) -> N
     out = capsys.readouterr().out
     assert "| hooks, Θ RMSE / worst max (°), 1 |" in out
     assert BROAD_DIR.name == "broad"
+
+
+def test_the_kind_table_says_who_bridges() -> None:
+    """Hooks bridge their lost samples, rods do not (bridged, lossy rods raised more false bite alarms on the rod
+    scenario suite: docs/fusion.md, "Lost packets")."""
+    from gateway.pipeline import Pipeline
+
+    assert Pipeline().bank.bridge_kinds == {"hook"}
