@@ -349,12 +349,9 @@ class FusionBank:
         inputs: dict[str, Block] = {}  # a device's filter input when it differs from its block (lost packets)
         kept: dict[str, np.ndarray] = {}  # ... and where the block's own samples are in it
         for dev_id, (dev, _, (gyr, acc, mag, t_s)) in items.items():
-            prev_t_s, prev = dev.last_t_s, dev.last_block
-            dev.last_t_s, dev.last_block = float(t_s[-1]), (gyr, acc, mag, t_s)
-            if dev.kind in self.bridge_kinds and has_gap(t_s, prev_t_s, dev.dt_s) and self.max_bridge_s > 0.0:
+            if dev.kind in self.bridge_kinds and self.max_bridge_s > 0.0:
                 try:
-                    bridged = bridge_block(gyr, acc, mag, t_s, dev.dt_s, prev, self.max_bridge_s,
-                                           max(1, round(self.bridge_average_s / dev.dt_s)))  # fmt: skip
+                    bridged = self._bridge(dev, (gyr, acc, mag, t_s))
                 except Exception as exc:
                     self.fail(dev.kind, dev_id, exc, out)
                     continue
@@ -383,6 +380,18 @@ class FusionBank:
             del quats[dev_id]
             self.fail(items[dev_id][0].kind, dev_id, None, out)
         return quats
+
+    def _bridge(self, dev: FusedDevice, block: Block
+                ) -> tuple[FloatArray, FloatArray, FloatArray | None, np.ndarray] | None:  # fmt: skip
+        """The device's block with the samples lost before and within it interpolated (`gaps.bridge_block`), or None
+        when none were; remembers the block as the left side of the next gap."""
+        gyr, acc, mag, t_s = block
+        prev_t_s, prev = dev.last_t_s, dev.last_block
+        dev.last_t_s, dev.last_block = float(t_s[-1]), block
+        if not has_gap(t_s, prev_t_s, dev.dt_s):
+            return None
+        return bridge_block(gyr, acc, mag, t_s, dev.dt_s, prev, self.max_bridge_s,
+                            max(1, round(self.bridge_average_s / dev.dt_s)))  # fmt: skip
 
     def _step_batch(self, items: dict[str, tuple[FusedDevice, list[schemas.ImuPacket], Block]],
                     by_len: dict[int, list[str]], inputs: dict[str, Block]) -> dict[str, FloatArray]:  # fmt: skip
