@@ -144,13 +144,15 @@ class HookFleet:
             Message(schemas.truth_key("hook", dev), truth.to_json(), schemas.ENCODING_TRUTH)]
 
 
-def fleet_settings(duration_s: float, seed: int) -> FleetSettings:
+def fleet_settings(duration_s: float, seed: int, link: common.LinkModel | None = None) -> FleetSettings:
+    """The hook device's settings; `link`: packet loss on its way (the truth mirror shares each packet's fate)."""
     return FleetSettings(count=1, seed=seed, rate_hz=RATE_HZ, samples_per_packet=SAMPLES_PER_PACKET,
-                         duration_s=duration_s, id_prefix="hook", progress=False)  # fmt: skip
+                         duration_s=duration_s, id_prefix="hook", progress=False,
+                         link=link or common.LinkModel())  # fmt: skip
 
 
-def run_device(port: int, case: Case, duration_s: float, seed: int) -> None:
-    fleet = fleet_settings(duration_s, seed)
+def run_device(port: int, case: Case, duration_s: float, seed: int, link: common.LinkModel | None = None) -> None:
+    fleet = fleet_settings(duration_s, seed, link)
     with zenoh.open(common.zenoh_config("peer", [f"tcp/127.0.0.1:{port}"])) as session:
         common.run_fleet(session, HookFleet(fleet, case, seed), fleet)
 
@@ -256,13 +258,16 @@ def _vqf(packets: list[schemas.ImuPacket]) -> np.ndarray[Any, Any]:
     return np.asarray(out["quat6D" if mag is None else "quat9D"])
 
 
-def device_args(case_name: str, duration_s: float, still_s: float, seed: int, twist: float | None) -> list[str]:
+def device_args(case_name: str, duration_s: float, still_s: float, seed: int, twist: float | None,
+                link: common.LinkModel | None = None) -> list[str]:  # fmt: skip
     args = ["--scenario", case_name, "--duration", str(duration_s), "--still", str(still_s), "--seed", str(seed)]
+    args += [] if link is None else ["--loss", str(link.loss_prob), "--burst", str(link.burst_len)]
     return args + ([] if twist is None else ["--twist-torque", str(twist)])
 
 
 def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenario: str = "free",
-                twist_torque_n_m: float | None = None, record_imu: bool = False) -> tuple[Recorder, int]:  # fmt: skip
+                twist_torque_n_m: float | None = None, record_imu: bool = False,
+                link: common.LinkModel | None = None) -> tuple[Recorder, int]:  # fmt: skip
     """Gateway + hook processes with an observer session; returns what it saw and the device's exit code."""
     import subprocess
 
@@ -281,7 +286,7 @@ def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenar
             time.sleep(0.5)
             dev = subprocess.run(
                 [sys.executable, "-m", "bench.hook_e2e", "--device", "--port", str(zport),
-                 *device_args(scenario, duration_s, still_s, seed, twist_torque_n_m)],
+                 *device_args(scenario, duration_s, still_s, seed, twist_torque_n_m, link)],
                 cwd=REPO, capture_output=True, timeout=duration_s + 120,
             )  # fmt: skip
             rec.wait_quiet()
@@ -358,13 +363,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--compare", action="store_true", help="also score VQF on the same received IMU samples")
     p.add_argument("--in-process", action="store_true", help="no zenoh: packets straight into a Pipeline; "
                    "prints the pipeline's cost per packet")  # fmt: skip
+    p.add_argument("--loss", type=float, default=0.0, help="packets the device's link loses (Gilbert-Elliott, "
+                   "devices.common.LinkSim), long-run share (default 0; zenoh runs only)")  # fmt: skip
+    p.add_argument("--burst", type=float, default=2.0, help="with --loss: mean burst length, packets (default 2)")
     p.add_argument("--device", action="store_true", help="(internal) run the hook device process")
     p.add_argument("--port", type=int, default=7447, help="(with --device) gateway zenoh port")
     args = p.parse_args(argv)
     case = make_case(args.scenario, args.duration, args.still, args.seed, args.twist_torque)
+    link = common.LinkModel(args.loss, args.burst) if args.loss > 0 else None
     if args.device:
-        run_device(args.port, case, args.duration, args.seed)
+        run_device(args.port, case, args.duration, args.seed, link)
         return 0
+    if args.in_process and link is not None:
+        p.error("--loss needs the zenoh run (the device process's link drops the packets)")
     if args.in_process:
         rec, busy_s, n_packets = run_in_process(case, args.duration, args.seed)
         code = 0
@@ -374,7 +385,7 @@ def main(argv: list[str] | None = None) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             print(f"running {args.duration:g} s of hook data through zenoh and the gateway ...", file=sys.stderr)
             rec, code = run_session(args.duration, args.still, args.seed, Path(tmp), args.scenario,
-                                    args.twist_torque, record_imu=args.compare)  # fmt: skip
+                                    args.twist_torque, record_imu=args.compare, link=link)  # fmt: skip
     if not args.compare:
         rec.samples = [s for s in rec.samples if not s[1].endswith("/imu")]
     r = analyse(rec, case.excitation_end_s, args.settle)
