@@ -31,7 +31,7 @@ from gateway.calibrate import DeviceCalibration
 from gateway.fusion import _default_kernels as K
 from gateway.fusion.base import AttitudeFilter, FloatArray
 from gateway.fusion.batch import DefaultFilterBatch
-from gateway.fusion.gaps import BRIDGE_AVERAGE_S, MAX_BRIDGE_S, bridge_block, has_gap
+from gateway.fusion.gaps import BRIDGE_AVERAGE_S, COAST_MIN_S, MAX_BRIDGE_S, bridge_block, coast_mask, has_gap
 from gateway.kinds.base import Ends, FilterFailure, Fused, FusedDevice, Output
 
 log = logging.getLogger("gateway.fusion.bank")
@@ -162,6 +162,7 @@ class FusionBank:
         self.bridge_kinds = set(bridge_kinds)  # kinds whose lost samples are interpolated for their filter
         self.max_bridge_s = MAX_BRIDGE_S  # longest lost-sample gap interpolated for a filter (0: none, back to back)
         self.bridge_average_s = BRIDGE_AVERAGE_S  # the samples either side of a gap averaged for its line
+        self.coast_min_s = COAST_MIN_S  # gaps this long or longer: a filter with `run_bridged` coasts on its model
         self._effective, self._filter_options, self._new_state, self._on_drop = (effective, filter_options,
                                                                                  new_state, on_drop)  # fmt: skip
         self.devices: dict[str, FusedDevice] = {}
@@ -362,8 +363,13 @@ class FusionBank:
                 by_len.setdefault(gyr.shape[0], []).append(dev_id)
                 continue
             step = getattr(dev.filt, "update_block", None) or dev.filt.run
+            bridged_run = getattr(dev.filt, "run_bridged", None)
             try:
-                quats[dev_id] = step(gyr, acc, mag, dev.dt_s)
+                if dev_id in kept and bridged_run is not None and self.coast_min_s < math.inf:
+                    coast = coast_mask(gyr.shape[0], kept[dev_id], max(1, round(self.coast_min_s / dev.dt_s)))
+                    quats[dev_id] = bridged_run(gyr, acc, mag, dev.dt_s, coast)
+                else:
+                    quats[dev_id] = step(gyr, acc, mag, dev.dt_s)
             except Exception as exc:
                 self.fail(dev.kind, dev_id, exc, out)
         if by_len:

@@ -12,6 +12,8 @@ Gaps longer than `MAX_BRIDGE_S` are left as they are (an interpolation over seco
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -19,6 +21,7 @@ FloatArray = NDArray[np.float64]
 
 MAX_BRIDGE_S = 2.0  # longest gap bridged, s (20 lost 10-sample packets at 100 Hz)
 BRIDGE_AVERAGE_S = 0.01  # samples either side of a gap averaged for the line across it, s (0.01: the next ones)
+COAST_MIN_S = 0.0  # gaps at least this long: a filter with a model (`run_bridged`) coasts on it (0: every gap)
 GAP_FACTOR = 1.5  # a spacing above this many sample periods is a gap (packet times are sample-exact to 1 µs)
 
 
@@ -88,3 +91,16 @@ def bridge_block(gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, t_s: 
         return None
     out, keep = filled
     return out[:, :3], out[:, 3:6], None if mag is None else out[:, 6:9], keep
+
+
+def coast_mask(n_rows: int, keep: NDArray[np.int64], min_run: int) -> NDArray[np.bool_]:
+    """(n_rows,) bool: the inserted rows (not in `keep`) of every gap of at least `min_run` of them, which a filter
+    with a model of its own (`run_bridged`) carries across on that model rather than on the interpolation."""
+    inserted = np.ones(n_rows, dtype=np.bool_)
+    inserted[keep] = False
+    edges = np.flatnonzero(np.diff(np.r_[0, inserted.astype(np.int8), 0]))
+    out = np.zeros(n_rows, dtype=np.bool_)
+    for a, b in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
+        if b - a >= min_run:
+            out[a:b] = True
+    return out

@@ -89,6 +89,9 @@ N_INPUT = 8  # per-sample process input: accelerometer x/y, gyroscope (3), its b
 N_MONITOR = 11  # `ekf_step`'s innovation statistics and move timers
 
 
+COAST_R_SCALE = 1e8  # `run_bridged`: measurement variances × this on rows that were never measured
+
+
 @dataclass(frozen=True)
 class HookFilterSettings:
     """Rope and noise model. Noise figures are per-sample standard deviations unless named a PSD."""
@@ -1297,9 +1300,10 @@ class HookFilter(AttitudeFilter):
                                        *self._rings(dt_s))  # fmt: skip
         return self.quaternion
 
-    def run_with_length(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float
-                        ) -> tuple[FloatArray, FloatArray]:  # fmt: skip
-        """Whole arrays (N, 3) through the numba twin of `update()`: quaternions (N, 4) and rope lengths (N,), m."""
+    def run_with_length(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
+                        r_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+        """Whole arrays (N, 3) through the numba twin of `update()`: quaternions (N, 4) and rope lengths (N,), m.
+        `r_scale` multiplies the measurement noise variances (`run_bridged`: rows that were never measured)."""
         gyr, acc = np.asarray(gyr_rad_s, dtype=np.float64), np.asarray(acc_m_s2, dtype=np.float64)
         if not self._initialised:
             self.initialise(acc[0], None if mag_uT is None else mag_uT[0])
@@ -1311,6 +1315,8 @@ class HookFilter(AttitudeFilter):
             z[:, 4:] = np.asarray(mag_uT, dtype=np.float64)
         u = self._inputs(gyr, acc, dt_s)
         params, r_diag = self._kernel_constants(use_mag, z.shape[1])
+        if r_scale != 1.0:
+            r_diag = r_diag * r_scale
         quats, lengths, self.x, self.P = ekf_run(self.x, self.P, z, u, dt_s, params, self._q_psd, r_diag,
                                                  self._monitor, *self._rings(dt_s))  # fmt: skip
         return quats, lengths
@@ -1331,6 +1337,20 @@ class HookFilter(AttitudeFilter):
     ) -> FloatArray:
         """Whole arrays (N, 3) through the numba twin of `update()`; returns (N, 4)."""
         return self.run_with_length(gyr_rad_s, acc_m_s2, mag_uT, dt_s)[0]
+
+    def run_bridged(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
+                    coast: NDArray[np.bool_]) -> FloatArray:  # fmt: skip
+        """`run` of rows some of which were never measured (`coast`: interpolated across lost packets,
+        `gateway.fusion.gaps`): on those the pendulum model carries the state on alone (their measurements weigh
+        `COAST_R_SCALE` times less; the interpolated force still drives the model). Returns (N, 4)."""
+        n = coast.shape[0]
+        out = np.empty((n, 4))
+        edges = [0, *(np.flatnonzero(coast[1:] != coast[:-1]) + 1).tolist(), n]
+        for a, b in zip(edges[:-1], edges[1:], strict=False):
+            mag = None if mag_uT is None else mag_uT[a:b]
+            scale = COAST_R_SCALE if coast[a] else 1.0
+            out[a:b] = self.run_with_length(gyr_rad_s[a:b], acc_m_s2[a:b], mag, dt_s, scale)[0]
+        return out
 
     @property
     def quaternion(self) -> FloatArray:

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bench.link_loss import BROAD_DIR, broad_total_deg, fused_quats, packets, theta_rmse_deg
-from gateway.fusion.gaps import MAX_BRIDGE_S, bridge_block, fill_gaps, has_gap
+from gateway.fusion.gaps import MAX_BRIDGE_S, bridge_block, coast_mask, fill_gaps, has_gap
 
 DT = 0.01
 
@@ -151,3 +151,35 @@ def test_the_kind_table_says_who_bridges() -> None:
     from gateway.pipeline import Pipeline
 
     assert Pipeline().bank.bridge_kinds == {"hook"}
+
+
+def test_coast_mask_marks_the_inserted_runs_long_enough() -> None:
+    keep = np.array([0, 1, 3, 4, 8, 9])  # one row inserted at 2, three at 5-7
+    assert coast_mask(10, keep, 1).tolist() == [False, False, True, False, False, True, True, True, False, False]
+    assert coast_mask(10, keep, 2).tolist() == [False] * 5 + [True] * 3 + [False] * 2
+
+
+def test_a_hook_coasts_on_its_model_across_a_gap() -> None:
+    """`HookFilter.run_bridged`: on coast rows the measurements weigh nothing (a magnetometer 100 µT off and a
+    tension 5 m/s² off there change the estimate after the gap by less than 1e-5 rad; the interpolated gyroscope
+    and x/y force still drive the model), and the state moves on in time (the estimate at the gap's end differs
+    from its start)."""
+    from bench.hook_suite import RATE_HZ, simulate_seed
+    from gateway.fusion import hook
+    from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
+
+    case, _, gyr, acc, mag = simulate_seed(4, 20.0, "calibrated", True)
+    coast = np.zeros(gyr.shape[0], dtype=bool)
+    coast[1000:1040] = True
+    acc_off, mag_off = acc.copy(), mag.copy()
+    acc_off[coast, 2] += 5.0
+    mag_off[coast] += 100.0
+
+    def run(a: np.ndarray, m: np.ndarray) -> np.ndarray:
+        f = HookFilter(HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True))
+        f.start(gyr[:50], a[:50], m[:50], 1.0 / RATE_HZ)
+        return f.run_bridged(gyr, a, m, 1.0 / RATE_HZ, coast)
+
+    q_sane, q_off = run(acc, mag), run(acc_off, mag_off)
+    assert np.abs(hook.swing_angle(q_sane[1040:]) - hook.swing_angle(q_off[1040:])).max() < 1e-5
+    assert abs(hook.swing_angle(q_sane[1039:1040])[0] - hook.swing_angle(q_sane[1000:1001])[0]) > 1e-4
