@@ -9,6 +9,8 @@
     python -m bench.hook_suite --settings previous          # the defaults before issue 11's third round
     python -m bench.hook_suite --settings trial             # the fourth round's trial jumps (TRIAL_JUMP)
     python -m bench.hook_suite --settings round4            # the default before the fifth round (FOURTH_ROUND)
+    python -m bench.hook_suite --settings held              # the eighth round's held tip tracking (HELD_TRACKING)
+    python -m bench.hook_suite --length-factor 2            # the rope length told 2x too long at t = 0
 
 Each seed draws a crane (issue 11): rope 2-30 m (log-uniform), hook + load 0.5-20 t, torsion stiffness and
 inertia (twist period 4-20 s), the IMU 0.1 ± 0.02 m off the rope axis (the filter assumes 0.1 m and learns the
@@ -58,6 +60,7 @@ from devices.hook_physics import (
 from gateway.fusion import hook
 from gateway.fusion.hook_filter import (
     FOURTH_ROUND,
+    HELD_TRACKING,
     PREVIOUS_DEFAULT,
     TRACKING,
     TRIAL_JUMP,
@@ -228,12 +231,14 @@ def score(q: np.ndarray, truth: HookTruth, keep: np.ndarray, absolute: bool) -> 
 
 def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length: bool, paper_ekf: bool = False,
              family: str = "crane", tracking: bool = False, overrides: dict[str, float] | None = None,
-             rate_hz: float = RATE_HZ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
-    """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`."""
+             rate_hz: float = RATE_HZ, length_factor: float = 1.0
+             ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+    """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`; the filter is told
+    `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1)."""
     case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz)
     out: dict[str, dict[str, dict[str, float]]] = {}
-    q_hook, length = hook_estimate(gyr, acc, mag, case.physics.rope_length_m if tell_length else None, tracking,
-                                   overrides, rate_hz)  # fmt: skip
+    told = case.physics.rope_length_m * length_factor if tell_length else None
+    q_hook, length = hook_estimate(gyr, acc, mag, told, tracking, overrides, rate_hz)
     others = [("vqf", vqf_estimate(gyr, acc, mag, rate_hz))]
     if paper_ekf:
         others.append(("ekf001", paper_ekf_estimate(gyr, acc, mag, rate_hz)))
@@ -273,7 +278,8 @@ def rope_errors(length_m: np.ndarray, truth: HookTruth) -> dict[str, float]:
             "rope_rel": float(np.sqrt(np.mean(((length_m - true_l) / true_l)[scored] ** 2)))}  # fmt: skip
 
 
-PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JUMP, "round4": FOURTH_ROUND}
+PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JUMP, "round4": FOURTH_ROUND,
+           "held": HELD_TRACKING}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -314,15 +320,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--settings", default="", help="HookFilterSettings overrides: name=value,... and/or the presets "
                    "tracking (TRACKING), previous (PREVIOUS_DEFAULT, the defaults before the third round), "
                    "trial (TRIAL_JUMP, the fourth round's trial jumps), round4 (FOURTH_ROUND, the "
-                   "default before the fifth round: the start's magnetometer reference not levelled)")
+                   "default before the fifth round: the start's magnetometer reference not levelled), held "
+                   "(HELD_TRACKING, the eighth round's tip tracking held while the tip estimate is long)")
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     p.add_argument("--rate-hz", type=float, default=RATE_HZ,
                    help="IMU sampling rate (default 100; the suite was tuned at 100 only)")
+    p.add_argument("--length-factor", type=float, default=1.0,
+                   help="tell the filter this times the true rope length (a wrongly configured length; default 1)")
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
+    told = "not told" if args.no_length else f"{args.length_factor:g}x told at t = 0"
     print(f"hook suite ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}, {args.duration:g} s per seed, "
-          f"rope length {'not told' if args.no_length else 'told at t = 0'}, {args.rate_hz:g} Hz; degrees; whole run "
-          f"after {WARMUP_S:g} s")
+          f"rope length {told}, {args.rate_hz:g} Hz; degrees; whole run after {WARMUP_S:g} s")
     print(f"{'seed':>4} {'crane':<44}{'':>6}{'Θ RMSE':>8}{'Θ max':>7}{'dir':>7}{'tors':>7}{'rope m':>8}")
     names = ["hook", "vqf"] + (["ekf001"] if args.paper_ekf else [])
     rows: dict[str, list[dict[str, dict[str, float]]]] = {n: [] for n in names}
@@ -330,7 +339,7 @@ def main(argv: list[str] | None = None) -> int:
     for seed in seeds:
         case = make_case(seed, args.duration, args.family, args.rate_hz)
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
-                     args.tracking, parse_settings(args.settings), args.rate_hz)
+                     args.tracking, parse_settings(args.settings), args.rate_hz, args.length_factor)
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]

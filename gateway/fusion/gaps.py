@@ -12,8 +12,6 @@ Gaps longer than `MAX_BRIDGE_S` are left as they are (an interpolation over seco
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numpy.typing import NDArray
 
