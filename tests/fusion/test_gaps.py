@@ -183,3 +183,28 @@ def test_a_hook_coasts_on_its_model_across_a_gap() -> None:
     q_sane, q_off = run(acc, mag), run(acc_off, mag_off)
     assert np.abs(hook.swing_angle(q_sane[1040:]) - hook.swing_angle(q_off[1040:])).max() < 1e-5
     assert abs(hook.swing_angle(q_sane[1039:1040])[0] - hook.swing_angle(q_sane[1000:1001])[0]) > 1e-4
+
+
+def test_a_bridged_hook_does_not_depend_on_how_packets_are_batched() -> None:
+    """The same lossy stream one packet a batch or four (gaps then fall inside a batch's block too): the same
+    quaternions to 1e-9 (the bridge and the coast cut the rows the same way either way)."""
+    from gateway.config import DeviceSettings
+    from gateway.kinds.base import Output
+    from gateway.pipeline import Pipeline
+
+    pkts, _, case, _ = _hook_case(6, 30.0)
+    lost = np.zeros(len(pkts), dtype=bool)
+    lost[[40, 41, 77, 150, 151, 152, 201]] = True
+    kept = [p for p, gone in zip(pkts, lost, strict=True) if not gone]
+    length = {"rope_length_m": case.physics.rope_length_m}  # type: ignore[attr-defined]
+    one = fused_quats(kept, len(pkts) * 10, "hook", MAX_BRIDGE_S, length)
+    pipe = Pipeline()
+    pipe.set_device_settings(kept[0].device_id, "hook", DeviceSettings(thresholds=length))
+    four = np.full_like(one, np.nan)
+    for i in range(0, len(kept), 4):
+        batch = kept[i : i + 4]
+        for f in pipe.bank.fuse({batch[0].device_id: batch}, 1e9, Output()):
+            four[np.rint(f.t_s * 100.0).astype(np.int64)] = f.q
+    ok = np.isfinite(one[:, 0]) & np.isfinite(four[:, 0])
+    assert ok.sum() > 2500
+    np.testing.assert_allclose(four[ok], one[ok], atol=1e-9)
