@@ -206,7 +206,7 @@ def random_spd(rng: np.random.Generator, n: int) -> np.ndarray:
 
 
 @settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 2**31), m=st.sampled_from([4, 7]),
+@given(seed=st.integers(0, 2**31), m=st.sampled_from([3, 4, 7]),
        restricted=st.lists(st.tuples(st.integers(0, 23), st.integers(0, 6)), max_size=8))
 def test_the_covariance_update_is_josephs_form_for_a_restricted_gain(seed, m, restricted):
     """`P - Wᵀ W + D S Dᵀ` equals `(I - K H) P (I - K H)ᵀ + K R Kᵀ` for a gain with any rows zeroed (the gain
@@ -218,6 +218,7 @@ def test_the_covariance_update_is_josephs_form_for_a_restricted_gain(seed, m, re
     r_diag = np.exp(rng.uniform(-13.0, 2.0, size=m))
     vecs, mats, hm, ss, idx, cnt = hf._workspace()
     hm[0, :m] = h
+    hf._nonzero_columns(hm[0], m, idx, cnt)
     hf._innovation_covariance(p, hm[0], m, r_diag, idx, cnt, hm[1], ss[0])
     hf._kalman_gain(hm[1], ss[0], m, ss[1], hm[3], hm[2])
     s = h @ p @ h.T + np.diag(r_diag)
@@ -254,7 +255,7 @@ def test_the_sparse_prediction_is_f_p_ft_plus_q(seed):
     p = random_spd(rng, n)
     q = np.exp(rng.uniform(-20.0, -5.0, size=n))
     vecs, mats, hm, ss, idx, cnt = hf._workspace()
-    hf._predict_covariance(f, p, q, idx, cnt, mats[1], mats[2])
+    hf._predict_covariance(f, p, q, mats[1], mats[2])
     dense = f @ p @ f.T + np.diag(q)
     scale = np.sqrt(np.outer(np.diag(dense), np.diag(dense)))
     assert np.max(np.abs(mats[2] - dense) / scale) < 1e-12
@@ -275,12 +276,16 @@ def test_the_covariance_stays_symmetric_and_positive_definite_on_a_long_run():
     assert worst > 1e-9
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(seed=st.integers(0, 2**31), use_mag=st.booleans(), force_on=st.booleans(), rate_tau=st.booleans())
-def test_the_fast_jacobians_are_the_plain_forward_differences_bit_for_bit(seed, use_mag, force_on, rate_tau):
-    """`_process_jacobian_into` and `_measurement_jacobian_into` re-run only the pieces of the model a perturbed
-    state feeds: they must give exactly what one `process` / `measurement` per column gives (a state the model
-    makes a piece depend on but the fast Jacobian does not perturb there fails this)."""
+def test_the_exact_jacobians_are_the_plain_forward_differences(seed, use_mag, force_on, rate_tau):
+    """`_process_jacobian_into` and `_measurement_jacobian_into` (analytic: the RK4's tangent-linear model, the body
+    rate's closed form) against the plain definitions, one `process` / `measurement` per column (forward
+    differences, step 1e-7), over random states: each entry within 1e-5 relative or 1e-7 (1 + |f_i(x)| + l)
+    absolute, the forward differences' own error (rounding `|f_i| 2⁻⁵² / 1e-7`, truncation `1e-7/2 × ∂²f_i`, e.g.
+    `2 l` for the tension's `l |n'|²` in the swing rate). The predicted state and measurement are bit for bit the
+    plain ones. It can fail: without the rate difference's term in the tension row, the lever arm's `ω'` term in the
+    force input, or `l'` in the tension row's chained pendulum acceleration, it does."""
     rng = np.random.default_rng(seed)
     x = np.concatenate([rng.normal(scale=0.2, size=4), rng.normal(size=2), rng.normal(scale=0.05, size=8),
                         [rng.uniform(-1.0, 4.0)], rng.normal(scale=0.3, size=6), rng.normal(size=3)])  # fmt: skip
@@ -290,12 +295,16 @@ def test_the_fast_jacobians_are_the_plain_forward_differences_bit_for_bit(seed, 
     params = f._params(use_mag)
     params[hf._FORCE_ON] = 1.0 if force_on else 0.0
     params[hf._L_RATE_TAU] = 30.0 if rate_tau else 0.0
+    length = math.exp(x[hf._LOG_L])
     f0, f_jac = np.empty(hf.N_STATE), np.empty((hf.N_STATE, hf.N_STATE))
-    hf._process_jacobian_into(x, DT_S, u, params, f0, f_jac)
-    assert np.array_equal(f_jac, hf.process_jacobian(x, DT_S, u, params))
+    hf._process_jacobian_into(x, DT_S, u, params, f0, f_jac, np.empty((hf.N_STATE, hf.N_STATE)))
+    f_plain = hf.process_jacobian(x, DT_S, u, params)
     assert np.array_equal(f0, hf.process(x, DT_S, u, params))
+    tol = 1e-5 * np.abs(f_plain) + 1e-7 * (1.0 + np.abs(f0) + length)[:, None]
+    assert np.all(np.abs(f_jac - f_plain) <= tol)
     h0, h_jac = np.empty(7), np.empty((7, hf.N_STATE))
-    hf._measurement_jacobian_into(x, params, h0, h_jac, np.empty(hf.N_STATE), np.empty(7))
-    h0_plain, h_jac_plain = hf.measurement_jacobian(x, params)
-    assert np.array_equal(h_jac, h_jac_plain)
+    hf._measurement_jacobian_into(x, params, h0, h_jac, np.empty((hf.N_STATE, hf.N_STATE)))
+    h0_plain, h_plain = hf.measurement_jacobian(x, params)
     assert np.array_equal(h0, h0_plain)
+    tol = 1e-5 * np.abs(h_plain) + 1e-7 * (1.0 + np.abs(h0) + length)[:, None]
+    assert np.all(np.abs(h_jac - h_plain) <= tol)
