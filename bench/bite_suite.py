@@ -155,10 +155,12 @@ def run_gateway(sc: Scenario, th: RodThresholds | None = None, packet: int = PAC
                 lost: np.ndarray | None = None, bridge: bool = False) -> RodRun:  # fmt: skip
     """Feed the recording to a fresh Pipeline as packets of `packet` samples (default 0.5 s), but those `lost` (bool
     per packet) marks; alarms in recording seconds, every fused pitch (NaN where lost). `bridge`: the lost samples
-    interpolated for the filter (`gateway.fusion.gaps`), which the rod kind does not do by default."""
+    bridged for the filter (`gateway.fusion.gaps`, the rod kind's default), else fed back to back."""
     p = Pipeline(PipelineSettings(attitude_blocks=True), {"rod": th} if th else None)
     if bridge:
         p.bank.bridge_kinds.add("rod")
+    else:
+        p.bank.bridge_kinds.discard("rod")
     n = sc.t_s.size
     bite_s, drop_s, msgs = [], [], []
     quats = np.full((n, 4), np.nan)
@@ -220,7 +222,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="packets lost on a Gilbert-Elliott link (devices.common.LinkSim), long-run share (default 0)")
     ap.add_argument("--burst", type=float, default=2.0, help="with --loss: mean burst length, packets (default 2)")
     ap.add_argument("--bridge", action="store_true",
-                    help="interpolate lost samples for the filter (gateway.fusion.gaps; not the rod kind's default)")
+                    help="bridge lost samples for the filter (gateway.fusion.gaps, the rod kind's default: gyro "
+                         "tapered); without it they are fed back to back")
     a = ap.parse_args(argv)
     seeds = parse_seeds(a.seeds)
     th = RodThresholds(sensitivity=a.sensitivity)
@@ -254,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
     errs = np.concatenate(err_all)
     if a.loss > 0:
         print(f"link: {a.loss:.1%} of {a.packet}-sample packets lost in bursts of {a.burst:g} on average, "
-              + ("bridged (gateway.fusion.gaps)" if a.bridge else "fed back to back (the rod default)"))  # fmt: skip
+              + ("bridged (gateway.fusion.gaps, the rod default)" if a.bridge else "fed back to back"))  # fmt: skip
     print(f"rod scenario suite, seeds {a.seeds}: {len(seeds)} rods, {gw.hours:.2f} rod-hours, sensitivity "
           f"{a.sensitivity} (θ1 {th.effective_bite_deg:g}°); tuned on seeds {TUNED_SEEDS.start}-"
           f"{TUNED_SEEDS.stop - 1} ({time.perf_counter() - start:.0f} s)")  # fmt: skip

@@ -9,8 +9,8 @@ Gilbert-Elliott link (`devices.common.LinkSim`: long-run loss `--loss`, mean bur
 per device) drops some, and the rest go one packet a batch through `FusionBank.fuse` of a real `Pipeline` (the
 gateway's fusion stage: warm-up, filter start, calibration, the hook's rope length set as a user sets it). Three
 runs per device on the same packets: every packet (`lossless`), the lossy stream fed back to back (`max_bridge_s`
-0: the gateway before the bridge, and the rod kind's default: `RodKind.bridge_lost_samples`), and bridged (the hook
-kind's default). Scored on the samples that arrived, after the 0.5 s warm-up:
+0: the gateway before the bridge), and bridged (each kind's default: the hook's coasting, the rod's tapered gyro,
+`RodKind.bridge_gyro_taper_s`). Scored on the samples that arrived, after the 0.5 s warm-up:
 
 - hooks (`bench.hook_suite`'s cranes, calibrated IMU, 9D, rope length told): swing angle Θ RMSE / max, degrees;
 - rods (BROAD's real recordings with optical truth, `../shared/data/broad`, 9D, the default filter): total

@@ -139,6 +139,7 @@ class Pipeline:
             new_state=lambda dev, th: self.handlers[dev.kind].new_state(self._ctx, dev, th),
             on_drop=self.reel_control.forget,
             bridge_kinds={name for name, h in self.handlers.items() if h.bridge_lost_samples},
+            gyro_taper_s={name: h.bridge_gyro_taper_s for name, h in self.handlers.items()},
         )  # fmt: skip
         for d, (_, ds) in self.device_settings.items():
             if ds.calibration is not None:

@@ -156,12 +156,14 @@ class FusionBank:
         warmup_bias_seed: bool = True, effective: Callable[[str, str], tuple[str, Any]],
         filter_options: Callable[[str, Any], dict[str, Any]], new_state: Callable[[FusedDevice, Any], Any],
         on_drop: Callable[[str], None] = lambda _: None, bridge_kinds: Iterable[str] = (),
+        gyro_taper_s: dict[str, float] | None = None,
     ) -> None:  # fmt: skip
         self.warmup_s, self.rest_gyr_std_rad_s, self.rest_acc_tol_m_s2 = warmup_s, rest_gyr_std_rad_s, rest_acc_tol_m_s2
         self.warmup_bias_seed = warmup_bias_seed
         self.bridge_kinds = set(bridge_kinds)  # kinds whose lost samples are interpolated for their filter
         self.max_bridge_s = MAX_BRIDGE_S  # longest lost-sample gap interpolated for a filter (0: none, back to back)
         self.bridge_average_s = BRIDGE_AVERAGE_S  # the samples either side of a gap averaged for its line
+        self.gyro_taper_s = dict(gyro_taper_s or {})  # per kind: bridged gyro rates tapered (`gaps.taper_inserted`)
         self.coast_min_s = COAST_MIN_S  # gaps this long or longer: a filter with `run_bridged` coasts on its model
         self._effective, self._filter_options, self._new_state, self._on_drop = (effective, filter_options,
                                                                                  new_state, on_drop)  # fmt: skip
@@ -397,7 +399,7 @@ class FusionBank:
         if not has_gap(t_s, prev_t_s, dev.dt_s):
             return None
         return bridge_block(gyr, acc, mag, t_s, dev.dt_s, prev, self.max_bridge_s,
-                            max(1, round(self.bridge_average_s / dev.dt_s)))  # fmt: skip
+                            max(1, round(self.bridge_average_s / dev.dt_s)), self.gyro_taper_s.get(dev.kind, 0.0))
 
     def _step_batch(self, items: dict[str, tuple[FusedDevice, list[schemas.ImuPacket], Block]],
                     by_len: dict[int, list[str]], inputs: dict[str, Block]) -> dict[str, FloatArray]:  # fmt: skip

@@ -8,6 +8,9 @@ boom-tip move). `fill_gaps` inserts the missing samples, interpolated linearly b
 and the one after, for the filter only: every output stays on the device's own samples (`keep`).
 
 Gaps longer than `MAX_BRIDGE_S` are left as they are (an interpolation over seconds is a guess, not a bridge).
+A kind may taper the interpolated gyroscope towards zero inside a gap (`taper_inserted`): the rate at the edges is
+measured, the rate in the middle of a long gap is not, and a line between two samples of a rod tip's ringing or
+spring-back turns it by many degrees that never happened.
 """
 
 from __future__ import annotations
@@ -70,13 +73,31 @@ def fill_gaps(t_s: FloatArray, rows: FloatArray, dt_s: float, prev_t_s: FloatArr
     return out, keep
 
 
+def taper_inserted(rows: FloatArray, keep: NDArray[np.int64], dt_s: float, tau_s: float) -> FloatArray:
+    """`rows` (m, k) with each inserted row (not in `keep`, ascending) scaled by exp(-d / `tau_s`), d (s) its time
+    to the nearest sample that arrived (an inserted row before `keep[0]` has the previous block's last sample at
+    index -1); kept rows as they are. `tau_s` <= 0: `rows` unchanged (the line itself)."""
+    if tau_s <= 0.0 or keep.shape[0] == rows.shape[0]:
+        return rows
+    idx = np.arange(rows.shape[0])
+    inserted = np.ones(rows.shape[0], dtype=np.bool_)
+    inserted[keep] = False
+    after = np.searchsorted(keep, idx)  # the first kept row at or after each row (every inserted row has one)
+    left = np.where(after > 0, keep[np.maximum(after - 1, 0)], -1)
+    d = np.minimum(idx - left, keep[np.minimum(after, keep.shape[0] - 1)] - idx)
+    out = rows.copy()
+    out[inserted] *= np.exp(-d[inserted] * dt_s / tau_s)[:, None]
+    return out
+
+
 def bridge_block(gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, t_s: FloatArray, dt_s: float,
                  prev: tuple[FloatArray, FloatArray, FloatArray | None, FloatArray] | None,
-                 max_gap_s: float = MAX_BRIDGE_S, average_n: int = 1
+                 max_gap_s: float = MAX_BRIDGE_S, average_n: int = 1, gyro_taper_s: float = 0.0
                  ) -> tuple[FloatArray, FloatArray, FloatArray | None, NDArray[np.int64]] | None:  # fmt: skip
     """`fill_gaps` of one device's block (gyr, acc, mag or None; (n, 3) each; times `t_s`) after its previous block
     `prev` (gyr, acc, mag, t_s; None: none; its mag must be there as this one's is, or it is not used): the filled
-    gyr, acc, mag and `keep`, or None when nothing was missing."""
+    gyr (inserted rates tapered with `gyro_taper_s`, `taper_inserted`), acc, mag and `keep`, or None when nothing
+    was missing."""
     cols = [gyr, acc] if mag is None else [gyr, acc, mag]
     rows = np.hstack(cols)
     prev_rows = prev_t = None
@@ -88,7 +109,8 @@ def bridge_block(gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, t_s: 
     if filled is None:
         return None
     out, keep = filled
-    return out[:, :3], out[:, 3:6], None if mag is None else out[:, 6:9], keep
+    gyr_out = taper_inserted(out[:, :3], keep, dt_s, gyro_taper_s)
+    return gyr_out, out[:, 3:6], None if mag is None else out[:, 6:9], keep
 
 
 def coast_mask(n_rows: int, keep: NDArray[np.int64], min_run: int) -> NDArray[np.bool_]:

@@ -320,6 +320,8 @@ class DeviceKind(Protocol):
     # Samples lost on the link interpolated for this kind's filter (`gateway.fusion.gaps`), or its packets fed back
     # to back: a choice per kind, measured (docs/fusion.md, "Lost packets").
     bridge_lost_samples: ClassVar[bool]
+    # ... and the interpolated gyro rates tapered towards zero inside a gap with this time constant, s (0: the line)
+    bridge_gyro_taper_s: ClassVar[float]
     packet_types: ClassVar[tuple[type[Any], ...]]
 
     def thresholds_model(self) -> type[BaseModel]:
@@ -362,6 +364,7 @@ class KindBase:
     fused: ClassVar[bool] = True
     imu_outputs: ClassVar[bool] = True
     bridge_lost_samples: ClassVar[bool] = False
+    bridge_gyro_taper_s: ClassVar[float] = 0.0
     packet_types: ClassVar[tuple[type[Any], ...]] = ()
 
     def thresholds_model(self) -> type[BaseModel]:

@@ -36,7 +36,8 @@ class RodKind(KindBase):
 
     name: ClassVar[str] = "rod"
     fused: ClassVar[bool] = True
-    bridge_lost_samples: ClassVar[bool] = False  # bridged, lossy rods raised more false bite alarms (fusion.md)
+    bridge_lost_samples: ClassVar[bool] = True  # bridged with a tapered gyro: fewer false alarms (fusion.md)
+    bridge_gyro_taper_s: ClassVar[float] = 0.05  # a line across a ringing tip's gap raised false bites (fusion.md)
     packet_types: ClassVar[tuple[type[Any], ...]] = (schemas.ReelStatus,)
 
     def __init__(self, auto_reel: AutoReel) -> None:

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bench.link_loss import BROAD_DIR, broad_total_deg, fused_quats, packets, theta_rmse_deg
-from gateway.fusion.gaps import MAX_BRIDGE_S, bridge_block, coast_mask, fill_gaps, has_gap
+from gateway.fusion.gaps import MAX_BRIDGE_S, bridge_block, coast_mask, fill_gaps, has_gap, taper_inserted
 
 DT = 0.01
 
@@ -111,9 +111,10 @@ def test_a_stream_without_loss_is_fused_exactly_as_before() -> None:
 
 
 def test_a_real_rod_recording_that_loses_packets_keeps_its_attitude(broad_dir: Path) -> None:
-    """BROAD trial 03 (slow rotation, real IMU, optical truth), every 30th packet lost: the default filter's total
-    error stays within 0.5° of the lossless run (measured 2.06° vs 1.94°); back to back it is over 3× worse
-    (measured 7.0°): each lost packet's rotation was never integrated."""
+    """BROAD trial 03 (slow rotation, real IMU, optical truth), every 30th packet lost: bridged as the rod kind does
+    (gyro tapered), the default filter's total error stays within 1° of the lossless run (measured 2.85° vs 1.94°;
+    a plain line: 2.06°); back to back it is over 3× worse (measured 7.0°): each lost packet's rotation was never
+    integrated."""
     from gateway.fusion import broad
 
     if not (broad_dir / "03_undisturbed_slow_rotation_C.mat").is_file():
@@ -132,7 +133,7 @@ def test_a_real_rod_recording_that_loses_packets_keeps_its_attitude(broad_dir: P
     lossless = total(fused_quats(pkts, n, "rod", MAX_BRIDGE_S))
     bridged = total(fused_quats(kept, n, "rod", MAX_BRIDGE_S))
     back_to_back = total(fused_quats(kept, n, "rod", 0.0))
-    assert bridged < lossless + 0.5, (bridged, lossless)
+    assert bridged < lossless + 1.0, (bridged, lossless)
     assert back_to_back > 3.0 * lossless, (back_to_back, lossless)
 
 
@@ -146,11 +147,14 @@ def test_the_bench_runs_on_a_small_case(capsys: pytest.CaptureFixture[str]) -> N
 
 
 def test_the_kind_table_says_who_bridges() -> None:
-    """Hooks bridge their lost samples, rods do not (bridged, lossy rods raised more false bite alarms on the rod
-    scenario suite: docs/fusion.md, "Lost packets")."""
+    """Hooks and rods bridge their lost samples; only the rod tapers its bridged gyro (a plain line raised false
+    bite alarms on the rod scenario suite, back to back missed bites: docs/fusion.md, "Lost packets")."""
     from gateway.pipeline import Pipeline
 
-    assert Pipeline().bank.bridge_kinds == {"hook"}
+    bank = Pipeline().bank
+    assert bank.bridge_kinds == {"hook", "rod"}
+    assert bank.gyro_taper_s["rod"] > 0.0
+    assert bank.gyro_taper_s["hook"] == 0.0
 
 
 def test_coast_mask_marks_the_inserted_runs_long_enough() -> None:
@@ -208,3 +212,44 @@ def test_a_bridged_hook_does_not_depend_on_how_packets_are_batched() -> None:
     ok = np.isfinite(one[:, 0]) & np.isfinite(four[:, 0])
     assert ok.sum() > 2500
     np.testing.assert_allclose(four[ok], one[ok], atol=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(keep_mask=st.lists(st.booleans(), min_size=2, max_size=40), tau_s=st.floats(0.005, 1.0))
+def test_taper_scales_each_inserted_row_by_its_distance_to_a_sample(keep_mask: list[bool], tau_s: float) -> None:
+    """Kept rows stay; an inserted row d samples from the nearest kept one (the previous block's last sample
+    counts as index -1) is scaled by exp(-d·dt/tau), checked against a plain loop; tau 0 leaves the line."""
+    mask = np.array(keep_mask)
+    mask[-1] = True  # a block ends with a sample that arrived
+    keep = np.flatnonzero(mask)
+    rows = np.random.default_rng(len(keep_mask)).normal(size=(mask.size, 3))
+    out = taper_inserted(rows, keep, DT, tau_s)
+    for i in range(mask.size):
+        d = min([abs(i - k) for k in [-1, *keep.tolist()]])
+        assert np.allclose(out[i], rows[i] * math.exp(-d * DT / tau_s), rtol=1e-12, atol=0.0)
+    assert taper_inserted(rows, keep, DT, 0.0) is rows
+
+
+def test_a_ringing_rod_tip_is_not_turned_by_the_line_across_a_gap() -> None:
+    """A rod tip ringing at 3.3 Hz (±2 rad/s pitch rate) loses 3 packets, one whole period from crest to crest: the
+    line between the two crests turns the filter by 0.6 rad that never happened; the rod kind's taper
+    (`RodKind.bridge_gyro_taper_s`) leaves under half of that (fails with the taper 0)."""
+    from gateway.kinds.rod import RodKind
+
+    f_hz, amp = 10.0 / 3.0, 2.0
+    t = np.arange(120) * DT
+    gyr = np.zeros((t.size, 3))
+    gyr[:, 1] = amp * np.cos(2.0 * np.pi * f_hz * t)
+    acc = np.tile([0.0, 0.0, 9.81], (t.size, 1))
+    arrived = np.ones(t.size, dtype=bool)
+    arrived[31:60] = False  # crests at 0.3 s and 0.6 s arrive, the period between is lost
+    out = bridge_block(gyr[arrived], acc[arrived], None, t[arrived], DT, None,
+                       gyro_taper_s=RodKind.bridge_gyro_taper_s)  # fmt: skip
+    assert out is not None
+    line = bridge_block(gyr[arrived], acc[arrived], None, t[arrived], DT, None)
+    assert line is not None
+    true_turn = gyr[31:60, 1].sum() * DT
+    line_error = abs(line[0][31:60, 1].sum() * DT - true_turn)
+    taper_error = abs(out[0][31:60, 1].sum() * DT - true_turn)
+    assert line_error > 0.5
+    assert taper_error < 0.5 * line_error, (taper_error, line_error)
