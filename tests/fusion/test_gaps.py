@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.link_loss import BROAD_DIR, broad_total_deg, fused_quats, packets, theta_rmse_deg
+from bench.link_loss import broad_total_deg, fused_quats, packets, theta_rmse_deg
 from gateway.fusion.gaps import MAX_BRIDGE_S, bridge_block, coast_mask, fill_gaps, has_gap, taper_inserted
 
 DT = 0.01
@@ -80,7 +80,7 @@ def _theta_rmse(q: np.ndarray, truth_rad: np.ndarray, arrived: np.ndarray) -> fl
 
 def test_a_hook_that_loses_packets_keeps_its_swing_angle() -> None:
     """Suite crane seed 3 (60 s), every 40th packet lost plus a 0.5 s burst: through the fusion bank, Θ RMSE on
-    the samples that arrived stays within 0.02° of the lossless run's (measured 0.119° vs 0.117°); fed back to
+    the samples that arrived stays within 0.02° of the lossless run's (measured 0.117° both, coasting); fed back to
     back (the gateway before the bridge) it is more than 1.5× worse (measured 0.20°)."""
     pkts, truth_rad, case, _ = _hook_case(3, 60.0)
     lost = np.zeros(len(pkts), dtype=bool)
@@ -143,7 +143,6 @@ def test_the_bench_runs_on_a_small_case(capsys: pytest.CaptureFixture[str]) -> N
     assert main(["--kinds", "hook", "--seeds", "2", "--duration", "20"]) == 0
     out = capsys.readouterr().out
     assert "| hooks, Θ RMSE / worst max (°), 1 |" in out
-    assert BROAD_DIR.name == "broad"
 
 
 def test_the_kind_table_says_who_bridges() -> None:
