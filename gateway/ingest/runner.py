@@ -210,6 +210,7 @@ class GatewayService:
         self._s_per_packet = 0.0  # running mean of a batch's CPU time per packet (sizes the next batch)
         self.config_view = ConfigView({}, {})  # what the config queryable answers from (see `refresh_config_view`)
         self._config_dirty = True
+        self._config_kinds_seen = -1  # len(pipeline.kinds) at the last refresh: other shards' devices are not in the view
         self.counters = IngestCounters()
         self.presence = Presence()
         self.started_s = time.time()
@@ -576,7 +577,7 @@ class GatewayService:
         """Owner, after each batch: publish a new `config_view` if devices appeared or settings changed (a new dict
         each time, so the queryable's thread always reads a whole one)."""
         view, kinds = self.config_view, self.pipeline.kinds
-        if not self._config_dirty and len(view.devices) == len(kinds):
+        if not self._config_dirty and len(kinds) == self._config_kinds_seen:
             return
         devices = {} if self._config_dirty else dict(view.devices)
         for device_id, kind in list(kinds.items()):
@@ -588,6 +589,7 @@ class GatewayService:
         defaults = view.defaults if view.defaults and not self._config_dirty else {
             kind: self.device_config(kind, "defaults") for kind in schemas.KINDS}  # fmt: skip
         self._config_dirty = False
+        self._config_kinds_seen = len(kinds)
         self.config_view = ConfigView(devices, defaults)
 
     def config_replies(self, selector: str) -> list[tuple[str, bytes]]:
