@@ -210,7 +210,7 @@ class GatewayService:
         self._s_per_packet = 0.0  # running mean of a batch's CPU time per packet (sizes the next batch)
         self.config_view = ConfigView({}, {})  # what the config queryable answers from (see `refresh_config_view`)
         self._config_dirty = True
-        self._config_kinds_seen = -1  # len(pipeline.kinds) at the last refresh: other shards' devices are not in the view
+        self._config_kinds_seen = -1  # len(pipeline.kinds) at the last refresh (the view lacks other shards' devices)
         self.counters = IngestCounters()
         self.presence = Presence()
         self.started_s = time.time()
