@@ -37,6 +37,7 @@ from bench.hook_suite import (
     RATE_HZ,
     WARMUP_S,
     SuiteCase,
+    add_suite_version_argument,
     parse_seeds,
     parse_settings,
     rope_errors,
@@ -131,18 +132,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--settings", default="",
                    help="settings overrides for every oracle: a=1,b=2 and/or presets tracking, steady")  # fmt: skip
     p.add_argument("--per-seed", action="store_true", help="also print each seed's whole-run Θ RMSE per oracle")
+    add_suite_version_argument(p)
     args = p.parse_args(argv)
     seeds, oracles = parse_seeds(args.seeds), [o.strip() for o in args.oracles.split(",")]
     unknown = {p for o in oracles for p in o.split("+")} - set(ORACLES) - set(BIAS_PARTS) - {"swing0", "heading0"}
     if unknown:
         raise SystemExit(f"unknown oracle(s): {', '.join(sorted(unknown))}")
     extra = parse_settings(args.settings)
-    print(f"hook error budget ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}, {args.duration:g} s, "
-          f"seeds {args.seeds}, settings {extra or 'default'}; Θ RMSE in degrees, mean over seeds")
+    print(f"hook error budget (suite v{args.suite_version}, {args.family}), {'6D' if args.six_d else '9D'}, "
+          f"IMU {args.imu}, {args.duration:g} s, seeds {args.seeds}, settings {extra or 'default'}; Θ RMSE in degrees, "
+          "mean over seeds")
     rows: dict[str, list[dict[str, dict[str, float]]]] = {o: [] for o in oracles}
     t0 = time.perf_counter()
     for seed in seeds:
-        case, truth, gyr, acc, mag = simulate_seed(seed, args.duration, args.imu, not args.six_d, args.family)
+        case, truth, gyr, acc, mag = simulate_seed(seed, args.duration, args.imu, not args.six_d, args.family,
+                                                  suite_version=args.suite_version)
         line = []
         for o in oracles:
             q, length = oracle_run(o, case, truth, gyr, acc, mag, extra)

@@ -27,7 +27,15 @@ import math
 
 import numpy as np
 
-from bench.hook_suite import FAMILIES, RATE_HZ, WARMUP_S, parse_seeds, parse_settings, simulate_seed
+from bench.hook_suite import (
+    FAMILIES,
+    RATE_HZ,
+    WARMUP_S,
+    add_suite_version_argument,
+    parse_seeds,
+    parse_settings,
+    simulate_seed,
+)
 from devices.hook_physics import HookTruth
 from gateway.fusion import hook
 from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
@@ -93,13 +101,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--settings", default="", help="HookFilterSettings overrides and presets, as bench.hook_suite")
     p.add_argument("--packet", type=int, default=5, help="samples per filter call (default: 5)")
     p.add_argument("--timeline", action="store_true", help="print every second from 8 s before the worst Θ error")
+    add_suite_version_argument(p)
     args = p.parse_args(argv)
     overrides = parse_settings(args.settings)
     print(f"{'seed':>4} {'Θ':>6} {'centre':>7} {'tip':>6} {'acc bias':>9} {'rest':>6}   (RMS, degrees)")
     parts = ("theta", "centre", "tip", "acc_bias", "rest")
     rows: list[list[float]] = []
     for seed in parse_seeds(args.seeds):
-        case, truth, gyr, acc, mag = simulate_seed(seed, args.duration, "calibrated", True, args.family)
+        case, truth, gyr, acc, mag = simulate_seed(seed, args.duration, "calibrated", True, args.family,
+                                                  suite_version=args.suite_version)
         s = HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True, **overrides)
         q, x = trace(gyr, acc, mag, s, args.packet)
         e = centre_parts(q, x, truth, gyr, acc, case.physics.rope_length_m, s.gravity_m_s2)

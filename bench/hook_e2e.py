@@ -17,6 +17,7 @@ Scenarios (the hook hangs still for `--still` s first; the gateway warms up on t
   gateway.fusion.hook_filter), so Θ during the move is not scored in the free-swing window.
 - `suite:SEED`: bench.hook_suite's randomised crane of that seed (its physics and the calibrated IMU preset; the
   rope length is set with `PUT /api/thresholds/hook` first, as a user would); `--still` does not apply.
+  `suite:SEED:1`: the same from the suite's generator version 1 (before its hoist fix; default: its default, 2).
 
 Windows, in scenario time (device time since its first sample): *free swing* from the end of the excitation plus
 `--settle` s (default 12 s, as bench.hook_accuracy) to the end; *all* from 1 s after the first swing message.
@@ -77,11 +78,14 @@ def physics() -> HookPhysicsSettings:
 
 def make_case(name: str, duration_s: float, still_s: float, seed: int, twist_torque_n_m: float | None) -> Case:
     """The scenario `name` (see the module docstring); `twist_torque_n_m` overrides its gust torque. `suite:SEED` is
-    bench.hook_suite's crane of that seed (`still_s` and the torque are ignored)."""
+    bench.hook_suite's crane of that seed (`still_s` and the torque are ignored), `suite:SEED:VERSION` from that
+    version of its generator."""
     if name.startswith("suite:"):
+        from bench.hook_suite import SUITE_VERSION
         from bench.hook_suite import make_case as suite_case
 
-        sc = suite_case(int(name.split(":", 1)[1]), duration_s + 1.0)
+        _, seed_text, *version = name.split(":")
+        sc = suite_case(int(seed_text), duration_s + 1.0, suite_version=int(version[0]) if version else SUITE_VERSION)
         return Case(sc.scenario, 0.0, sc.physics, "calibrated")
     if name == "free":
         a, b = 1.6, math.radians(40.0)
@@ -352,7 +356,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.hook_e2e", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     p.add_argument("--scenario", default="free", help=f"what the hook does: {', '.join(SCENARIOS)} or suite:SEED "
-                   "(a bench.hook_suite crane; its rope length is set over REST first) (default: free)")
+                   "(a bench.hook_suite crane; its rope length is set over REST first; suite:SEED:1 its generator "
+                   "version 1) (default: free)")
     p.add_argument("--duration", type=float, default=40.0, help="seconds of hook data (default: 40)")
     p.add_argument("--still", type=float, default=3.0, help="seconds hanging still before the trolley moves")
     p.add_argument("--settle", type=float, default=12.0, help="free-swing window starts this long after the "

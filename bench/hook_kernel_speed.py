@@ -33,13 +33,14 @@ ROOT = Path(__file__).resolve().parent.parent
 WARMUP_S = 0.5
 
 
-def make_samples(seed: int, duration_s: float, path: Path) -> None:
-    """Simulate the suite crane of `seed` and store its IMU samples and rope length in `path` (.npz)."""
-    from bench.hook_suite import RATE_HZ, make_case
+def make_samples(seed: int, duration_s: float, path: Path, suite_version: int | None) -> None:
+    """Simulate the suite crane of `seed` (`bench.hook_suite.make_case`'s `suite_version`, None: its default) and
+    store its IMU samples and rope length in `path` (.npz)."""
+    from bench.hook_suite import RATE_HZ, SUITE_VERSION, make_case
     from devices.common import ImuErrorModel, SensorModel
     from devices.hook_physics import simulate
 
-    case = make_case(seed, duration_s)
+    case = make_case(seed, duration_s, suite_version=SUITE_VERSION if suite_version is None else suite_version)
     truth = simulate(case.physics, case.scenario)
     sensor = SensorModel(ImuErrorModel.preset("calibrated"), 1, np.random.default_rng(10_000 + seed))
     gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / RATE_HZ)
@@ -112,6 +113,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--compare", type=Path, default=None, help="another source tree, e.g. a worktree of main")
     p.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     p.add_argument("--out", type=Path, default=None, help=argparse.SUPPRESS)
+    p.add_argument("--suite-version", type=int, default=None,  # bench.hook_suite not imported here: see --child
+                   help="bench.hook_suite's crane generator, 1 or 2 (default: its default, 2)")
     args = p.parse_args(argv)
     if args.child is not None:
         print(json.dumps(child(args.child, args.mode, args.runs, args.packet, args.out)))
@@ -122,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     modes = ["9D", "6D"] if args.mode == "both" else [args.mode]
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "samples.npz"
-        make_samples(args.seed, args.duration, data)
+        make_samples(args.seed, args.duration, data, args.suite_version)
         n = int(np.load(data)["gyr"].shape[0])
         feed = f"{args.packet} samples per call" if args.packet > 0 else "one call"
         print(f"hook EKF kernel: suite crane seed {args.seed}, {args.duration:g} s ({n} samples), {feed}; best of "

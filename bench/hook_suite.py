@@ -11,14 +11,19 @@
     python -m bench.hook_suite --settings round4            # the default before the fifth round (FOURTH_ROUND)
     python -m bench.hook_suite --settings held              # the eighth round's held tip tracking (HELD_TRACKING)
     python -m bench.hook_suite --length-factor 2            # the rope length told 2x too long at t = 0
+    python -m bench.hook_suite --suite-version 1            # the cranes before the hoist fix (earlier figures)
 
 Each seed draws a crane (issue 11): rope 2-30 m (log-uniform), hook + load 0.5-20 t, torsion stiffness and
 inertia (twist period 4-20 s), the IMU 0.1 ± 0.02 m off the rope axis (the filter assumes 0.1 m and learns the
 rest), and a timeline over `--duration` s: the hook either hangs still or is already swinging (1-8°, any bearing,
 elliptic) when the gateway starts, then events separated by free swing: tag-line pulls (50-300 N for 1-5 s, any
 direction, then let go), trolley traverses (2-15 m at 0.2-0.5 m/s²), slewing moves (20-90° at 0.03-0.08 rad/s,
-15-50 m radius, 0.1-0.3 m/s² at the tip), hoisting and lowering (0.2-1 m/s, the rope stays within 2-30 m), wind
-(steady 0-60 N, gusts 10-40 % of it + 0-10 N std) and torque gusts about the rope (initial twist up to ±90°).
+15-50 m radius, 0.1-0.3 m/s² at the tip), hoisting and lowering (0.2-1 m/s, slower if short, to a target within
+2-30 m), wind (steady 0-60 N, gusts 10-40 % of it + 0-10 N std) and torque gusts about the rope (initial twist up to
+±90°).
+Suite version 2 (the default, `--suite-version`) slows a hoist whose target is nearer than its two ramps at full
+speed carry it, so that it ends on the target; version 1, the generator of every figure documented before it, took
+such a hoist past its target (seed 902's rope to 0.57 m). Both draw the same numbers and the same timeline.
 Sensor errors: `devices.common.ImuErrorModel` preset (default `calibrated`, what the simulators publish).
 `--family windy`: the same draws on a light load (0.5-1.5 t) on a short rope (2-6 m) in a steady wind of 30-60 N
 from the start (a steady force at start is what a filter can take for accelerometer bias).
@@ -72,6 +77,8 @@ RATE_HZ = 100.0  # the IMU's sampling rate unless `rate_hz` / `--rate-hz` says o
 WARMUP_S = 0.5
 AFTER_EVENT_S = 5.0
 PHASES = ("free", "pull", "move")
+SUITE_VERSIONS = (1, 2)  # 1: the hoist generator before issue 11's fix (figures documented before it); 2: fixed
+SUITE_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -99,12 +106,19 @@ class SuiteCase:
 FAMILIES = ("crane", "windy")
 
 
-def make_case(seed: int, duration_s: float = 180.0, family: str = "crane", rate_hz: float = RATE_HZ) -> SuiteCase:
+def make_case(seed: int, duration_s: float = 180.0, family: str = "crane", rate_hz: float = RATE_HZ,
+              suite_version: int = SUITE_VERSION) -> SuiteCase:
     """The randomised crane and timeline of `seed` (see the module docstring). `family="windy"`: the same draws on a
     light load (0.5-1.5 t) on a short rope (2-6 m) in a steady wind of 30-60 N present from the start, which a
-    filter that takes the warm-up's mean force for accelerometer bias reads as a steady tilt error."""
+    filter that takes the warm-up's mean force for accelerometer bias reads as a steady tilt error.
+    `suite_version` 1: the generator before the hoist fix, whose hoist lasts at least two ramps at its drawn speed
+    and so overshoots a nearer target (some seeds' ropes went below 2 m); 2: such a hoist is slowed to end on its
+    target, and a hoist after it (the rope is elsewhere than in version 1) keeps version 1's duration at the speed
+    that ends on its target, capped at the drawn speed. The timeline and every draw are the same in both."""
     if family not in FAMILIES:
         raise ValueError(f"unknown scenario family {family!r}; known: {', '.join(FAMILIES)}")
+    if suite_version not in SUITE_VERSIONS:
+        raise ValueError(f"unknown suite version {suite_version!r}; known: {', '.join(map(str, SUITE_VERSIONS))}")
     windy = family == "windy"
     rng = np.random.default_rng(seed)
     l0 = float(math.exp(rng.uniform(math.log(2.0), math.log(6.0 if windy else 30.0))))
@@ -126,7 +140,7 @@ def make_case(seed: int, duration_s: float = 180.0, family: str = "crane", rate_
     slews: list[SlewMove] = []
     hoists: list[Hoist] = []
     pulls: list[Pull] = []
-    length = l0
+    length = rope = l0
     t = float(rng.uniform(5.0, 15.0))
     while t < duration_s - 10.0:
         kind = str(rng.choice(["pull", "trolley", "slew", "hoist"]))
@@ -151,9 +165,13 @@ def make_case(seed: int, duration_s: float = 180.0, family: str = "crane", rate_
             target = float(math.exp(rng.uniform(math.log(2.0), math.log(30.0))))
             speed = math.copysign(speed, target - length)
             ramp = float(rng.uniform(2.0, 4.0))  # hoist drives accelerate at about 0.1-0.5 m/s²
-            dur = max(2.0 * ramp, abs(target - length) / abs(speed) + ramp)
-            hoists.append(Hoist(t, dur, speed, ramp))
-            length += speed * (dur - ramp)
+            dur = max(2.0 * ramp, abs(target - length) / abs(speed) + ramp)  # both versions' timeline
+            v = speed
+            if suite_version >= 2 and (rope != length or dur == 2.0 * ramp):  # a short hoist, or one after it:
+                v = float(np.clip((target - rope) / (dur - ramp), -abs(speed), abs(speed)))  # on target if it can
+            length += speed * (dur - ramp)  # version 1's rope: two ramps at full speed overshoot a near target
+            rope += v * (dur - ramp)
+            hoists.append(Hoist(t, dur, v, ramp))
         events.append((kind, t, t + dur))
         t += dur + float(rng.uniform(10.0, 30.0)) + 2.0 * math.pi / omega
     steady = float(rng.uniform(30.0 if windy else 0.0, 60.0))  # drag of a 10 m/s wind on about 1 m²
@@ -231,11 +249,11 @@ def score(q: np.ndarray, truth: HookTruth, keep: np.ndarray, absolute: bool) -> 
 
 def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length: bool, paper_ekf: bool = False,
              family: str = "crane", tracking: bool = False, overrides: dict[str, float] | None = None,
-             rate_hz: float = RATE_HZ, length_factor: float = 1.0
+             rate_hz: float = RATE_HZ, length_factor: float = 1.0, suite_version: int = SUITE_VERSION
              ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`; the filter is told
     `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1)."""
-    case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz)
+    case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz, suite_version)
     out: dict[str, dict[str, dict[str, float]]] = {}
     told = case.physics.rope_length_m * length_factor if tell_length else None
     q_hook, length = hook_estimate(gyr, acc, mag, told, tracking, overrides, rate_hz)
@@ -249,11 +267,11 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
 
 
 def simulate_seed(seed: int, duration_s: float, imu: str, use_mag: bool, family: str = "crane",
-                  rate_hz: float = RATE_HZ
+                  rate_hz: float = RATE_HZ, suite_version: int = SUITE_VERSION
                   ) -> tuple[SuiteCase, HookTruth, np.ndarray, np.ndarray, np.ndarray | None]:  # fmt: skip
     """The crane of `seed`, its ground truth and the IMU's samples (gyr, acc, mag or None, at `rate_hz`) as the suite
-    draws them."""
-    case = make_case(seed, duration_s, family, rate_hz)
+    (`suite_version`, see `make_case`) draws them."""
+    case = make_case(seed, duration_s, family, rate_hz, suite_version)
     truth = simulate(case.physics, case.scenario)
     sensor = SensorModel(ImuErrorModel.preset(imu), 1, np.random.default_rng(10_000 + seed))
     gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / rate_hz)
@@ -296,6 +314,13 @@ def parse_settings(text: str) -> dict[str, float]:
     return out
 
 
+def add_suite_version_argument(p: argparse.ArgumentParser) -> None:
+    """`--suite-version` for a bench that draws the suite's cranes (`make_case`'s `suite_version`)."""
+    p.add_argument("--suite-version", type=int, default=SUITE_VERSION, choices=SUITE_VERSIONS,
+                   help=f"the crane generator (default {SUITE_VERSION}; 1: before the hoist fix, the generator of the "
+                   "figures documented before it)")
+
+
 def parse_seeds(text: str) -> list[int]:
     """`1-6` or `1,4,9` or a mix."""
     seeds: list[int] = []
@@ -327,19 +352,22 @@ def main(argv: list[str] | None = None) -> int:
                    help="IMU sampling rate (default 100; the suite was tuned at 100 only)")
     p.add_argument("--length-factor", type=float, default=1.0,
                    help="tell the filter this times the true rope length (a wrongly configured length; default 1)")
+    add_suite_version_argument(p)
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
     told = "not told" if args.no_length else f"{args.length_factor:g}x told at t = 0"
-    print(f"hook suite ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}, {args.duration:g} s per seed, "
-          f"rope length {told}, {args.rate_hz:g} Hz; degrees; whole run after {WARMUP_S:g} s")
+    print(f"hook suite v{args.suite_version} ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}, "
+          f"{args.duration:g} s per seed, rope length {told}, {args.rate_hz:g} Hz; degrees; whole run after "
+          f"{WARMUP_S:g} s")
     print(f"{'seed':>4} {'crane':<44}{'':>6}{'Θ RMSE':>8}{'Θ max':>7}{'dir':>7}{'tors':>7}{'rope m':>8}")
     names = ["hook", "vqf"] + (["ekf001"] if args.paper_ekf else [])
     rows: dict[str, list[dict[str, dict[str, float]]]] = {n: [] for n in names}
     t0 = time.perf_counter()
     for seed in seeds:
-        case = make_case(seed, args.duration, args.family, args.rate_hz)
+        case = make_case(seed, args.duration, args.family, args.rate_hz, args.suite_version)
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
-                     args.tracking, parse_settings(args.settings), args.rate_hz, args.length_factor)
+                     args.tracking, parse_settings(args.settings), args.rate_hz, args.length_factor,
+                     args.suite_version)
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]

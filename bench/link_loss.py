@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.hook_suite import parse_seeds
+from bench.hook_suite import add_suite_version_argument, parse_seeds
 from gateway import schemas
 from gateway.config import DeviceSettings
 from gateway.kinds.base import Output
@@ -115,12 +115,14 @@ def theta_rmse_deg(q: np.ndarray, swing_rad: np.ndarray, scored: np.ndarray) -> 
     return float(np.sqrt(np.mean(err**2))), float(np.abs(err).max())
 
 
-def hook_rows(seeds: list[int], duration_s: float, spp: int, loss: float, burst: float) -> list[dict[str, float]]:
+def hook_rows(seeds: list[int], duration_s: float, spp: int, loss: float, burst: float, suite_version: int
+              ) -> list[dict[str, float]]:  # fmt: skip
     from bench.hook_suite import RATE_HZ, simulate_seed
 
     rows = []
     for seed in seeds:
-        case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, "calibrated", True)
+        case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, "calibrated", True,
+                                                  suite_version=suite_version)
         pkts = packets(f"hook-{seed}", "hook", gyr, acc, mag, RATE_HZ, spp)
         lost = lost_packets(len(pkts), loss, burst, 7_000 + seed)
         arrived = np.repeat(~lost, spp)
@@ -169,12 +171,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--spp", type=int, default=10, help="samples per packet (default 10)")
     p.add_argument("--loss", type=float, default=0.02, help="long-run packet loss (default 0.02)")
     p.add_argument("--burst", type=float, default=2.0, help="mean burst length, packets (default 2)")
+    add_suite_version_argument(p)
     args = p.parse_args(argv)
     t0 = time.monotonic()
-    print(f"link: {args.loss:.1%} of packets lost in bursts of {args.burst:g} on average, {args.spp} samples a packet")
+    print(f"link: {args.loss:.1%} of packets lost in bursts of {args.burst:g} on average, {args.spp} samples a packet; "
+          f"hook suite v{args.suite_version}")
     table = []
     if "hook" in args.kinds:
-        rows = hook_rows(args.seeds, args.duration, args.spp, args.loss, args.burst)
+        rows = hook_rows(args.seeds, args.duration, args.spp, args.loss, args.burst, args.suite_version)
         table.append(("hooks, Θ RMSE / worst max (°)", rows, True))
     if "rod" in args.kinds:
         rows = rod_rows(args.spp, args.loss, args.burst, args.trials)
