@@ -209,6 +209,8 @@ class FusionBank:
         batch.add("warm-up", dt_s=0.01, acc_m_s2=acc, mag_uT=mag)
         n = 5
         batch.step(np.zeros((1, n, 3)), np.tile(acc, (1, n, 1)), np.tile(mag, (1, n, 1)))
+        t_gap = np.array([0.0, 0.01, 0.04])  # two samples lost: the gap kernels (`gaps.bridge_block`)
+        bridge_block(np.zeros((3, 3)), np.tile(acc, (3, 1)), None, t_gap, 0.01, None, gyro_taper_s=0.05)
         for name in filter_names - {DEFAULT_FILTER}:
             try:
                 f = make_filter(name, True)

@@ -252,3 +252,42 @@ def test_a_ringing_rod_tip_is_not_turned_by_the_line_across_a_gap() -> None:
     taper_error = abs(out[0][31:60, 1].sum() * DT - true_turn)
     assert line_error > 0.5
     assert taper_error < 0.5 * line_error, (taper_error, line_error)
+
+
+def _reference_fill(t_s: np.ndarray, rows: np.ndarray, prev_t: np.ndarray, prev_rows: np.ndarray, w: int
+                    ) -> np.ndarray:  # fmt: skip
+    """Sample by sample: every lost sample on the line through the means of the w samples either side of its gap."""
+    times, stitched, p = np.concatenate((prev_t, t_s)), np.concatenate((prev_rows, rows)), prev_t.shape[0]
+    out = []
+    for j in range(p, times.shape[0]):
+        m = round((times[j] - times[j - 1]) / DT) - 1 if j > 0 else 0
+        if 1 <= m and m * DT <= MAX_BRIDGE_S:
+            left, right = slice(max(0, j - w), j), slice(j, j + w)
+            t_l, t_r = times[left].mean(), times[right].mean()
+            v_l, v_r = stitched[left].mean(axis=0), stitched[right].mean(axis=0)
+            out += [v_l + (times[j - 1] + DT * q - t_l) / (t_r - t_l) * (v_r - v_l) for q in range(1, m + 1)]
+        out.append(stitched[j])
+    return np.array(out)
+
+
+@settings(max_examples=80, deadline=None)
+@given(lost=st.lists(st.booleans(), min_size=4, max_size=60), n_prev=st.integers(0, 4), w=st.integers(1, 5),
+       seed=st.integers(0, 2**31))  # fmt: skip
+def test_the_gap_kernel_fills_noise_as_the_line_between_the_means(lost: list[bool], n_prev: int, w: int,
+                                                                   seed: int) -> None:  # fmt: skip
+    """Random rows (not a line, so a wrong averaging window shows), samples lost anywhere in the block and between
+    it and up to 4 previous rows: the kernel gives the sample-by-sample reference to 1e-12."""
+    rng = np.random.default_rng(seed)
+    arrived = ~np.array(lost)
+    arrived[-1] = True
+    t_all = (np.arange(len(lost)) + n_prev + 1) * DT
+    t, rows = t_all[arrived], rng.normal(size=(int(arrived.sum()), 4))
+    prev_t, prev_rows = np.arange(n_prev) * DT, rng.normal(size=(n_prev, 4))
+    expected = _reference_fill(t, rows, prev_t, prev_rows, w)
+    got = fill_gaps(t, rows, DT, prev_t if n_prev else None, prev_rows if n_prev else None, average_n=w)
+    if got is None:
+        np.testing.assert_array_equal(expected, rows)
+        return
+    filled, keep = got
+    np.testing.assert_allclose(filled, expected, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(filled[keep], rows)
