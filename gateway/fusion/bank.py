@@ -21,7 +21,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Iterable, Sequence
-from itertools import chain
+from itertools import chain, pairwise
 from typing import Any
 
 import numpy as np
@@ -31,7 +31,16 @@ from gateway.calibrate import DeviceCalibration
 from gateway.fusion import _default_kernels as K
 from gateway.fusion.base import AttitudeFilter, FloatArray
 from gateway.fusion.batch import DefaultFilterBatch
-from gateway.fusion.gaps import BRIDGE_AVERAGE_S, COAST_MIN_S, MAX_BRIDGE_S, bridge_block, coast_mask, has_gap
+from gateway.fusion.gaps import (
+    BRIDGE_AVERAGE_S,
+    COAST_MIN_S,
+    GAP_FACTOR,
+    JITTER_TOL_S,
+    MAX_BRIDGE_S,
+    bridge_block,
+    coast_mask,
+    has_gap,
+)
 from gateway.kinds.base import Ends, FilterFailure, Fused, FusedDevice, Output
 
 log = logging.getLogger("gateway.fusion.bank")
@@ -270,6 +279,8 @@ class FusionBank:
                 if dev.filt is None and self.batch is not None:
                     self.batch.set_dt(dev.device_id, dev.dt_s)
             last = pkts[-1]
+            seqs = [dev.seq, *(p.seq for p in pkts)]
+            dev.follows = tuple(b == a + 1 for a, b in pairwise(seqs))  # for the gap checks' tolerance
             dev.t_us, dev.seq = last.t0_us + int(round((last.n - 1) * 1e6 / last.rate_hz)), last.seq
             dev.wall_from_device = last.wall_t0_us is not None
             dev.wall_offset_us = (last.wall_t0_us - last.t0_us) if last.wall_t0_us is not None else (
@@ -353,10 +364,10 @@ class FusionBank:
         by_len: dict[int, list[str]] = {}
         inputs: dict[str, Block] = {}  # a device's filter input when it differs from its block (lost packets)
         kept: dict[str, np.ndarray] = {}  # ... and where the block's own samples are in it
-        for dev_id, (dev, _, (gyr, acc, mag, t_s)) in items.items():
+        for dev_id, (dev, pkts, (gyr, acc, mag, t_s)) in items.items():
             if dev.kind in self.bridge_kinds and self.max_bridge_s > 0.0:
                 try:
-                    bridged = self._bridge(dev, (gyr, acc, mag, t_s))
+                    bridged = self._bridge(dev, pkts, (gyr, acc, mag, t_s))
                 except Exception as exc:
                     self.fail(dev.kind, dev_id, exc, out)
                     continue
@@ -391,17 +402,23 @@ class FusionBank:
             self.fail(items[dev_id][0].kind, dev_id, None, out)
         return quats
 
-    def _bridge(self, dev: FusedDevice, block: Block
+    def _bridge(self, dev: FusedDevice, pkts: list[schemas.ImuPacket], block: Block
                 ) -> tuple[FloatArray, FloatArray, FloatArray | None, np.ndarray] | None:  # fmt: skip
-        """The device's block with the samples lost before and within it interpolated (`gaps.bridge_block`), or None
-        when none were; remembers the block as the left side of the next gap."""
+        """The device's block (of packets `pkts`) with the samples lost before and within it interpolated
+        (`gaps.bridge_block`), or None when none were; remembers the block as the left side of the next gap. Between
+        packets whose seq follows on, only a spacing `JITTER_TOL_S` past a period is a gap (a jittery t0_us)."""
         gyr, acc, mag, t_s = block
         prev_t_s, prev = dev.last_t_s, dev.last_block
         dev.last_t_s, dev.last_block = float(t_s[-1]), block
-        if not has_gap(t_s, prev_t_s, dev.dt_s):
+        strict = (GAP_FACTOR - 1.0) * dev.dt_s
+        none_lost = all(dev.follows)
+        if not has_gap(t_s, prev_t_s, dev.dt_s, max(strict, JITTER_TOL_S) if none_lost else strict):
             return None
+        tol = np.full(t_s.shape[0], strict)  # within a packet the times are exact; between packets, see JITTER_TOL_S
+        starts = np.cumsum([0, *(p.n for p in pkts[:-1])])
+        tol[starts[np.array(dev.follows, dtype=np.bool_)]] = max(strict, JITTER_TOL_S)
         return bridge_block(gyr, acc, mag, t_s, dev.dt_s, prev, self.max_bridge_s,
-                            max(1, round(self.bridge_average_s / dev.dt_s)), self.gyro_taper_s.get(dev.kind, 0.0))
+                            max(1, round(self.bridge_average_s / dev.dt_s)), self.gyro_taper_s.get(dev.kind, 0.0), tol)
 
     def _step_batch(self, items: dict[str, tuple[FusedDevice, list[schemas.ImuPacket], Block]],
                     by_len: dict[int, list[str]], inputs: dict[str, Block]) -> dict[str, FloatArray]:  # fmt: skip

@@ -114,6 +114,7 @@ class FusedDevice:
     last_height_t_s: float = -math.inf
     last_t_s: float = math.nan  # device time of the newest sample its filter got, s (`gateway.fusion.gaps`)
     last_block: Any = None  # the (gyr, acc, mag, t_s) block that sample ended: the left side of a bridged gap
+    follows: tuple[bool, ...] = ()  # per packet of the current block: its seq follows the one before (none lost)
 
     # Read views of the kind state, for REST and tests (None when the kind has no such thing).
     @property
