@@ -44,7 +44,9 @@ iron (µT, body).
   `h` is body-fixed while the field turns with the twist, so a hook that twists reveals it).
 * Rope length: the pendulum frequency (gravity's restoring term) and the response of the rope rate to a
   measured pull (`W / l`) make `l` observable whenever the hook swings or is pushed; a configured length is the
-  prior (`rope_length_known`), not a constraint.
+  prior (`rope_length_known`), not a constraint. On a hook that hardly swings (below `rope_observe_swing_rad`)
+  the swing rate says nothing about `l`, so it does not correct `l` (nor the tension offset); the length then
+  follows only the hoist states (`_length_observability`).
 * Jacobians are exact: the pendulum's RK4 differentiated alongside itself (its tangent-linear model) and the body
   rate in closed form; `process_jacobian` and `measurement_jacobian`, forward differences of `process` and
   `measurement`, are the plain definitions they are tested against. The update is filterpy's (Joseph form) except
@@ -89,8 +91,8 @@ N_INPUT = 8  # per-sample process input: accelerometer x/y, gyroscope (3), its b
  _TIP_GATE_STD, _MEAN_TAU, _MEAN_GATE, _L_RATE_TAU, _JUMP_ROPE, _SLOW_TAU, _SLOW_GATE, _SLOW_OPEN, _TRACK_S,
  _TRACK_PSD, _TURN_PSD, _TRACK_CAP, _TURN_CAP, _TRIAL_GATE, _TRIAL_LR, _TRIAL_EVERY, _TRIAL_OPEN,
  _ROLLBACK, _TRIAL_WIN, _TRIAL_QUIET, _HOLD_TAU, _HOLD_MIN, _HOLD_GATE, _HOLD_MAX, _STOP_STD, _STOP_MIN,
- _STOP_LR, _STOP_RATIO) = range(51)
-N_MONITOR = 13  # `ekf_step`'s innovation statistics, move timers and the tip estimate's running mean
+ _STOP_LR, _STOP_RATIO, _L_OBS_SWING) = range(52)
+N_MONITOR = 14  # `ekf_step`'s innovation statistics, move timers, the tip estimate's and the swing energy's means
 
 
 COAST_R_SCALE = 1e8  # `run_bridged`: measurement variances × this on rows that were never measured
@@ -213,6 +215,11 @@ class HookFilterSettings:
     mag_hard_iron_std_uT: float = 0.5  # prior std of the magnetometer's residual hard iron, per body axis (0: not
     # estimated). A calibrated board keeps ~0.5 µT (devices.common.ImuErrorModel.calibrated): 1-4° of heading
     mag_hard_iron_psd: float = 1e-6  # µT²/s: its drift (battery and motor currents)
+    rope_observe_swing_rad: float = 0.00175  # 0.1°: the swing rate (and magnetometer) correct the rope length and the
+    # tension offset fully from this swing amplitude (the rate's energy over a period) on, not at all below half of it
+    # (`_length_observability`; 0: always, the filter before issue 11's rope round: a still hook hoisted 5 m up and
+    # down read 10 m as 70-90 m; tuning seeds 1-30 rope RMS 18.0 -> 12.6 %, Θ 0.1545 -> 0.1549°; 0.2°: 10.5 % but
+    # 0.1581°, a length too short when a move starts the swing costs Θ more than one too long)
     surprise_gate: float = 16.0  # χ² (2 dof) gate on the swing-rate innovation for adaptive process noise
     init_swing_std: float = 0.02  # rad, per horizontal axis: hanging still at initialisation
     init_rate_std_rad_s: float = 0.02
@@ -792,16 +799,39 @@ def inflate_on_surprise(p_pred: FloatArray, hp: FloatArray, s: FloatArray, h_jac
 
 
 @njit
-def _restrict_gain(k: FloatArray, surprised: bool) -> None:
+def _restrict_gain(k: FloatArray, surprised: bool, length_scale: float) -> None:
     """The rope's speed and hoist acceleration are corrected by the tension channel only (a Schmidt-style
     consider update): swing-rate surprises from unmeasured boom-tip accelerations must not read as hoisting. While
-    the swing rate is surprising (a jerk the model does not know), the rope length is not corrected at all."""
+    the swing rate is surprising (a jerk the model does not know), the rope length is not corrected at all; else the
+    other rows' gain on it and on the tension offset is scaled by `length_scale` (`_length_observability`): the
+    offset is the back door to the hoist states (the gyroscope moved it, the tension channel then read the mismatch
+    as a hoist acceleration and the rope rate integrated it, 4 -> 15 m in 25 s on a still hook, tuning seed 12)."""
     for j in range(k.shape[1]):
         if j != 3 or surprised:
             k[_L_RATE, j] = 0.0
             k[_L_ACC, j] = 0.0
         if surprised:
             k[_LOG_L, j] = 0.0
+        elif j != 3:
+            k[_LOG_L, j] *= length_scale
+            k[_ACC_BIAS, j] *= length_scale
+
+
+@njit
+def _length_observability(x: FloatArray, monitor: FloatArray, params: FloatArray, dt_s: float) -> float:
+    """How much the swing rate can tell of the rope length, 0 ... 1: `monitor[13]` keeps a running mean over one
+    pendulum period of `2 |v|² l / g`, the squared swing amplitude (rad²) its rate energy gives (a static tilt says
+    nothing of the period), for the predicted state `x`; the scale is 0 below half of `params[_L_OBS_SWING]` (rad),
+    rises linearly in the squared amplitude and is 1 from that amplitude on (`params[_L_OBS_SWING]` 0: always 1).
+    On a hook that hangs still the swing-rate rows' pull on the length is sensor noise and force-input errors, and
+    it pulled one way: long (a slower pendulum explains a response weaker than the noisy force input predicts)."""
+    a0 = params[_L_OBS_SWING]
+    if a0 <= 0.0:
+        return 1.0
+    l = math.exp(x[_LOG_L])
+    period = 2.0 * math.pi * math.sqrt(l / params[_G])
+    monitor[13] += (2.0 * (x[2] * x[2] + x[3] * x[3]) * l / params[_G] - monitor[13]) * min(1.0, dt_s / period)
+    return float(min(1.0, max(0.0, (4.0 * monitor[13] / (a0 * a0) - 1.0) / 3.0)))
 
 
 @njit
@@ -1128,13 +1158,13 @@ def _ekf_step_into(
     constant), [10] the seconds until the next candidate may be raised, [11:13] the running mean of the tip estimate
     (`params[_HOLD_TAU]`; off unless `params[_HOLD_MIN]` > 0): while it is longer than that, the tracking is held
     past `params[_TRACK_S]` (for at most `params[_HOLD_MAX]`), and the jump test's gate is `params[_HOLD_GATE]` for
-    a shrinking tip estimate. Jump test: when the fast mean fails its χ² gate, the boom tip's acceleration has
-    jumped (a move started, turned or stopped): `params[_TIP_MOVE]`² is added to the tip state's variance once and
-    the means restart; when the slow mean fails its gate (a tip acceleration turning slowly), `params[_SLOW_OPEN]`²
-    is added and the slow mean restarts. After either, for `params[_TRACK_S]` the tip state random-walks with
-    `params[_TRACK_PSD]` on top. Older tests (off by default): above `params[_NIS_GATE]`, or while the
-    predicted tip acceleration exceeds `params[_TIP_GATE]` times its stationary variance, the tip state's variance
-    is held at `params[_TIP_MOVE]`² (NIS) or `params[_TIP_GATE_STD]`² (tip)."""
+    a shrinking tip estimate; [13] the swing energy's mean (`_length_observability`). Jump test: when the fast mean
+    fails its χ² gate, the boom tip's acceleration has jumped (a move started, turned or stopped): `params[_TIP_MOVE]`²
+    is added to the tip state's variance once and the means restart; when the slow mean fails its gate (a tip
+    acceleration turning slowly), `params[_SLOW_OPEN]`² is added and the slow mean restarts. After either, for
+    `params[_TRACK_S]` the tip state random-walks with `params[_TRACK_PSD]` on top. Older tests (off by default): above
+    `params[_NIS_GATE]`, or while the predicted tip acceleration exceeds `params[_TIP_GATE]` times its stationary
+    variance, the tip state's variance is held at `params[_TIP_MOVE]`² (NIS) or `params[_TIP_GATE_STD]`² (tip)."""
     m = z.shape[0]
     x_pred, q, hx, y = vecs[0], vecs[3], vecs[4, :7], vecs[6, :7]
     f_jac, scratch, p_pred = mats[0], mats[1], mats[2]
@@ -1210,7 +1240,7 @@ def _ekf_step_into(
     _kalman_gain(hp, s, m, chol, wt, kt)
     k_opt[:m] = kt[:m]
     k = kt[:m].T
-    _restrict_gain(k, surprised)
+    _restrict_gain(k, surprised, _length_observability(x_pred, monitor, params, dt_s))
     if (moving or jump) and params[_MOVE_FREEZE] > 0.0:
         for j in range(k.shape[1]):
             for i in (14, 15, 16):
@@ -1413,7 +1443,8 @@ class HookFilter(AttitudeFilter):
                          s.jump_trial_lr, s.jump_trial_every_s, s.jump_trial_open_std_m_s2, s.move_rollback_s,
                          s.jump_trial_window_s, s.jump_trial_quiet_s, s.move_track_hold_tau_s,
                          s.move_track_hold_m_s2, s.move_track_hold_gate, s.move_track_hold_max_s,
-                         s.jump_stop_std_m_s2, s.jump_stop_min_m_s2, s.jump_stop_lr, s.jump_stop_ratio])  # fmt: skip
+                         s.jump_stop_std_m_s2, s.jump_stop_min_m_s2, s.jump_stop_lr, s.jump_stop_ratio,
+                         s.rope_observe_swing_rad])  # fmt: skip
 
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings

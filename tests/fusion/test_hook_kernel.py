@@ -103,7 +103,7 @@ def reference_step(x, p, z, u, dt_s, params, q_psd, r_diag, monitor):  # noqa: C
     rmat = np.diag(r_diag)
     pht = p_pred @ h_jac.T
     k = pht @ np.linalg.inv(h_jac @ pht + rmat)
-    hf._restrict_gain(k, surprised)
+    hf._restrict_gain(k, surprised, hf._length_observability(x_pred, monitor, params, dt_s))
     if (moving or jump) and params[hf._MOVE_FREEZE] > 0.0:
         for j in range(k.shape[1]):
             for i in (14, 15, 16):
