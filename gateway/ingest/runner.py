@@ -428,8 +428,9 @@ class GatewayService:
     def _check_time(self, p: schemas.ImuPacket, now: float, arrival: float) -> schemas.ImuPacket | None:
         """Device-time sanity (`gateway.ingest.timecheck`): None drops the packet; counted by reason either way."""
         c = self.counters
+        stream = c.stream(p.kind, p.device_id)
         end_us = p.t0_us + int(round((len(p.gyr_rad_s) - 1) * 1e6 / p.rate_hz))  # len: `p.n` without the property
-        verdict = c.stream(p.kind, p.device_id).clock.check(p.boot_id, p.t0_us, end_us)
+        verdict = stream.clock.check(p.boot_id, p.t0_us, end_us)
         if not verdict.accept:
             c.drop(p.kind, p.device_id, verdict.reason or "", f"t0_us {p.t0_us} (boot {p.boot_id}, seq {p.seq})",
                    arrival)  # fmt: skip
@@ -442,6 +443,17 @@ class GatewayService:
             c.drop(p.kind, p.device_id, "wall_time_ignored", f"wall_t0_us {p.wall_t0_us} is far from the gateway's "
                    "clock; the packet is used without it", arrival)  # fmt: skip
             p = p.model_copy(update={"wall_t0_us": None})
+        meter, used_before = stream.rate, stream.rate.used_hz
+        rate_hz = meter.update(p.boot_id, p.seq, p.t0_us, len(p.gyr_rad_s), p.rate_hz)
+        if meter.used_hz != used_before:
+            if used_before is None:
+                c.drop(p.kind, p.device_id, "rate_hz_measured", f"declares rate_hz {p.rate_hz:g} but its t0_us advance "
+                       f"at {rate_hz:.4f} samples/s over {meter.evidence_s:.0f} s; fused at the measured rate", arrival)
+            else:
+                c.log.warning(f"rate:{p.device_id}", f"device {p.device_id}: sample rate now "
+                              f"{rate_hz:.4f} Hz (declared {p.rate_hz:g})", arrival)  # fmt: skip
+        if rate_hz != p.rate_hz:
+            p = p.model_copy(update={"rate_hz": rate_hz})
         return p
 
     def _raise_conflicts(self, now: float) -> None:

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from gateway import schemas
+from gateway.ingest.samplerate import SampleRateMeter
 from gateway.ingest.sequence import SequenceTracker
 from gateway.ingest.timecheck import DeviceClock
 
@@ -32,6 +33,7 @@ class DeviceStream:
     last_arrival_s: float | None = None
     packets: int = 0
     clock: DeviceClock = field(default_factory=lambda: DeviceClock())
+    rate: SampleRateMeter = field(default_factory=lambda: SampleRateMeter())  # the IMU's rate as its t0_us say
     conflict_last_s: float | None = None  # arrival (monotonic s) of the newest packet that showed a second publisher
 
     def main(self) -> SequenceTracker:
