@@ -44,8 +44,10 @@ _SMOOTH_S = 2.0  # averaging window of the board's effective biases
 
 
 def moving_mean(x: np.ndarray, n: int) -> np.ndarray:
-    """Centred moving mean of the columns of `x` (N, k) over `n` samples (shorter at the ends: zero-padded)."""
-    k = np.ones(max(1, n)) / max(1, n)
+    """Centred moving mean of the columns of `x` (N, k) over `n` samples (shorter at the ends: zero-padded), N rows
+    even when `n` > N (a run shorter than a pendulum period)."""
+    n = max(1, min(n, x.shape[0]))
+    k = np.ones(n) / n
     return np.stack([np.convolve(x[:, j], k, mode="same") for j in range(x.shape[1])], axis=1)
 
 

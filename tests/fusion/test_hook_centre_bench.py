@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from bench.hook_centre import body_xy_to_enu, trace
+from bench.hook_centre import body_xy_to_enu, moving_mean, trace
 from bench.hook_suite import RATE_HZ, WARMUP_S, hook_estimate, simulate_seed
 from gateway.fusion.hook_filter import HookFilterSettings
 from gateway.fusion.quaternion import rotate
@@ -32,3 +32,16 @@ def test_the_filter_read_packet_by_packet_is_the_suites_filter():
                  7)  # fmt: skip
     assert x.shape == (gyr.shape[0], 24) and int(WARMUP_S * RATE_HZ) < gyr.shape[0]
     np.testing.assert_allclose(q, q_suite, atol=1e-9)
+
+
+@settings(max_examples=40, deadline=None)
+@given(rows=st.integers(1, 60), window=st.integers(0, 200))
+def test_the_moving_mean_keeps_the_rows_whatever_the_window(rows: int, window: int) -> None:
+    """A run shorter than a pendulum period (`--duration 3` on a long rope) crashed: np.convolve's "same" gives the
+    longer of the two lengths. Rows kept; a constant column's mean is the constant where the window fits."""
+    x = np.full((rows, 2), 3.0)
+    m = moving_mean(x, window)
+    assert m.shape == (rows, 2)
+    w = max(1, min(window, rows))
+    if w % 2 == 1:
+        np.testing.assert_allclose(m[w // 2 : rows - w // 2], 3.0)
