@@ -137,25 +137,26 @@ def hook_rows(seeds: list[int], duration_s: float, spp: int, loss: float, burst:
     return rows
 
 
-def rod_rows(spp: int, loss: float, burst: float, pattern: str) -> list[dict[str, float]]:
+def broad_rows(spp: int, loss: float, burst: float, pattern: str, kind: str = "rod") -> list[dict[str, float]]:
+    """BROAD's trials as `kind` devices (a rod: its tapered gyro in gaps; a plain `imu`: a line), same losses."""
     from gateway.fusion import broad
 
     paths = broad.find_trials(BROAD_DIR, pattern) if BROAD_DIR.is_dir() else []
     if not paths:
-        print(f"  rods: no BROAD trials under {BROAD_DIR}: skipped")
+        print(f"  {kind}: no BROAD trials under {BROAD_DIR}: skipped")
         return []
     rows = []
     for k, path in enumerate(paths):
         trial = broad.load_trial(path)
-        pkts = packets(f"rod-{k}", "rod", trial.gyr_rad_s, trial.acc_m_s2, trial.mag_uT, trial.rate_hz, spp)
+        pkts = packets(f"{kind}-{k}", kind, trial.gyr_rad_s, trial.acc_m_s2, trial.mag_uT, trial.rate_hz, spp)
         lost = lost_packets(len(pkts), loss, burst, 9_000 + k)
         arrived = np.repeat(~lost, spp)
         n = arrived.shape[0]
         row: dict[str, float] = {"trial": k, "lost": float(lost.mean())}
-        for mode, q in runs(pkts, lost, n, "rod"):
+        for mode, q in runs(pkts, lost, n, kind):
             row[mode] = broad_total_deg(trial, q, arrived)
         rows.append(row)
-        print(f"  rod {path.stem}: lost {row['lost']:.1%}, total RMSE " + ", ".join(
+        print(f"  {kind} {path.stem}: lost {row['lost']:.1%}, total RMSE " + ", ".join(
             f"{m} {row[m]:.2f}°" for m in MODES), flush=True)  # fmt: skip
     return rows
 
@@ -163,7 +164,8 @@ def rod_rows(spp: int, loss: float, burst: float, pattern: str) -> list[dict[str
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    p.add_argument("--kinds", nargs="+", choices=("hook", "rod"), default=["hook", "rod"])
+    p.add_argument("--kinds", nargs="+", choices=("hook", "rod", "imu"), default=["hook", "rod"],
+                   help="hook: the crane suite; rod, imu: BROAD's real trials as that kind (default hook rod)")
     p.add_argument("--seeds", type=parse_seeds, default=parse_seeds("501-510"),
                    help="hook suite seeds (default 501-510: held out of every hook tuning round)")
     p.add_argument("--duration", type=float, default=120.0, help="seconds per hook seed (default 120)")
@@ -180,9 +182,10 @@ def main(argv: list[str] | None = None) -> int:
     if "hook" in args.kinds:
         rows = hook_rows(args.seeds, args.duration, args.spp, args.loss, args.burst, args.suite_version)
         table.append(("hooks, Θ RMSE / worst max (°)", rows, True))
-    if "rod" in args.kinds:
-        rows = rod_rows(args.spp, args.loss, args.burst, args.trials)
-        table.append(("rods (BROAD), total RMSE (°)", rows, False))
+    for kind in ("rod", "imu"):
+        if kind in args.kinds:
+            rows = broad_rows(args.spp, args.loss, args.burst, args.trials, kind)
+            table.append((f"{kind}s (BROAD), total RMSE (°)", rows, False))
     print(f"\n| devices | lost | {' | '.join(MODES)} |\n|---|---|---|---|---|")
     for title, rows, with_max in table:
         if not rows:

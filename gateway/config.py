@@ -19,7 +19,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validat
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 ZenohMode = Literal["peer", "client", "router"]
-DeviceKind = Literal["rod", "hook", "ball"]  # the wire kinds of gateway.schemas
+DeviceKind = Literal["rod", "hook", "ball", "imu"]  # the wire kinds of gateway.schemas
 
 
 class Settings(BaseSettings):
@@ -175,6 +175,11 @@ class HookThresholds(_Thresholds):
         return self
 
 
+class ImuSettings(_Thresholds):
+    """A plain IMU (kind `imu`) has no limits of its own: attitude and height only. Its filter, calibration and
+    magnetometer use are device settings like any kind's (`PUT /api/devices/{id}/settings`)."""
+
+
 # Preferred water temperature (deg C) per species: typical ranges from temperature-preference compilations
 # (Coutant 1977, J. Fish. Res. Board Can. 34:739; Wismer & Christie 1987, GLFC Spec. Pub. 87-3):
 # common carp ~ 18-26, northern pike ~ 10-20 (large pike prefer the cool end), perch ~ 17-24,
@@ -205,12 +210,13 @@ class SpotPreferences(_Thresholds):
         return {s: SPECIES_TEMP_C[s] for s in self.species}
 
 
-ThresholdModel = RodThresholds | HookThresholds | SpotPreferences
+ThresholdModel = RodThresholds | HookThresholds | SpotPreferences | ImuSettings
 T = TypeVar("T", bound=BaseModel)
 THRESHOLD_MODELS: dict[str, type[ThresholdModel]] = {
     "rod": RodThresholds,
     "hook": HookThresholds,
     "ball": SpotPreferences,
+    "imu": ImuSettings,
 }
 
 

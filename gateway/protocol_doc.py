@@ -91,6 +91,11 @@ def examples() -> dict[str, tuple[str, WireModel]]:
         v=1, device_id="hook-1", kind="hook", boot_id=99, seq=7, t0_us=70_000, rate_hz=100.0,
         gyr_rad_s=[(0.0, 0.0, 0.0)], acc_m_s2=[(0.0, 0.0, 9.81)],
     )
+    plain_imu = ImuPacket(
+        v=1, device_id="imu-1", kind="imu", boot_id=3, seq=41, t0_us=5_000_000, rate_hz=200.0,
+        gyr_rad_s=[(0.012, -0.004, 0.35), (0.011, -0.003, 0.36)], acc_m_s2=[(0.21, -0.05, 9.79), (0.2, -0.06, 9.8)],
+        mag_uT=[(22.1, 1.3, -40.2), (22.0, 1.4, -40.1)], wall_t0_us=wall + 5_000_000,
+    )
     env = EnvPacket(
         v=1, device_id="ball-1", boot_id=5, seq=12, t_us=12_000_000, wall_t_us=wall + 12_000_000, spot="deep_hole",
         air_temp_c=14.2, humidity_pct=81.5, light_lux=1520.0, water_temp_c=17.8, oxygen_mg_l=7.95,
@@ -161,6 +166,7 @@ def examples() -> dict[str, tuple[str, WireModel]]:
     return {
         "imu_rod": (imu_key("rod", "rod-1"), imu),
         "imu_hook_minimal": (imu_key("hook", "hook-1"), hook_imu),
+        "imu_plain": (imu_key("imu", "imu-1"), plain_imu),
         "env": (env_key("ball-1"), env),
         "reel_status": (reel_key("rod-1"), reel),
         "rod_truth": (truth_key("rod", "rod-1"), rod_truth),

@@ -51,8 +51,8 @@ RATE_MIN_HZ: Final = 1.0
 RATE_MAX_HZ: Final = 2000.0
 
 # Device kinds, declared once: every tuple of kinds below derives from these two.
-DeviceKind: TypeAlias = Literal["rod", "hook", "ball"]
-ImuKind: TypeAlias = Literal["rod", "hook"]  # kinds that send `imu` packets and get attitude/height outputs
+DeviceKind: TypeAlias = Literal["rod", "hook", "ball", "imu"]
+ImuKind: TypeAlias = Literal["rod", "hook", "imu"]  # kinds that send `imu` packets and get attitude/height outputs
 KINDS: Final[tuple[str, ...]] = typing.get_args(DeviceKind)
 IMU_KINDS: Final[tuple[str, ...]] = typing.get_args(ImuKind)
 

@@ -40,7 +40,7 @@ def test_every_device_topic_key_parses_back_to_its_row_and_matches_its_selector(
         for kind in set(schemas.KINDS) - set(t.kinds) if t.kinds else ():
             with pytest.raises(ValueError):
                 t.key(kind, "dev-1")
-    assert seen == 9  # imu x2, env, reel, truth x3, reel/cmd, cmd
+    assert seen == 10  # imu x3 (rod, hook, imu), env, reel, truth x3, reel/cmd, cmd
 
 
 def test_named_builders_and_selectors_are_the_tables() -> None:

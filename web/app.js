@@ -276,7 +276,7 @@ function lowerBound(a, x) { let lo = 0, hi = a.length; while (lo < hi) { const m
 const Devices = new Map();
 /** Device ids in natural order: rod-2 before rod-10. */
 const byId = (a, b) => a.localeCompare(b, "en", { numeric: true });
-const KEY_METRIC = { rod: ["att", "pitch_deg", "pitch", "°"], hook: ["att", "swing_deg", "swing", "°"], ball: ["env", "water_temp_c", "water", "°C"] };
+const KEY_METRIC = { rod: ["att", "pitch_deg", "pitch", "°"], imu: ["att", "pitch_deg", "pitch", "°"], hook: ["att", "swing_deg", "swing", "°"], ball: ["env", "water_temp_c", "water", "°C"] };
 
 function ensureDevice(c) {
   let d = Devices.get(c.device_id);
@@ -375,7 +375,7 @@ function updateDevice(d, c) {
   }) : ["–"]));
   const [src, key, label, unit] = KEY_METRIC[d.kind] || [];
   let v = null;
-  if (d.kind === "rod" && c.attitude) v = c.attitude.pitch_rad * DEG;
+  if ((d.kind === "rod" || d.kind === "imu") && c.attitude) v = c.attitude.pitch_rad * DEG;
   else if (d.kind === "hook" && c.swing) v = c.swing.swing_angle_rad * DEG;
   else if (d.kind === "ball" && c.readings) v = c.readings.water_temp_c;
   d.cells.now.textContent = v == null ? "–" : `${label} ${fmt(v)} ${unit}`;

@@ -4,7 +4,8 @@ sample at.
 Why: fusion integrates the gyroscope with dt = 1 / `rate_hz`. A device that declares its IMU's nominal output rate
 while the IMU's own oscillator runs a little off (an MPU-6050's internal clock is specified to ±2 % over temperature;
 a recording replayed with its rate rounded) turns every rotation into a scaled one: on BROAD's 15 real trials the
-default filter's total RMSE goes 1.79° → 2.92° with rate_hz 1 % off and → 4.95° at 2 % (VQF 2.63° → 5.35° / 9.11°).
+default filter's total RMSE goes 1.79° → 3.45° with rate_hz 1 % high and → 5.75° at 2 % (VQF 2.63° → 5.65° / 9.54°;
+`python -m bench.rate_mismatch`).
 The device's `t0_us` (its microsecond clock, a crystal) says how fast the samples really come.
 
 How: within one boot, the samples from an anchor packet to the newest (by `seq`, lost packets included) over the

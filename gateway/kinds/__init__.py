@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from gateway.kinds.ball import BallKind
 from gateway.kinds.base import DeviceKind
 from gateway.kinds.hook import HookKind
+from gateway.kinds.imu import PlainImuKind
 from gateway.kinds.rod import RodKind
 
 if TYPE_CHECKING:
@@ -35,4 +36,5 @@ KINDS: tuple[KindRow, ...] = (
     KindRow("rod", lambda s: RodKind(s.auto_reel)),
     KindRow("hook", lambda s: HookKind()),
     KindRow("ball", lambda s: BallKind()),
+    KindRow("imu", lambda s: PlainImuKind()),
 )

@@ -23,7 +23,7 @@ from gateway.recording.format import SUFFIX, RecordWriter
 from gateway.recording.importers import broad_meta, broad_records
 
 
-def import_trial(trial: broad.Trial, out: Path, device_id: str = "broad-1", kind: str = "rod",
+def import_trial(trial: broad.Trial, out: Path, device_id: str = "broad-1", kind: str = "imu",
                  samples_per_packet: int = 10, use_mag: bool = True, progress: bool = False) -> Path:  # fmt: skip
     """Write one trial as `<out>/<trial>.rigrec` (replacing it); returns the path."""
     out.mkdir(parents=True, exist_ok=True)
@@ -47,7 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--out", type=Path, required=True, help="output directory")
     p.add_argument("--trials", default="*.mat", metavar="GLOB", help="glob inside a folder (default: *.mat)")
     p.add_argument("--device-id", default="broad-1", help="device id (default: broad-1)")
-    p.add_argument("--kind", choices=["rod", "hook"], default="rod", help="device kind (default: rod)")
+    p.add_argument("--kind", choices=["imu", "rod", "hook"], default="imu",
+                   help="device kind (default: imu, a plain IMU; a rod's rules would judge the motion as bites)")
     p.add_argument("--samples-per-packet", type=int, default=10, help="samples per ImuPacket, 1..1000 (default 10)")
     p.add_argument("--no-mag", action="store_true", help="leave the magnetometer out (6D device)")
     p.add_argument("--seconds", type=float, default=0.0, help="keep only the first N seconds (default: all)")

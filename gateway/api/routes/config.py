@@ -16,7 +16,7 @@ from gateway.api.deps import DeviceIdPath, ServiceDep, WriterDep
 from gateway.config import THRESHOLD_MODELS, CalibrationJson, DeviceSettings, ThresholdModel
 
 router = APIRouter(tags=["config"])
-Kind = Literal["rod", "hook", "ball"]
+Kind = Literal["rod", "hook", "ball", "imu"]
 
 
 def _messages(exc: ValidationError) -> list[str]:
