@@ -44,6 +44,7 @@ TRUTH_RGB = (160, 160, 160)
 HOOK_ROPE_M = 4.0  # drawn rope length (the real one is unknown to the gateway); fits the default camera
 WATER_Z_M = -1.2  # water surface below the rod butt
 HOOK_LIFT_M = 2.0  # the hook scene stands this much higher, so the load hangs above the ground grid
+IMU_HEIGHT_M = 1.0  # a plain IMU's frame is drawn this high above its slot
 SLOT_M = 6.0  # devices side by side along y, this far apart
 GHOST_OFFSET_M = (0.0, 0.35, 0.0)  # ground truth drawn beside the estimate, so it never hides under it
 ALL = "(all devices)"
@@ -325,9 +326,12 @@ class View3D:
                 line = fishing_line(tip, WATER_Z_M)
                 nodes["fishline"].points = segments(line)
                 nodes["bait"].position = tuple(line[-1])
-        else:
+        elif kind == "hook":
             top, tip = hook_geometry(q, HOOK_ROPE_M)
             nodes[f"{layer}_line"].points = np.stack([top, tip])[None, :, :]
+        else:  # a plain IMU: its board's frame above the slot, the line along its body z
+            tip = np.array([0.0, 0.0, IMU_HEIGHT_M])
+            nodes[f"{layer}_line"].points = np.stack([tip, tip + 0.6 * quat.rotate(q, np.array([0.0, 0.0, 1.0]))])[None]
         nodes[f"{layer}_frame"].position = tuple(tip)
         nodes[f"{layer}_frame"].wxyz = tuple(q)
 

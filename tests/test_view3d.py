@@ -169,6 +169,25 @@ def test_scene_shows_every_device_in_its_slot_and_the_picker_isolates_one(tmp_pa
         view.stop()
 
 
+def test_a_plain_imu_is_drawn_as_its_board_frame_with_its_z_axis(tmp_path: Path) -> None:
+    """An `imu` device (no rod, no hook): its fused frame above its slot, the line along its body z (a 90° roll
+    about x turns body z to -y)."""
+    view = View3D(Settings(viser_port=_free_port(), data_dir=tmp_path))
+    try:
+        c = math.cos(math.pi / 4)
+        att = schemas.Attitude(device_id="imu-1", kind="imu", seq=1, t_us=1, quat_wxyz=(c, c, 0.0, 0.0), roll_rad=0.0,
+                               pitch_rad=0.0, yaw_rad=0.0, yaw_unwrapped_rad=0.0)  # fmt: skip
+        view.on_hub("attitude", att)
+        view.step()
+        nodes = view._nodes["imu-1"]
+        assert "fused_hook" not in nodes and "bait" not in nodes
+        line = np.asarray(nodes["fused_line"].points)[0]
+        np.testing.assert_allclose(line[1] - line[0], [0.0, -0.6, 0.0], atol=1e-9)
+        np.testing.assert_allclose(nodes["fused_frame"].position, line[0])
+    finally:
+        view.stop()
+
+
 def test_cone_and_torsion_arc_reference_values() -> None:
     verts, faces = cone_mesh(np.array([0.0, 0.0, 4.0]), 4.0, math.radians(10.0), n=16)
     radii = np.hypot(verts[1:, 0], verts[1:, 1])
