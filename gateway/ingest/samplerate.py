@@ -38,6 +38,8 @@ JITTER_S: Final = 0.025
 """How far a `t0_us` may sit from the sample clock (docs/protocol.md): each segment end costs at most this."""
 REFRESH_REL: Final = 0.0005
 """A used rate is updated when the measurement has moved by more than this (not on every packet)."""
+DECIDE_EVERY_US: Final = 1_000_000
+"""Device time between two looks at the evidence (a packet in between costs a few comparisons, not a decision)."""
 SEQ_WINDOW: Final = 1024
 """A packet more than this far ahead in `seq` starts a new segment (as `ingest.sequence` calls it a jump)."""
 MAX_STEP_S: Final = 0.5
@@ -67,6 +69,7 @@ class SampleRateMeter:
     seconds: float = 0.0  # and their device seconds, faded alike
     segments: float = 0.0  # and how many segments they came from, faded alike
     used_hz: float | None = None  # the measured rate in use, None while the declared one is
+    decided_us: int = -(2**62)  # t0_us of the last decision
 
     @property
     def evidence_s(self) -> float:
@@ -101,6 +104,7 @@ class SampleRateMeter:
             self.boot_id, self.declared_hz = boot_id, rate_hz
             self.samples = self.seconds = self.segments = 0.0
             self.used_hz = None
+            self.decided_us = -(2**62)
             self._open(seq, t0_us, n)
             return rate_hz
         ahead = (seq - self.last_seq) % UINT32
@@ -122,6 +126,9 @@ class SampleRateMeter:
             self.seconds *= 0.5
             self.segments *= 0.5
             self._open(seq, t0_us, n)
+        if 0 <= t0_us - self.decided_us < DECIDE_EVERY_US:  # the decision is revisited once a device second
+            return rate_hz if self.used_hz is None else self.used_hz
+        self.decided_us = t0_us
         return self._decide(rate_hz)
 
     def _decide(self, rate_hz: float) -> float:
