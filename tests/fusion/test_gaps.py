@@ -146,14 +146,14 @@ def test_the_bench_runs_on_a_small_case(capsys: pytest.CaptureFixture[str]) -> N
 
 
 def test_the_kind_table_says_who_bridges() -> None:
-    """Hooks and rods bridge their lost samples; only the rod tapers its bridged gyro (a plain line raised false
-    bite alarms on the rod scenario suite, back to back missed bites: docs/fusion.md, "Lost packets")."""
+    """Hooks, rods and plain IMUs bridge their lost samples; only the rod tapers its bridged gyro (a plain line raised
+    false bite alarms on the rod scenario suite, back to back missed bites: docs/fusion.md, "Lost packets")."""
     from gateway.pipeline import Pipeline
 
     bank = Pipeline().bank
-    assert bank.bridge_kinds == {"hook", "rod"}
+    assert bank.bridge_kinds == {"hook", "rod", "imu"}
     assert bank.gyro_taper_s["rod"] > 0.0
-    assert bank.gyro_taper_s["hook"] == 0.0
+    assert bank.gyro_taper_s["hook"] == bank.gyro_taper_s["imu"] == 0.0
 
 
 def test_coast_mask_marks_the_inserted_runs_long_enough() -> None:
