@@ -132,7 +132,7 @@ def examples() -> dict[str, tuple[str, WireModel]]:
     ball_cmd = BallCommand(v=1, cmd_id=3, action="rethrow", spot="inlet", sent_wall_us=wall + 11_900_000)
     att = Attitude(
         device_id="rod-1", kind="rod", seq=1042, t_us=10_430_000, wall_t_us=wall + 10_436_000, quat_wxyz=quat,
-        roll_rad=0.0012, pitch_rad=0.3316, yaw_rad=0.5236, yaw_unwrapped_rad=6.8068, filter="complementary",
+        roll_rad=0.0012, pitch_rad=0.3316, yaw_rad=0.5236, yaw_unwrapped_rad=6.8068, filter="default",
     )
     att_block = AttitudeBlock(
         device_id="rod-1", kind="rod", boot_id=2_882_400_001, seq=1042, t0_us=10_420_000, rate_hz=100.0,

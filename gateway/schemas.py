@@ -421,7 +421,10 @@ class BallCommand(WireModel):
 
 
 class Attitude(WireModel):
-    """Fused attitude at the last sample of packet `seq` (device time `t_us`)."""
+    """Fused attitude at the last sample of packet `seq` (device time `t_us`): body to ENU in the device's heading
+    frame (9D: y at magnetic north; 6D: the device's own heading after its 0.5 s warm-up). Not one per packet: none
+    during a device's first 0.5 s (its warm-up, every kind), then at most one per `--attitude-interval-s` of device
+    time (0.02 s: 50 Hz) and one per device per ingest batch (the newest); every sample: `--attitude-blocks`."""
 
     v: Version = 1
     device_id: DeviceId

@@ -374,6 +374,8 @@ class FusionBank:
                 if bridged is not None:
                     gyr, acc, mag, kept[dev_id] = bridged
                     inputs[dev_id] = (gyr, acc, mag, t_s)
+                    if all(dev.follows):  # no packet lost: a gap in the device's own time (see `Output.time_gaps`)
+                        out.time_gaps.append((dev.kind, dev_id, (gyr.shape[0] - kept[dev_id].shape[0]) * dev.dt_s))
             if dev.filt is None:
                 by_len.setdefault(gyr.shape[0], []).append(dev_id)
                 continue

@@ -421,6 +421,10 @@ class GatewayService:
             out = self.pipeline.process(packets, now)
             for f in out.filter_failures:
                 c.filter_failed(f.kind, f.device_id, f.reason, f.detail, items[-1][2])
+            for kind, device_id, gap_s in out.time_gaps:
+                c.drop(kind, device_id, "time_gap_bridged", f"seq follows on but t0_us is {1e3 * gap_s:.0f} ms of "
+                       "samples late: taken as samples lost in the device and bridged (see docs/protocol.md 3.1)",
+                       items[-1][2])  # fmt: skip
             self.hub.emit(out)
             self.hub.emit_packets(packets)
             self.batch_delay_s.append(time.monotonic() - items[0][2])

@@ -83,6 +83,9 @@ class Output:
     reel_commands: list[tuple[str, dict[str, Any]]] = field(default_factory=list)  # (device id, ReelCommand fields)
     reel_events: list[ReelEvent] = field(default_factory=list)  # reel safety stops (watchdog, offline) to log
     filter_failures: list[FilterFailure] = field(default_factory=list)
+    # (kind, device id, seconds bridged): gaps in device time between packets whose seq follows on, i.e. samples the
+    # device itself did not send, or a t0_us more than gaps.JITTER_TOL_S late; counted as `time_gap_bridged`
+    time_gaps: list[tuple[str, str, float]] = field(default_factory=list)
     # Outputs of kinds without a field above (a kind added later): each message with its Topic row; the hub
     # publishes them with that row's key and QoS, like the built-in outputs.
     extra: list[Published] = field(default_factory=list)
