@@ -48,7 +48,7 @@ def load_trial(path: str) -> dict:
 def fmt_rows(a: np.ndarray) -> str:
     """n x 3 array as JSON rows, float32 values printed with %.7g (what a C device would do)."""
     a32 = a.astype(np.float32)
-    return "[" + ",".join("[" + ",".join("%.7g" % v for v in row) + "]" for row in a32) + "]"
+    return "[" + ",".join("[" + ",".join(f"{v:.7g}" for v in row) + "]" for row in a32) + "]"
 
 
 def json_packet(dev: str, kind: str, boot: int, seq: int, t0: int, rate: float, gyr, acc, mag, wall_t0) -> bytes:

@@ -108,25 +108,25 @@ def score(npz_path: str, skip_s: float = 0.0) -> dict:
 
     # per-packet attitude
     idx, tmis, lat = [], [], []
-    for s, t in zip(r["att_seq"], r["att_t_us"]):
+    for s, t in zip(r["att_seq"], r["att_t_us"], strict=True):
         a, n, t0 = by_seq[int(s)]
         idx.append(a + n - 1)
         tmis.append(int(t) - (t0 + (n - 1) * 1e6 / rate))
-    for s, w in zip(r["att_seq"], r["att_recv_wall_us"]):
+    for s, w in zip(r["att_seq"], r["att_recv_wall_us"], strict=True):
         lat.append((int(w) - put_wall[int(s)]) / 1000.0)
     idx = np.array(idx, dtype=np.int64)
     out["attitudes"] = int(len(idx))
     out["attitude_t_us_minus_last_sample_us"] = ([float(np.min(tmis)), float(np.max(tmis))] if tmis else None)
     out["latency_put_to_recv_ms_p50_p99"] = ([float(np.percentile(lat, 50)), float(np.percentile(lat, 99))]
                                               if lat else None)
-    out["filters"] = sorted(set(str(f) for f in r["att_filter"]))
+    out["filters"] = sorted({str(f) for f in r["att_filter"]})
     if len(idx):
         m = usable[idx]
         out["att"] = errors(r["att_quat"][m], q_ref_all[idx[m]])
     # per-sample attitude blocks
     if len(r["blk_seq"]):
         bidx = []
-        for s, n in zip(r["blk_seq"], r["blk_n"]):
+        for s, n in zip(r["blk_seq"], r["blk_n"], strict=True):
             a, n_sent, _ = by_seq[int(s)]
             assert n == n_sent
             bidx.extend(range(a, a + n))
