@@ -69,7 +69,7 @@ def binary_packet(dev: str, kind: str, boot: int, seq: int, t0: int, rate: float
     idb = dev.encode("ascii")
     n = gyr.shape[0]
     header = struct.pack(
-        "<BBBBHHIIqdqffff", 0xB2, flags, {"rod": 0, "hook": 1}[kind], len(idb), n, 0, boot, seq, t0, rate,
+        "<BBBBHHIIqdqffff", 0xB2, flags, {"rod": 0, "hook": 1, "imu": 2}[kind], len(idb), n, 0, boot, seq, t0, rate,
         wall_t0 if wall_t0 is not None else 0, 0.0, 0.0, 0.0, 0.0,
     )
     assert len(header) == 56
@@ -101,7 +101,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("trial", help="BROAD .mat file")
     ap.add_argument("--id", default=None, help="device id (default: broad-<trial number>-<spp>)")
-    ap.add_argument("--kind", default="rod", choices=["rod", "hook"], help="device kind (default rod)")
+    ap.add_argument("--kind", default="imu", choices=["imu", "rod", "hook"], help="device kind (default imu)")
     ap.add_argument("--spp", type=int, default=8, help="samples per packet (default 8)")
     ap.add_argument("--encoding", choices=["json", "binary"], default="json")
     ap.add_argument("--no-mag", action="store_true", help="6-axis device: leave mag_uT out")
