@@ -217,11 +217,15 @@ class HookFilterSettings:
     mag_hard_iron_std_uT: float = 0.5  # prior std of the magnetometer's residual hard iron, per body axis (0: not
     # estimated). A calibrated board keeps ~0.5 µT (devices.common.ImuErrorModel.calibrated): 1-4° of heading
     mag_hard_iron_psd: float = 1e-6  # µT²/s: its drift (battery and motor currents)
-    rope_observe_swing_rad: float = 0.00175  # 0.1°: the swing rate (and magnetometer) correct the rope length and the
-    # tension offset fully from this swing amplitude (the rate's energy over a period) on, not at all below half of it
-    # (`_length_observability`; 0: always, the filter before issue 11's rope round: a still hook hoisted 5 m up and
-    # down read 10 m as 70-90 m; tuning seeds 1-30 rope RMS 18.0 -> 12.6 %, Θ 0.1545 -> 0.1549°; 0.2°: 10.5 % but
-    # 0.1581°, a length too short when a move starts the swing costs Θ more than one too long)
+    rope_observe_swing_rad: float = 0.0035  # 0.2° (0.1° before the hoist round): the swing rate (and magnetometer)
+    # correct the rope length and the tension offset fully from this swing amplitude (the rate's energy over a period)
+    # on, not at all below half of it (`_length_observability`; 0: always, the filter before issue 11's rope round: a
+    # still hook hoisted 5 m up and down read 10 m as 70-90 m; tuning seeds 1-30 rope RMS 18.0 -> 12.6 %, Θ 0.1545 ->
+    # 0.1549°; 0.2° then: 10.5 % but 0.1581°, a length left too short by a hoist when a move started the swing). With
+    # the hoist test the length no longer waits for a swing to follow a hoist, and below 0.2° the swing rate's pull on
+    # it is mostly the gyroscope's noise (the amplitude read from the rate's energy grows with the length, 0.04-0.08°
+    # on a still 10-16 m hook, so a length that crept long opened the gate further: a still 10 m hook read 25 m 35 s
+    # after a hoist with 0.1°, 10.2 m with 0.2°)
     hoist_gate: float = 10.8  # χ² (1 dof, p = 0.001) gate on a running mean of the tension channel's whitened
     # innovation: a hoist drive's ramp (0.05-0.5 m/s² for 2-4 s) is a sustained vertical acceleration (0: off, the
     # filter before issue 11's hoist round, whose hoist acceleration, std `hoist_accel_std_m_s2` over 1 s, had as much
@@ -296,9 +300,10 @@ TRIAL_JUMP: dict[str, float] = {"jump_trial_gate": 6.0, "jump_trial_open_std_m_s
 # slow test): `HookFilterSettings(**TRACKING)`.
 TRACKING: dict[str, float] = PREVIOUS_DEFAULT | {"slow_mean_gate": 20.0, "move_track_s": 10.0, "tip_turn_psd": 0.05}
 
-# The defaults before issue 11's hoist round (the hoist test on the tension channel, its ramps' rollback, and the
-# length's column of the process Jacobian through the force's running mean): `HookFilterSettings(**ROPE_ROUND)`.
-ROPE_ROUND: dict[str, float] = {"hoist_gate": 0.0, "length_force_tau_s": 0.0}
+# The defaults before issue 11's hoist round (the hoist test on the tension channel and its ramps' rollback, the
+# length's column of the process Jacobian through the force's running mean, the swing gate on the length at 0.1°
+# instead of 0.2°): `HookFilterSettings(**ROPE_ROUND)`.
+ROPE_ROUND: dict[str, float] = {"hoist_gate": 0.0, "length_force_tau_s": 0.0, "rope_observe_swing_rad": 0.00175}
 
 # Issue 11's eighth round: the tip tracking held past its 10 s while a 3 s mean of the tip estimate exceeds
 # 0.12 m/s², for at most 5 s more, with the jump test's gate at χ² 5 while held for a tip estimate shrinking below
