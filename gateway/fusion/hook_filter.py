@@ -46,7 +46,14 @@ iron (µT, body).
   measured pull (`W / l`) make `l` observable whenever the hook swings or is pushed; a configured length is the
   prior (`rope_length_known`), not a constraint. On a hook that hardly swings (below `rope_observe_swing_rad`)
   the swing rate says nothing about `l`, so it does not correct `l` (nor the tension offset); the length then
-  follows only the hoist states (`_length_observability`).
+  follows only the hoist states (`_length_observability`). In the length's column of the process Jacobian the
+  measured force enters through its running mean (`length_force_tau_s`): its sample noise there biased the length
+  long (errors in variables).
+* Hoisting: a hoist drive's ramp is a sustained vertical acceleration for 2-4 s. A running mean of the tension
+  channel's whitened innovation tests for it (`_hoist_test`, `hoist_gate`); while a ramp is on, `l''` is held wide
+  and the tension offset takes no corrections (a ramp's first samples, which the test needed, run again as a
+  boom-tip jump's do); between ramps `l''` is tight (`hoist_quiet_std_m_s2`), so a slow tension mismatch goes to the
+  offset, not into the rope speed, and the rope speed of a running hoist does not revert (`_hoist_runs`).
 * Jacobians are exact: the pendulum's RK4 differentiated alongside itself (its tangent-linear model) and the body
   rate in closed form; `process_jacobian` and `measurement_jacobian`, forward differences of `process` and
   `measurement`, are the plain definitions they are tested against. The update is filterpy's (Joseph form) except
