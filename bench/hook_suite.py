@@ -10,6 +10,7 @@
     python -m bench.hook_suite --settings trial             # the fourth round's trial jumps (TRIAL_JUMP)
     python -m bench.hook_suite --settings round4            # the default before the fifth round (FOURTH_ROUND)
     python -m bench.hook_suite --settings held              # the eighth round's held tip tracking (HELD_TRACKING)
+    python -m bench.hook_suite --settings rope              # the default before the hoist round (ROPE_ROUND)
     python -m bench.hook_suite --length-factor 2            # the rope length told 2x too long at t = 0
     python -m bench.hook_suite --suite-version 1            # the cranes before the hoist fix (earlier figures)
 
@@ -67,6 +68,7 @@ from gateway.fusion.hook_filter import (
     FOURTH_ROUND,
     HELD_TRACKING,
     PREVIOUS_DEFAULT,
+    ROPE_ROUND,
     TRACKING,
     TRIAL_JUMP,
     HookFilter,
@@ -297,7 +299,7 @@ def rope_errors(length_m: np.ndarray, truth: HookTruth) -> dict[str, float]:
 
 
 PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JUMP, "round4": FOURTH_ROUND,
-           "held": HELD_TRACKING}
+           "held": HELD_TRACKING, "rope": ROPE_ROUND}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -346,7 +348,8 @@ def main(argv: list[str] | None = None) -> int:
                    "tracking (TRACKING), previous (PREVIOUS_DEFAULT, the defaults before the third round), "
                    "trial (TRIAL_JUMP, the fourth round's trial jumps), round4 (FOURTH_ROUND, the "
                    "default before the fifth round: the start's magnetometer reference not levelled), held "
-                   "(HELD_TRACKING, the eighth round's tip tracking held while the tip estimate is long)")
+                   "(HELD_TRACKING, the eighth round's tip tracking held while the tip estimate is long), rope "
+                   "(ROPE_ROUND, the default before the hoist round)")
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     p.add_argument("--rate-hz", type=float, default=RATE_HZ,
                    help="IMU sampling rate (default 100; the suite was tuned at 100 only)")

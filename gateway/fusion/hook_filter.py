@@ -46,7 +46,14 @@ iron (µT, body).
   measured pull (`W / l`) make `l` observable whenever the hook swings or is pushed; a configured length is the
   prior (`rope_length_known`), not a constraint. On a hook that hardly swings (below `rope_observe_swing_rad`)
   the swing rate says nothing about `l`, so it does not correct `l` (nor the tension offset); the length then
-  follows only the hoist states (`_length_observability`).
+  follows only the hoist states (`_length_observability`). In the length's column of the process Jacobian the
+  measured force enters through its running mean (`length_force_tau_s`): its sample noise there biased the length
+  long (errors in variables).
+* Hoisting: a hoist drive's ramp is a sustained vertical acceleration for 2-4 s. A running mean of the tension
+  channel's whitened innovation tests for it (`_hoist_test`, `hoist_gate`); while a ramp is on, `l''` is held wide
+  and the tension offset takes no corrections (a ramp's first samples, which the test needed, run again as a
+  boom-tip jump's do); between ramps `l''` is tight (`hoist_quiet_std_m_s2`), so a slow tension mismatch goes to the
+  offset, not into the rope speed, and the rope speed of a running hoist does not revert (`_hoist_runs`).
 * Jacobians are exact: the pendulum's RK4 differentiated alongside itself (its tangent-linear model) and the body
   rate in closed form; `process_jacobian` and `measurement_jacobian`, forward differences of `process` and
   `measurement`, are the plain definitions they are tested against. The update is filterpy's (Joseph form) except
@@ -91,8 +98,10 @@ N_INPUT = 8  # per-sample process input: accelerometer x/y, gyroscope (3), its b
  _TIP_GATE_STD, _MEAN_TAU, _MEAN_GATE, _L_RATE_TAU, _JUMP_ROPE, _SLOW_TAU, _SLOW_GATE, _SLOW_OPEN, _TRACK_S,
  _TRACK_PSD, _TURN_PSD, _TRACK_CAP, _TURN_CAP, _TRIAL_GATE, _TRIAL_LR, _TRIAL_EVERY, _TRIAL_OPEN,
  _ROLLBACK, _TRIAL_WIN, _TRIAL_QUIET, _HOLD_TAU, _HOLD_MIN, _HOLD_GATE, _HOLD_MAX, _STOP_STD, _STOP_MIN,
- _STOP_LR, _STOP_RATIO, _L_OBS_SWING) = range(52)
-N_MONITOR = 14  # `ekf_step`'s innovation statistics, move timers, the tip estimate's and the swing energy's means
+ _STOP_LR, _STOP_RATIO, _L_OBS_SWING, _HOIST_GATE, _HOIST_MEAN_TAU, _HOIST_OPEN, _HOIST_HOLD, _HOIST_CRUISE,
+ _HOIST_KEEP, _HOIST_STOP, _L_FORCE_TAU, _HOIST_BACK) = range(61)
+N_MONITOR = 20  # `ekf_step`'s innovation statistics, move and hoist timers, the tip estimate's, the swing energy's and
+# the force input's means
 
 
 COAST_R_SCALE = 1e8  # `run_bridged`: measurement variances × this on rows that were never measured
@@ -215,11 +224,42 @@ class HookFilterSettings:
     mag_hard_iron_std_uT: float = 0.5  # prior std of the magnetometer's residual hard iron, per body axis (0: not
     # estimated). A calibrated board keeps ~0.5 µT (devices.common.ImuErrorModel.calibrated): 1-4° of heading
     mag_hard_iron_psd: float = 1e-6  # µT²/s: its drift (battery and motor currents)
-    rope_observe_swing_rad: float = 0.00175  # 0.1°: the swing rate (and magnetometer) correct the rope length and the
-    # tension offset fully from this swing amplitude (the rate's energy over a period) on, not at all below half of it
-    # (`_length_observability`; 0: always, the filter before issue 11's rope round: a still hook hoisted 5 m up and
-    # down read 10 m as 70-90 m; tuning seeds 1-30 rope RMS 18.0 -> 12.6 %, Θ 0.1545 -> 0.1549°; 0.2°: 10.5 % but
-    # 0.1581°, a length too short when a move starts the swing costs Θ more than one too long)
+    rope_observe_swing_rad: float = 0.0035  # 0.2° (0.1° before the hoist round): the swing rate (and magnetometer)
+    # correct the rope length and the tension offset fully from this swing amplitude (the rate's energy over a period)
+    # on, not at all below half of it (`_length_observability`; 0: always, the filter before issue 11's rope round: a
+    # still hook hoisted 5 m up and down read 10 m as 70-90 m; tuning seeds 1-30 rope RMS 18.0 -> 12.6 %, Θ 0.1545 ->
+    # 0.1549°; 0.2° then: 10.5 % but 0.1581°, a length left too short by a hoist when a move started the swing). With
+    # the hoist test the length no longer waits for a swing to follow a hoist, and below 0.2° the swing rate's pull on
+    # it is mostly the gyroscope's noise (the amplitude read from the rate's energy grows with the length, 0.04-0.08°
+    # on a still 10-16 m hook, so a length that crept long opened the gate further: a still 10 m hook read 25 m 35 s
+    # after a hoist with 0.1°, 10.2 m with 0.2°)
+    hoist_gate: float = 10.8  # χ² (1 dof, p = 0.001) gate on a running mean of the tension channel's whitened
+    # innovation: a hoist drive's ramp (0.05-0.5 m/s² for 2-4 s) is a sustained vertical acceleration (0: off, the
+    # filter before issue 11's hoist round, whose hoist acceleration, std `hoist_accel_std_m_s2` over 1 s, had as much
+    # power at 0 Hz as a slow tension offset: a ramp was split between the two, and the rope speed followed the
+    # offset's correlation with it the wrong way, tuning seed 16 read 9.3 -> 3.3 m hoisting as 9.3 -> 14.8 -> 5.6 m).
+    # When it fails a ramp is on (`_hoist_test`): the hoist acceleration's std is held at `hoist_open_std_m_s2` and the
+    # tension offset takes no corrections; between ramps the hoist acceleration's std is `hoist_quiet_std_m_s2`, and
+    # the rope speed does not revert (`rope_rate_tau_s`) while a hoist runs (`_hoist_runs`)
+    hoist_mean_tau_s: float = 0.5  # ... the time constant of that mean (s)
+    hoist_open_std_m_s2: float = 0.3  # ... the hoist acceleration's std while a ramp is on
+    hoist_hold_s: float = 1.0  # ... a failed test holds the ramp on this long (s) ...
+    hoist_keep_m_s2: float = 0.03  # ... and, within `hoist_cruise_s` of it, while |l''| is above this (an open ramp
+    # explains the tension, so the test passes again while the ramp goes on)
+    hoist_quiet_std_m_s2: float = 0.015  # the hoist acceleration's stationary std between ramps (in place of
+    # `hoist_accel_std_m_s2` while the test is on): a hoist is a ramp the test sees, not a slow drift; 0.01: tuning
+    # seeds 1-30 rope 4.3 % but Θ 0.1553°, 0.02: 5.9 % and 0.1511°
+    hoist_stop_m_s: float = 0.05  # the rope speed does not revert while it is above this (a hoist's cruise, between
+    # its ramps) ...
+    hoist_cruise_s: float = 60.0  # ... for at most this long after the test last failed (s)
+    hoist_rollback: bool = True  # a ramp's start goes back `move_rollback_s` (the samples the test needed, whose
+    # tension went to the offset) and runs them again with the ramp on, as a boom-tip jump does
+    length_force_tau_s: float = 1.0  # the length's column of the process Jacobian sees the measured force `W`
+    # (accelerometer x/y) through a running mean of this time constant (s; 0: as measured, the filter before the
+    # hoist round). `W` drives the swing by `W / l`; its sample noise (0.04 m/s² on the MPU-6050) in the Jacobian
+    # correlates with the innovation it causes, an errors-in-variables bias that reads the swing's response as
+    # weaker than predicted, so the length drifted long on a hook that hardly swings (tuning seed 16, swinging
+    # 0.2-0.3° after its hoist: 3.3 m read 4.5-6.3 m; with error-free x/y 3.32 m, with only their noise 4.1-5.7 m)
     surprise_gate: float = 16.0  # χ² (2 dof) gate on the swing-rate innovation for adaptive process noise
     init_swing_std: float = 0.02  # rad, per horizontal axis: hanging still at initialisation
     init_rate_std_rad_s: float = 0.02
@@ -266,6 +306,11 @@ TRIAL_JUMP: dict[str, float] = {"jump_trial_gate": 6.0, "jump_trial_open_std_m_s
 # The boom-tip tracking of issue 11's second round, as overrides of the previous defaults (the tracking and the
 # slow test): `HookFilterSettings(**TRACKING)`.
 TRACKING: dict[str, float] = PREVIOUS_DEFAULT | {"slow_mean_gate": 20.0, "move_track_s": 10.0, "tip_turn_psd": 0.05}
+
+# The defaults before issue 11's hoist round (the hoist test on the tension channel and its ramps' rollback, the
+# length's column of the process Jacobian through the force's running mean, the swing gate on the length at 0.1°
+# instead of 0.2°): `HookFilterSettings(**ROPE_ROUND)`.
+ROPE_ROUND: dict[str, float] = {"hoist_gate": 0.0, "length_force_tau_s": 0.0, "rope_observe_swing_rad": 0.00175}
 
 # Issue 11's eighth round: the tip tracking held past its 10 s while a 3 s mean of the tip estimate exceeds
 # 0.12 m/s², for at most 5 s more, with the jump test's gate at χ² 5 while held for a tip estimate shrinking below
@@ -1118,6 +1163,57 @@ def _mark_jump(monitor: FloatArray, params: FloatArray) -> None:
 
 
 @njit
+def _smooth_force_in_length_column(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray, monitor: FloatArray,
+                                   f_jac: FloatArray) -> None:  # fmt: skip
+    """The length's column of F (`_process_jacobian_into`'s, for the step from `x`) with the measured force's running
+    mean (`monitor[17:19]`, time constant `params[_L_FORCE_TAU]`) in place of the force: `W / l` moves the swing rate
+    by `dt W / l²` per unit of `l` (its position by half of `dt` that), and a noisy `W` there biases the length long
+    (errors in variables). The prediction keeps the force as measured."""
+    l, wx, wy = _swing_drive(x, dt_s, u, params)
+    fx, fy = wx + x[17], wy + x[18]  # `W` without the boom tip's acceleration (a state, not a noisy input)
+    a = min(1.0, dt_s / params[_L_FORCE_TAU])
+    monitor[17] += (fx - monitor[17]) * a
+    monitor[18] += (fy - monitor[18]) * a
+    l0 = math.exp(x[_LOG_L])
+    c = l0 / (l * l) if l0 + 0.5 * dt_s * x[_L_RATE] > params[_L_MIN] else 0.0  # ∂l/∂ln l (0 where clamped) / l²
+    dx, dy = c * (monitor[17] - fx), c * (monitor[18] - fy)
+    f_jac[0, _LOG_L] += 0.5 * dt_s * dt_s * dx
+    f_jac[1, _LOG_L] += 0.5 * dt_s * dt_s * dy
+    f_jac[2, _LOG_L] += dt_s * dx
+    f_jac[3, _LOG_L] += dt_s * dy
+
+
+@njit
+def _hoist_runs(x: FloatArray, monitor: FloatArray, params: FloatArray) -> bool:
+    """Whether a hoist runs (its rope speed is not to revert to 0 over this step from `x`): a ramp is on, or the rope
+    speed is above `params[_HOIST_STOP]`, within `params[_HOIST_CRUISE]` of the hoist test's last failure."""
+    return bool(params[_HOIST_GATE] > 0.0 and monitor[16] > 0.0
+                and (monitor[15] > 0.0 or abs(x[_L_RATE]) > params[_HOIST_STOP]))
+
+
+@njit
+def _hoist_test(w: float, l_acc: float, dt_s: float, params: FloatArray, monitor: FloatArray) -> bool:
+    """Whether a hoist ramp is on: `monitor[14]` keeps a running mean (`params[_HOIST_MEAN_TAU]`) of the tension
+    channel's whitened innovation `w`; when its square, scaled by its variance under a correct model, exceeds
+    `params[_HOIST_GATE]` (χ², 1 dof), the ramp is on for `params[_HOIST_HOLD]` s (`monitor[15]`, the seconds left),
+    and a hoist runs for at most `params[_HOIST_CRUISE]` s (`monitor[16]`); within that a ramp also stays on while the
+    predicted hoist acceleration `l_acc` is above `params[_HOIST_KEEP]` (once on, the ramp explains the tension and
+    the test passes)."""
+    a = min(1.0, dt_s / params[_HOIST_MEAN_TAU])
+    monitor[14] += (w - monitor[14]) * a
+    monitor[19] = 0.0
+    if monitor[14] * monitor[14] * (2.0 - a) / a > params[_HOIST_GATE]:
+        if monitor[15] <= 0.0:
+            monitor[19] = 1.0  # a ramp starts: `ekf_run` runs the samples the test needed again with the ramp on
+        monitor[15] = params[_HOIST_HOLD]
+        monitor[16] = params[_HOIST_CRUISE]
+    ramp = monitor[15] > 0.0 or (monitor[16] > 0.0 and abs(l_acc) > params[_HOIST_KEEP])
+    monitor[15] -= dt_s
+    monitor[16] -= dt_s
+    return bool(ramp)
+
+
+@njit
 def _held(x_pred: FloatArray, monitor: FloatArray, params: FloatArray, shrinking: bool) -> bool:
     """Whether the tip tracking goes on after `params[_TRACK_S]`: the running mean of the tip estimate
     `monitor[11:13]` is longer than `params[_HOLD_MIN]` and the hold has lasted less than `params[_HOLD_MAX]`
@@ -1171,6 +1267,12 @@ def _ekf_step_into(
     h_jac, hp, kt, wt, k_opt = hm[0], hm[1], hm[2], hm[3], hm[4]
     s, chol = ss[0], ss[1]
     _process_jacobian_into(x, dt_s, u, params, x_pred, f_jac, scratch)
+    if params[_L_FORCE_TAU] > 0.0:
+        _smooth_force_in_length_column(x, dt_s, u, params, monitor, f_jac)
+    if _hoist_runs(x, monitor, params):  # `_rope_step` without the rope speed's reversion
+        x_pred[_L_RATE] = x[_L_RATE] + dt_s * x[_L_ACC]
+        f_jac[_L_RATE, _L_RATE] = 1.0
+        f_jac[_L_RATE, _L_ACC] = dt_s
     _process_noise_into(x, dt_s, q_psd, params, q)
     _predict_covariance(f_jac, p, q, scratch, p_pred)
     _measurement_jacobian_into(x_pred, params, hx, h_jac, scratch)
@@ -1236,11 +1338,19 @@ def _ekf_step_into(
         for i in (17, 18):
             p_pred[i, i] = max(p_pred[i, i], move_std**2)
     _innovation_covariance(p_pred, h_jac, m, r_diag, idx, cnt, hp, s)
+    ramp = params[_HOIST_GATE] > 0.0 and _hoist_test(y[3] / math.sqrt(s[3, 3]), x_pred[_L_ACC], dt_s, params,
+                                                     monitor)  # fmt: skip
+    if ramp and p_pred[_L_ACC, _L_ACC] < params[_HOIST_OPEN] * params[_HOIST_OPEN]:
+        p_pred[_L_ACC, _L_ACC] = params[_HOIST_OPEN] * params[_HOIST_OPEN]
+        _innovation_covariance(p_pred, h_jac, m, r_diag, idx, cnt, hp, s)
     surprised = inflate_on_surprise(p_pred, hp, s, h_jac, m, y, params)
     _kalman_gain(hp, s, m, chol, wt, kt)
     k_opt[:m] = kt[:m]
     k = kt[:m].T
     _restrict_gain(k, surprised, _length_observability(x_pred, monitor, params, dt_s))
+    if ramp:  # a hoist ramp: the tension offset does not take it
+        for j in range(m):
+            k[_ACC_BIAS, j] = 0.0
     if (moving or jump) and params[_MOVE_FREEZE] > 0.0:
         for j in range(k.shape[1]):
             for i in (14, 15, 16):
@@ -1333,6 +1443,18 @@ def ekf_run(
         hist_z[k, :m], hist_u[k] = z[i], u[i]
         hist_n[0] += 1
         _ekf_step_into(x, p, z[i], u[i], dt_s, params, q_psd, r_diag, monitor, vecs, mats, hm, ss, idx, cnt)
+        if monitor[19] > 0.0 and monitor[5] == 0.0 and b > 1 and params[_HOIST_BACK] > 0.0:
+            j0 = hist_n[0] - min(hist_n[0], b, max(1, round(params[_ROLLBACK] / dt_s)))
+            x[:] = hist_x[j0 % b]
+            p[:, :] = hist_p[j0 % b]
+            mon = hist_mon[j0 % b].copy()
+            mon[15], mon[16] = params[_HOIST_HOLD], params[_HOIST_CRUISE]
+            _rerun(x, p, hist_z, hist_u, j0, hist_n[0], m, dt_s, quiet, q_psd, r_diag, mon, vecs, mats, hm, ss, idx,
+                   cnt)  # fmt: skip
+            monitor[0], monitor[1], monitor[9] = mon[0], mon[1], mon[9]
+            monitor[14:17] = mon[14:17]
+            monitor[19] = 0.0
+            hist_n[0] = 0
         if monitor[5] > 0.0 and b > 1:
             trial = monitor[5] > 1.5
             if trial:
@@ -1414,13 +1536,14 @@ class HookFilter(AttitudeFilter):
         self._monitor[0] = 2.0  # swing-rate innovation statistics (`ekf_step`)
         self._history: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, NDArray[np.int64]] | None
         self._history = None
+        hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
         self._q_psd = np.array(
             [0.0, 0.0, 0.0, 0.0, 0.0, s.torsion_accel_psd]
             + [s.gyro_bias_psd] * 3
             + [s.acc_bias_psd]
             + [s.acc_xy_bias_psd] * 2
             + [0.0] * 2
-            + [s.log_length_psd, s.rope_rate_psd, 2.0 * s.hoist_accel_std_m_s2**2 / s.hoist_tau_s]
+            + [s.log_length_psd, s.rope_rate_psd, 2.0 * hoist_std**2 / s.hoist_tau_s]
             + [2.0 * s.tip_accel_std_m_s2**2 / s.tip_accel_tau_s] * 2
             + [0.0] * 2
             + [s.mag_hard_iron_psd] * 3
@@ -1444,7 +1567,9 @@ class HookFilter(AttitudeFilter):
                          s.jump_trial_window_s, s.jump_trial_quiet_s, s.move_track_hold_tau_s,
                          s.move_track_hold_m_s2, s.move_track_hold_gate, s.move_track_hold_max_s,
                          s.jump_stop_std_m_s2, s.jump_stop_min_m_s2, s.jump_stop_lr, s.jump_stop_ratio,
-                         s.rope_observe_swing_rad])  # fmt: skip
+                         s.rope_observe_swing_rad, s.hoist_gate, s.hoist_mean_tau_s, s.hoist_open_std_m_s2,
+                         s.hoist_hold_s, s.hoist_cruise_s, s.hoist_keep_m_s2, s.hoist_stop_m_s,
+                         s.length_force_tau_s, 1.0 if s.hoist_rollback else 0.0])  # fmt: skip
 
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings

