@@ -54,6 +54,10 @@ def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dic
             out["stream"] = {"ok": t.ok, "lost": t.lost, "duplicates": t.duplicates, "reordered": t.reordered,
                              "reboots": t.reboots, "rejected": dict(stream.rejected),
                              "filter_restarts": dict(stream.filter_restarts)}  # fmt: skip
+            if "imu" in stream.trackers:  # the IMU rate as declared and as its t0_us show (docs/protocol.md 3.1)
+                r = stream.rate
+                out["stream"]["sample_rate"] = {"declared_hz": r.declared_hz, "measured_hz": r.measured_hz,
+                                                "used_hz": r.used_hz or r.declared_hz, "evidence_s": r.evidence_s}
     return out
 
 

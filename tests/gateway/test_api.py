@@ -127,6 +127,9 @@ def test_bite_alarm_is_published_with_block_and_listed(running: Callable[[], Run
     assert dev["kind"] == "rod" and dev["active_alarms"] == ["bite"]
     assert dev["stream"]["ok"] == 120 and dev["stream"]["lost"] == 0
     assert dev["stream"]["filter_restarts"] == {}  # a healthy stream: no filter restarts, and the field is there
+    rate = dev["stream"]["sample_rate"]  # 6 s of packets: under the 20 s the measured rate needs
+    assert (rate["declared_hz"], rate["used_hz"], rate["measured_hz"]) == (100.0, 100.0, None)
+    assert 5.0 < rate["evidence_s"] < 6.0
     assert 0.0 < dev["attitude"]["pitch_rad"] < 1.0  # the rod rests at about 31 deg
     assert len(dev["gyro_bias_rad_s"]) == 3
     atts = [json.loads(p) for k, p, _ in app.bus.sent if k == "gw/rod/rod-1/attitude"]
