@@ -430,7 +430,9 @@ class GatewayService:
             self.batch_delay_s.append(time.monotonic() - items[0][2])
 
     def _check_time(self, p: schemas.ImuPacket, now: float, arrival: float) -> schemas.ImuPacket | None:
-        """Device-time sanity (`gateway.ingest.timecheck`): None drops the packet; counted by reason either way."""
+        """Device-time sanity (`gateway.ingest.timecheck`): None drops the packet; counted by reason either way. A
+        packet kept gets the sample rate its device's `t0_us` show when the declared one is off
+        (`ingest.samplerate`)."""
         c = self.counters
         stream = c.stream(p.kind, p.device_id)
         end_us = p.t0_us + int(round((len(p.gyr_rad_s) - 1) * 1e6 / p.rate_hz))  # len: `p.n` without the property

@@ -22,6 +22,8 @@ import math
 from dataclasses import dataclass
 from typing import Final
 
+from gateway.fusion.gaps import JITTER_TOL_S
+from gateway.ingest.sequence import REORDER_WINDOW
 from gateway.schemas import RATE_MAX_HZ, RATE_MIN_HZ, UINT32
 
 MIN_EVIDENCE_S: Final = 20.0
@@ -34,14 +36,10 @@ measurement's own uncertainty, `SampleRateMeter.uncertainty_rel`). BROAD's 15 tr
 rate_hz 0.5 % off, so a small threshold pays."""
 RELEASE_REL: Final = 0.0005
 """Relative difference below which the declared rate is used again (hysteresis)."""
-JITTER_S: Final = 0.025
-"""How far a `t0_us` may sit from the sample clock (docs/protocol.md): each segment end costs at most this."""
 REFRESH_REL: Final = 0.0005
 """A used rate is updated when the measurement has moved by more than this (not on every packet)."""
 DECIDE_EVERY_US: Final = 1_000_000
 """Device time between two looks at the evidence (a packet in between costs a few comparisons, not a decision)."""
-SEQ_WINDOW: Final = 1024
-"""A packet more than this far ahead in `seq` starts a new segment (as `ingest.sequence` calls it a jump)."""
 MAX_STEP_S: Final = 0.5
 """A `t0_us` step longer than the packet's span by more than this (or back by more) is a pause or a clock step, not
 the sample clock: it is left out. Shorter steps back are jitter and count (the sums telescope only if they do)."""
@@ -78,9 +76,9 @@ class SampleRateMeter:
 
     @property
     def uncertainty_rel(self) -> float:
-        """Bound of the measured rate's relative error from jitter: two ends of up to `JITTER_S` per segment,
-        independent between segments."""
-        return 2.0 * JITTER_S * math.sqrt(self.segments + 1.0) / max(self.evidence_s, 1e-9)
+        """Bound of the measured rate's relative error from jitter: two ends of up to `gaps.JITTER_TOL_S` (how far a
+        `t0_us` may sit from the sample clock, docs/protocol.md) per segment, independent between segments."""
+        return 2.0 * JITTER_TOL_S * math.sqrt(self.segments + 1.0) / max(self.evidence_s, 1e-9)
 
     @property
     def measured_hz(self) -> float | None:
@@ -108,7 +106,7 @@ class SampleRateMeter:
             self._open(seq, t0_us, n)
             return rate_hz
         ahead = (seq - self.last_seq) % UINT32
-        if not 0 < ahead < SEQ_WINDOW:
+        if not 0 < ahead < REORDER_WINDOW:  # as `ingest.sequence` tells a jump
             return self._decide(rate_hz)  # a late (reordered) packet, or a far jump: no evidence either way
         step_s = (t0_us - self.last_t0_us) * 1e-6
         known = ahead == 1 or self.uniform_n == self.last_n == n  # lost packets count when all have one size

@@ -32,6 +32,8 @@ class SeqResult:
         return self.status in ("conflict", "rival")
 
 
+REORDER_WINDOW: Final = 1024
+"""Packets behind the newest that can still be a late (reordered) one; a jump ahead by this many or more is a jump."""
 CONFLICT_EVIDENCE: Final = 2
 """New packets of the boot left behind, after a reboot, that prove it still publishes (one can be a late packet)."""
 
@@ -60,7 +62,7 @@ class SequenceTracker:
     Counters accumulate in `ok`, `lost`, `duplicates`, `reordered`, `reboots`, `conflicts`.
     """
 
-    window: int = 1024
+    window: int = REORDER_WINDOW
     boot_id: int | None = None
     previous_boot_id: int | None = None
     previous_newest: int = 0

@@ -10,7 +10,7 @@ is there for a ringing rod tip, and costs a smoothly turning IMU dearly (BROAD's
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import ClassVar
 
 from pydantic import BaseModel
 
@@ -22,9 +22,7 @@ class PlainImuKind(KindBase):
     """Attitude and height only (the pipeline's outputs of every fused kind); no rules, no state."""
 
     name: ClassVar[str] = "imu"
-    fused: ClassVar[bool] = True
     bridge_lost_samples: ClassVar[bool] = True  # a line across the gap (no taper: see the module docstring)
-    packet_types: ClassVar[tuple[type[Any], ...]] = ()
 
     def thresholds_model(self) -> type[BaseModel]:
         return ImuSettings

@@ -25,6 +25,28 @@ def wait_for(cond: Callable[[], bool], timeout_s: float = 20.0, show: Callable[[
         time.sleep(0.05)
 
 
+def serve_packets(data_dir: Path, packets: Sequence[Any]) -> tuple[MemoryBus, dict[str, int]]:
+    """Each IMU packet as its own batch through the service `gateway.app.compose` builds (a memory bus, the store in
+    `data_dir`, no threads), at a gateway clock that follows the packets' device time: what was put on the bus, and
+    the `rejected` counters."""
+    from gateway import schemas
+    from gateway.app import compose
+    from gateway.store import Store
+
+    bus = MemoryBus()
+    data_dir.mkdir(parents=True, exist_ok=True)
+    store = Store(data_dir / "gw.db")
+    svc = compose(Settings(data_dir=data_dir, zenoh_listen=[]), bus, store, blocking_thread=False)
+    try:
+        for p in packets:
+            svc.handle([(schemas.imu_key(p.kind, p.device_id), p.to_json(), time.monotonic())],
+                       now_wall_s=1e9 + p.t0_us * 1e-6)  # fmt: skip
+        return bus, dict(svc.counters.rejected)
+    finally:
+        svc.writer.close()
+        store.close()
+
+
 def rod_messages(seconds: float, script: Sequence[dict[str, Any]] = (), seed: int = 1) -> list[tuple[str, bytes]]:
     """(key, payload) of a simulated rod's data packets (imu + reel), 5 samples per packet at 100 Hz."""
     fleet = RodFleet(FleetSettings(count=1, seed=seed, samples_per_packet=5, progress=False, id_prefix="rod"),

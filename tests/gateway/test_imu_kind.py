@@ -4,7 +4,6 @@ line (a rod's gyro is tapered in gaps)."""
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -13,11 +12,8 @@ import pytest
 
 from bench.link_loss import broad_total_deg, fused_quats, lost_packets, packets
 from gateway import schemas
-from gateway.app import compose
-from gateway.config import Settings
 from gateway.ingest.bus import MemoryBus
-from gateway.store import Store
-from tests.gateway.conftest import Running
+from tests.gateway.conftest import Running, serve_packets
 
 
 def test_an_imu_packet_decodes_as_json_and_binary_and_its_outputs_have_keys() -> None:
@@ -35,17 +31,9 @@ def test_an_imu_packet_decodes_as_json_and_binary_and_its_outputs_have_keys() ->
 
 
 def _through_service(tmp_path: Path, kind: str, trial: object, seconds: float) -> MemoryBus:
-    gyr, acc, mag, rate = trial.gyr_rad_s, trial.acc_m_s2, trial.mag_uT, trial.rate_hz  # type: ignore[attr-defined]
-    bus, store = MemoryBus(), Store(tmp_path / f"{kind}.db")
-    svc = compose(Settings(data_dir=tmp_path, zenoh_listen=[]), bus, store, blocking_thread=False)
-    try:
-        for p in packets("dev-1", kind, gyr, acc, mag, rate, 10)[: int(seconds * rate / 10)]:
-            svc.handle([(schemas.imu_key(kind, "dev-1"), p.to_json(), time.monotonic())],
-                       now_wall_s=1e9 + p.t0_us * 1e-6)  # fmt: skip
-    finally:
-        svc.writer.close()
-        store.close()
-    return bus
+    t = trial
+    pkts = packets("dev-1", kind, t.gyr_rad_s, t.acc_m_s2, t.mag_uT, t.rate_hz, 10)  # type: ignore[attr-defined]
+    return serve_packets(tmp_path / kind, pkts[: int(seconds * t.rate_hz / 10)])[0]  # type: ignore[attr-defined]
 
 
 def test_a_recording_played_as_imu_gets_the_rods_attitude_and_no_alarms(tmp_path: Path, broad_dir: Path) -> None:

@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gateway.ingest.samplerate import APPLY_REL, MIN_EVIDENCE_S, RELEASE_REL, SampleRateMeter
+from tests.gateway.conftest import serve_packets
 
 
 def _feed(meter: SampleRateMeter, true_hz: float, declared_hz: float, spp: int, seconds: float, jitter_us: int,
@@ -74,36 +74,18 @@ def test_hysteresis_between_using_and_releasing() -> None:
     assert decide(100.07, 250.0) == 100.0, "0.07 % again: not used again below 0.1 %"
 
 
-def _attitudes(tmp_path: Path, trial: object, declared_hz: float, seconds: float) -> dict[int, np.ndarray]:
-    """seq -> published attitude quaternion of BROAD trial 03 sent as JSON 10-sample packets through the composed
-    service (memory bus, one packet per batch), t0_us on the recording's own clock, `rate_hz` = `declared_hz`."""
-    from gateway import schemas
-    from gateway.app import compose
-    from gateway.config import Settings
-    from gateway.ingest.bus import MemoryBus
-    from gateway.store import Store
+def _attitudes(tmp_path: Path, trial: object, declared_hz: float, seconds: float) -> tuple[dict[int, np.ndarray], int]:
+    """(seq -> published attitude quaternion, `rate_hz_measured` count) of `seconds` of a BROAD trial sent as JSON
+    10-sample packets through the composed service, t0_us on the recording's own clock, `rate_hz` = `declared_hz`."""
+    from bench.link_loss import packets
 
-    gyr, acc, mag, true_hz = trial.gyr_rad_s, trial.acc_m_s2, trial.mag_uT, trial.rate_hz  # type: ignore[attr-defined]
-    bus, store = MemoryBus(), Store(tmp_path / f"gw-{declared_hz}.db")
-    svc = compose(Settings(data_dir=tmp_path, zenoh_listen=[]), bus, store, blocking_thread=False)
-    key = schemas.imu_key("rod", "rod-3")
-    try:
-        for seq, a in enumerate(range(0, int(seconds * true_hz) - 10, 10)):
-            p = schemas.ImuPacket(
-                v=1, device_id="rod-3", kind="rod", boot_id=1, seq=seq, t0_us=round(a * 1e6 / true_hz),
-                rate_hz=declared_hz, gyr_rad_s=[tuple(r) for r in gyr[a : a + 10].tolist()],
-                acc_m_s2=[tuple(r) for r in acc[a : a + 10].tolist()],
-                mag_uT=[tuple(r) for r in mag[a : a + 10].tolist()],
-            )  # fmt: skip
-            svc.handle([(key, p.to_json(), time.monotonic())], now_wall_s=1e9 + a / true_hz)
-        counted = svc.counters.rejected.get("rate_hz_measured", 0)
-    finally:
-        svc.writer.close()
-        store.close()
+    t = trial
+    pkts = packets("rod-3", "rod", t.gyr_rad_s, t.acc_m_s2, t.mag_uT, t.rate_hz, 10)  # type: ignore[attr-defined]
+    pkts = [p.model_copy(update={"rate_hz": declared_hz}) for p in pkts[: int(seconds * t.rate_hz / 10)]]  # type: ignore[attr-defined]
+    bus, rejected = serve_packets(tmp_path / f"declared-{declared_hz}", pkts)
     out = {m["seq"]: np.array(m["quat_wxyz"]) for k, payload, _ in bus.sent if k.endswith("/attitude")
            for m in (json.loads(payload),)}  # fmt: skip
-    out[-1] = np.array([float(counted)])
-    return out
+    return out, rejected.get("rate_hz_measured", 0)
 
 
 def test_a_device_that_declares_a_rate_2_percent_off_is_fused_at_its_real_rate(tmp_path: Path, broad_dir: Path) -> None:
@@ -116,9 +98,9 @@ def test_a_device_that_declares_a_rate_2_percent_off_is_fused_at_its_real_rate(t
     if not path.is_file():
         pytest.skip(f"BROAD trial 03 not under {broad_dir}")
     trial = broad.load_trial(path)
-    right = _attitudes(tmp_path, trial, trial.rate_hz, 70.0)
-    wrong = _attitudes(tmp_path, trial, trial.rate_hz * 1.02, 70.0)
-    assert right.pop(-1)[0] == 0 and wrong.pop(-1)[0] == 1, "counted once, only where the rate was off"
+    right, counted_right = _attitudes(tmp_path, trial, trial.rate_hz, 70.0)
+    wrong, counted_wrong = _attitudes(tmp_path, trial, trial.rate_hz * 1.02, 70.0)
+    assert (counted_right, counted_wrong) == (0, 1), "counted once, only where the rate was off"
     late = [s for s in right if s in wrong and s * 10 / trial.rate_hz > 45.0]
     assert len(late) > 500
     dot = np.abs(np.array([right[s] @ wrong[s] for s in late]))

@@ -3,35 +3,20 @@ late timestamps used to change the attitude with no counter showing why."""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 from gateway import schemas
-from gateway.app import compose
-from gateway.config import Settings
-from gateway.ingest.bus import MemoryBus
-from gateway.store import Store
+from tests.gateway.conftest import serve_packets
 
 
 def _counted(tmp_path: Path, late_ms: dict[int, int], skip: set[int]) -> dict[str, int]:
     """`rejected` counters of one plain IMU (100 Hz, 10-sample packets, 4 s) whose packets `late_ms` carry a t0_us
     that many ms late and whose packets `skip` are lost (never sent)."""
-    bus, store = MemoryBus(), Store(tmp_path / f"gw-{len(tmp_path.name)}-{sorted(late_ms)}-{sorted(skip)}.db")
-    svc = compose(Settings(data_dir=tmp_path, zenoh_listen=[]), bus, store, blocking_thread=False)
-    try:
-        for seq in range(40):
-            if seq in skip:
-                continue
-            t0_us = seq * 100_000 + 1000 * late_ms.get(seq, 0)
-            p = schemas.ImuPacket(
-                v=1, device_id="imu-1", kind="imu", boot_id=1, seq=seq, t0_us=t0_us, rate_hz=100.0,
-                gyr_rad_s=[(0.0, 0.0, 0.2)] * 10, acc_m_s2=[(0.0, 0.0, 9.81)] * 10,
-            )  # fmt: skip
-            svc.handle([("rig/imu/imu-1/imu", p.to_json(), time.monotonic())], now_wall_s=1e9 + seq * 0.1)
-        return dict(svc.counters.rejected)
-    finally:
-        svc.writer.close()
-        store.close()
+    pkts = [schemas.ImuPacket(
+        v=1, device_id="imu-1", kind="imu", boot_id=1, seq=seq, t0_us=seq * 100_000 + 1000 * late_ms.get(seq, 0),
+        rate_hz=100.0, gyr_rad_s=[(0.0, 0.0, 0.2)] * 10, acc_m_s2=[(0.0, 0.0, 9.81)] * 10,
+    ) for seq in range(40) if seq not in skip]  # fmt: skip
+    return serve_packets(tmp_path / f"late{sorted(late_ms.items())}-skip{sorted(skip)}", pkts)[1]
 
 
 def test_a_late_t0_us_with_seq_following_on_is_bridged_and_counted(tmp_path: Path) -> None:

@@ -7,16 +7,16 @@ per problem in `detail`.
 from __future__ import annotations
 
 import time
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Body, HTTPException
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from gateway.api.deps import DeviceIdPath, ServiceDep, WriterDep
-from gateway.config import THRESHOLD_MODELS, CalibrationJson, DeviceSettings, ThresholdModel
+from gateway.config import THRESHOLD_MODELS, CalibrationJson, DeviceKind, DeviceSettings, ThresholdModel
 
 router = APIRouter(tags=["config"])
-Kind = Literal["rod", "hook", "ball", "imu"]
+Kind = DeviceKind
 
 
 def _messages(exc: ValidationError) -> list[str]:
