@@ -26,10 +26,9 @@ import re
 import struct
 import sys
 import typing
-import weakref
-from collections.abc import Callable, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Annotated, Any, Final, Literal, TypeAlias
+from typing import Annotated, Any, Final, Literal, Self, TypeAlias
 
 import msgspec
 import numpy as np
@@ -224,13 +223,72 @@ class ImuPacket(WireModel):
         _check_lengths(len(self.gyr_rad_s), acc_m_s2=self.acc_m_s2, mag_uT=self.mag_uT)
         return self
 
+    # A packet decoded from the binary encoding keeps its float32 rows in `__dict__["_rows"]` and builds the float
+    # tuples of its sample fields only when something reads them (`_fill_samples`): ingest reads the rows
+    # (`sample_rows`), so most packets never build them. What reads `__dict__` itself is made to fill them first.
+    if not typing.TYPE_CHECKING:
+
+        def __getattr__(self, name: str) -> Any:
+            if name in _SAMPLE_FIELDS and _fill_samples(self):
+                return self.__dict__[name]
+            return super().__getattr__(name)
+
+    def __eq__(self, other: object) -> bool:
+        """Pydantic's equality (same class, equal field values); the kept rows are not compared (they are the
+        samples' values again)."""
+        if not isinstance(other, ImuPacket) or not (_fill_samples(self) | _fill_samples(other)):
+            return super().__eq__(other)
+        fields = _imu_field_values(self.__dict__)
+        return type(self) is type(other) and fields == _imu_field_values(other.__dict__)
+
+    __hash__ = None  # type: ignore[assignment]  # (as before: the sample lists made it unhashable)
+
+    def __repr_args__(self) -> Any:
+        _fill_samples(self)
+        return super().__repr_args__()
+
+    def __iter__(self) -> Any:
+        _fill_samples(self)
+        return super().__iter__()
+
+    def model_dump(self, **kwargs: Any) -> dict[str, Any]:
+        _fill_samples(self)
+        return super().model_dump(**kwargs)
+
+    def model_dump_json(self, **kwargs: Any) -> str:
+        _fill_samples(self)
+        return super().model_dump_json(**kwargs)
+
+    def to_json(self) -> bytes:
+        _fill_samples(self)
+        return super().to_json()
+
+    def model_copy(self, *, update: Mapping[str, Any] | None = None, deep: bool = False) -> Self:
+        if update and not _SAMPLE_FIELDS.isdisjoint(update):  # new samples: the kept rows would not be theirs
+            _fill_samples(self)
+            copied = super().model_copy(update=update, deep=deep)
+            copied.__dict__.pop("_rows", None)
+            return copied
+        return super().model_copy(update=update, deep=deep)
+
     @property
     def n(self) -> int:
         """Samples in the packet."""
-        return len(self.gyr_rad_s)
+        d = self.__dict__
+        return len(d["gyr_rad_s"]) if "gyr_rad_s" in d else len(d["_rows"])
+
+    @property
+    def has_mag(self) -> bool:
+        """`mag_uT is not None`, without building a binary packet's sample tuples (its 9-wide rows leave it unbuilt)."""
+        d = self.__dict__
+        return d["mag_uT"] is not None if "mag_uT" in d else True
 
     def arrays(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
         """(gyr_rad_s, acc_m_s2, mag_uT or None) as float64 arrays of shape (n, 3)."""
+        rows = self.__dict__.get("_rows")
+        if rows is not None:
+            return (rows[:, 0:3].astype(np.float64), rows[:, 3:6].astype(np.float64),
+                    rows[:, 6:9].astype(np.float64) if rows.shape[1] == 9 else None)  # fmt: skip
         mag = None if self.mag_uT is None else np.asarray(self.mag_uT, dtype=np.float64)
         return np.asarray(self.gyr_rad_s, dtype=np.float64), np.asarray(self.acc_m_s2, dtype=np.float64), mag
 
@@ -1051,9 +1109,6 @@ def imu_to_binary(packet: ImuPacket) -> bytes:
     )
 
 
-_V3: Final = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")])  # one row; `tolist()` gives a tuple of floats
-_ROWS: Final = {6: np.dtype([("gyr", _V3), ("acc", _V3)]), 9: np.dtype([("gyr", _V3), ("acc", _V3), ("mag", _V3)])}
-_ROW_NAMES: Final = {6: ("gyr", "acc"), 9: ("gyr", "acc", "mag")}
 _IMU_REQUIRED: Final = frozenset({"v", "device_id", "kind", "boot_id", "seq", "t0_us", "rate_hz", "gyr_rad_s",
                                   "acc_m_s2"})  # fmt: skip
 
@@ -1088,11 +1143,10 @@ def _binary_header(payload: bytes | bytearray | memoryview) -> _BinHeader:
 
 
 def _binary_finish(parsed: ParsedKey, payload: bytes | bytearray | memoryview, h: _BinHeader, samples_in_range: bool,
-                   block: Callable[[], NDArray[np.float32]], rows: Callable[[], tuple[list[Any], ...]]
-                   ) -> ImuPacket:  # fmt: skip
-    """The rest of `_decode_imu_binary` once the sample rows were range-checked (`samples_in_range`; `block()`: the
-    (n, k) float32 rows, read only for a packet out of range; `rows()`: its gyr, acc (, mag) rows as lists of
-    float tuples): `non_finite`, `out_of_range`, the device id's pattern (`schema`), `key_mismatch`, then the packet."""
+                   block: NDArray[np.float32]) -> ImuPacket:
+    """The rest of `_decode_imu_binary` once the sample rows were range-checked (`samples_in_range`; `block`: the
+    (n, k) float32 rows [gyr acc (mag)], kept by the packet, `sample_rows`): `non_finite`, `out_of_range`, the device
+    id's pattern (`schema`), `key_mismatch`, then the packet, its sample fields built when first read."""
     k, n, flags, kind_code, id_len, boot_id, seq, t0_us, rate_hz, wall, scalars = h
     size = IMU_BINARY_HEADER.size
     optional = {}
@@ -1105,7 +1159,7 @@ def _binary_finish(parsed: ParsedKey, payload: bytes | bytearray | memoryview, h
                 lo, hi = _BIN_RANGES[name]
                 in_range = in_range and lo <= v <= hi
     if not in_range:
-        if not (np.isfinite(block()).all() and all(map(math.isfinite, (rate_hz, *optional.values())))):
+        if not (np.isfinite(block).all() and all(map(math.isfinite, (rate_hz, *optional.values())))):
             raise DecodeError("non_finite", "binary IMU packet: a NaN or infinite value")
         raise DecodeError("out_of_range", "binary IMU packet: a sample or scalar beyond its limits")
     if t0_us < 0 or (flags & BIN_WALL and wall < 0):
@@ -1119,14 +1173,37 @@ def _binary_finish(parsed: ParsedKey, payload: bytes | bytearray | memoryview, h
         raise DecodeError("key_mismatch", f"payload {kind}/{other} on key rig/{parsed.kind}/{parsed.device_id}")
     fields_set = set(_BIN_FIELDS_SET[flags])
     get = optional.get
-    sensor = rows()
-    packet: ImuPacket = _construct(ImuPacket, {
+    values = {
         "v": 1, "device_id": device_id, "kind": kind, "boot_id": boot_id, "seq": seq, "t0_us": t0_us,
-        "rate_hz": rate_hz, "gyr_rad_s": sensor[0], "acc_m_s2": sensor[1], "mag_uT": sensor[2] if k == 9 else None,
-        "temp_c": get("temp_c"), "battery_v": get("battery_v"), "rssi_dbm": get("rssi_dbm"),
-        "wall_t0_us": wall if flags & BIN_WALL else None, "gnss": None, "depth_m": get("depth_m"),
-    }, fields_set)  # fmt: skip
+        "rate_hz": rate_hz, "temp_c": get("temp_c"), "battery_v": get("battery_v"), "rssi_dbm": get("rssi_dbm"),
+        "wall_t0_us": wall if flags & BIN_WALL else None, "gnss": None, "depth_m": get("depth_m"), "_rows": block,
+    }  # fmt: skip
+    if k == 6:
+        values["mag_uT"] = None
+    packet: ImuPacket = _construct(ImuPacket, values, fields_set)
     return packet
+
+
+_SAMPLE_FIELDS: Final = frozenset({"gyr_rad_s", "acc_m_s2", "mag_uT"})
+_imu_field_values: Final = operator.itemgetter(*ImuPacket.model_fields)
+
+
+def _fill_samples(packet: ImuPacket) -> bool:
+    """Build a binary packet's sample fields from its kept rows if not done yet: the float tuples pydantic holds for
+    its JSON twin, in a new `__dict__` in field order (dumps and repr follow that order), swapped in at once. False
+    for a packet without rows (decoded from JSON)."""
+    d = packet.__dict__
+    rows = d.get("_rows")
+    if rows is None:
+        return False
+    if "gyr_rad_s" not in d:
+        cols = rows.T.tolist()  # float32 -> the same Python floats as the JSON twin's
+        gyr, acc, *mag = (list(zip(cols[j], cols[j + 1], cols[j + 2])) for j in range(0, rows.shape[1], 3))  # noqa: B905
+        samples = {"gyr_rad_s": gyr, "acc_m_s2": acc, "mag_uT": mag[0] if mag else None}
+        filled = {name: samples[name] if name in samples else d[name] for name in ImuPacket.model_fields}
+        filled["_rows"] = rows
+        _setattr(packet, "__dict__", filled)
+    return True
 
 
 def _decode_imu_binary(parsed: ParsedKey, payload: bytes | bytearray | memoryview) -> ImuPacket:
@@ -1134,21 +1211,16 @@ def _decode_imu_binary(parsed: ParsedKey, payload: bytes | bytearray | memoryvie
     layout (`schema`), then `non_finite`, `out_of_range`, the device id's pattern (`schema`), `key_mismatch`."""
     h = _binary_header(payload)
     k, n, offset = h[0], h[1], IMU_BINARY_HEADER.size + h[4]
-    block = np.frombuffer(payload, dtype="<f4", count=n * k, offset=offset).reshape(n, k)
+    block = np.frombuffer(payload, dtype="<f4", count=n * k, offset=offset).reshape(n, k).copy()  # not the buffer's
     in_range = bool(np.count_nonzero(np.abs(block) <= _BIN_LIMITS[k]) == block.size)  # NaN compares False
-
-    def rows() -> tuple[list[Any], ...]:
-        r = np.frombuffer(payload, dtype=_ROWS[k], count=n, offset=offset)
-        return tuple(r[name].tolist() for name in _ROW_NAMES[k])
-
-    return _binary_finish(parsed, payload, h, in_range, lambda: block, rows)
+    return _binary_finish(parsed, payload, h, in_range, block)
 
 
 def _decode_binary_batch(todo: list[tuple[int, ParsedKey, bytes | bytearray | memoryview, _BinHeader]],
                          out: list[Packet | DecodeError]) -> None:  # fmt: skip
     """`_decode_imu_binary` of many packets, each one's outcome at its index in `out`: the rows of all packets with
-    the same row width are range-checked and turned into tuples in one numpy call each (per packet it was a dozen
-    calls on ten rows), then each packet is finished alone."""
+    the same row width are range-checked in one numpy call (per packet it was a dozen calls on ten rows), then each
+    packet is finished alone, keeping its slice of the rows."""
     by_width: dict[int, list[tuple[int, ParsedKey, bytes | bytearray | memoryview, _BinHeader]]] = {}
     for item in todo:
         by_width.setdefault(item[3][0], []).append(item)
@@ -1163,39 +1235,20 @@ def _decode_binary_batch(todo: list[tuple[int, ParsedKey, bytes | bytearray | me
         stops = np.cumsum(counts)
         starts = (stops - counts).tolist()
         pkt_ok = np.logical_and.reduceat(row_ok, starts).tolist()
-        values = block.T.tolist()  # k lists of floats; zipped in threes: each sensor's rows as tuples
-        columns = [list(zip(values[j], values[j + 1], values[j + 2])) for j in range(0, k, 3)]  # noqa: B905
         for (i, parsed, payload, h), a, b, ok in zip(items, starts, stops.tolist(), pkt_ok, strict=True):
             try:
-                packet = _binary_finish(parsed, payload, h, ok, lambda a=a, b=b, blk=block: blk[a:b],  # type: ignore[misc]
-                                        lambda a=a, b=b, cols=columns: tuple(c[a:b] for c in cols))  # type: ignore[misc]
-                _keep_rows(packet, block[a:b])
-                out[i] = packet
+                out[i] = _binary_finish(parsed, payload, h, ok, block[a:b])
             except DecodeError as err:
                 out[i] = err
             except Exception as exc:  # as `decode`: never anything but a DecodeError
                 out[i] = DecodeError("schema", f"{type(exc).__name__}: {exc}"[:300])
 
 
-_SAMPLE_ROWS: dict[int, tuple[weakref.ref[ImuPacket], NDArray[np.float32]]] = {}
-
-
-def _keep_rows(packet: ImuPacket, rows: NDArray[np.float32]) -> None:
-    """Remember a decoded binary packet's float32 rows [gyr acc (mag)] for `sample_rows`, for as long as the packet
-    lives (a weak reference removes the entry with it)."""
-    key = id(packet)
-
-    def forget(_: weakref.ref[ImuPacket]) -> None:
-        _SAMPLE_ROWS.pop(key, None)
-
-    _SAMPLE_ROWS[key] = (weakref.ref(packet, forget), rows)
-
-
 def sample_rows(packet: ImuPacket) -> NDArray[np.float32] | None:
-    """The (n, 6 or 9) float32 rows [gyr acc (mag)] a binary packet was decoded from (`decode_many`), else None:
-    its samples as an array without going through the float tuples (they are these values, exactly)."""
-    entry = _SAMPLE_ROWS.get(id(packet))
-    return entry[1] if entry is not None and entry[0]() is packet else None
+    """The (n, 6 or 9) float32 rows [gyr acc (mag)] a binary packet was decoded from, else None: its samples as an
+    array without going through the float tuples (they are these values, exactly)."""
+    rows: NDArray[np.float32] | None = packet.__dict__.get("_rows")
+    return rows
 
 
 def decode_many(items: Sequence[tuple[str, bytes | bytearray | memoryview]]) -> list[Packet | DecodeError]:

@@ -81,7 +81,7 @@ def gather(pkts: list[schemas.ImuPacket]) -> Block:
     """One device's packets as arrays (mag None unless every packet has it); sample times in device seconds."""
     gyr = np.array([s for p in pkts for s in p.gyr_rad_s], dtype=np.float64)
     acc = np.array([s for p in pkts for s in p.acc_m_s2], dtype=np.float64)
-    has_mag = all(p.mag_uT is not None for p in pkts)
+    has_mag = all(p.has_mag for p in pkts)
     mag = np.array([s for p in pkts for s in p.mag_uT or ()], dtype=np.float64) if has_mag else None
     t_s = np.concatenate([p.t0_us * 1e-6 + np.arange(p.n) / p.rate_hz for p in pkts])
     return gyr, acc, mag, t_s
@@ -94,19 +94,24 @@ def _rows3(blocks: Iterable[Sequence[tuple[float, float, float]]], rows: int) ->
     return flat.reshape(rows, 3)
 
 
+def _tuple_rows(p: schemas.ImuPacket) -> FloatArray:
+    """A JSON packet's samples as rows [gyr acc (mag)], (n, 6 or 9) float64."""
+    return np.hstack([np.asarray(p.gyr_rad_s, dtype=np.float64), np.asarray(p.acc_m_s2, dtype=np.float64),
+                      *([] if p.mag_uT is None else [np.asarray(p.mag_uT, dtype=np.float64)])])  # fmt: skip
+
+
 def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
     """`gather` of many devices with one array conversion per sensor for all of them (the same values). Packets
-    decoded from the binary encoding bring their float32 rows (`schemas.sample_rows`): when all do, the rows are
-    concatenated instead of read back from the float tuples (the same float64 values)."""
+    decoded from the binary encoding bring their float32 rows (`schemas.sample_rows`, their sample tuples are not
+    even built): a batch with any is gathered from rows, the JSON packets' tuples made rows one by one."""
     pk = [p for g in groups for p in g]
     sizes = [sum(p.n for p in g) for g in groups]
     stop = np.cumsum(sizes).tolist()
     cuts = list(zip([0, *stop[:-1]], stop, strict=True))  # rows of each device (slices: np.split is slow)
     total = stop[-1] if stop else 0
-    # rows of binary packets; a batch whose first packet has none (JSON) is not searched further
-    kept = [schemas.sample_rows(p) for p in pk] if pk and schemas.sample_rows(pk[0]) is not None else []
-    rows = [r for r in kept if r is not None]
-    from_rows = len(rows) == len(pk) > 0
+    kept = [schemas.sample_rows(p) for p in pk]
+    from_rows = any(r is not None for r in kept)
+    rows = [r if r is not None else _tuple_rows(p) for r, p in zip(kept, pk, strict=True)] if from_rows else []
 
     def column(a: int, b: int, which: Iterable[int] | None = None) -> FloatArray:
         """Columns a:b of the kept rows of packets `which` (all), as one contiguous float64 array."""
@@ -121,7 +126,7 @@ def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
     rate = np.repeat(np.array([p.rate_hz for p in pk], dtype=np.float64), n)
     t_all = t0 + (np.arange(first.shape[0]) - first) / rate
     mags: list[FloatArray | None] = [None] * len(groups)
-    sel = [i for i, g in enumerate(groups) if all(p.mag_uT is not None for p in g)]
+    sel = [i for i, g in enumerate(groups) if all(p.has_mag for p in g)]
     if sel:
         if from_rows:
             first_pkt = np.cumsum([0, *map(len, groups)]).tolist()  # each device's first packet in `pk`
@@ -258,7 +263,7 @@ class FusionBank:
                 if sum(p.n / p.rate_hz for p in warm) < self.warmup_s - 1e-9:  # 10 x 0.05 s is 0.4999…
                     continue
                 pkts = self._warmup.pop(dev_id)
-                gyr, acc, mag, t_s = gather(pkts)
+                gyr, acc, mag, t_s = gather_all([pkts])[0]
                 if (cal := self.cal.get(dev_id)) is not None:  # before `_start` takes the warm-up means
                     acc, mag = cal.apply(acc, mag)
                 dev = self._start(pkts[0], gyr, acc, mag)  # a filter that cannot start: counted, warms up again

@@ -435,7 +435,7 @@ class GatewayService:
         (`ingest.samplerate`)."""
         c = self.counters
         stream = c.stream(p.kind, p.device_id)
-        end_us = p.t0_us + int(round((len(p.gyr_rad_s) - 1) * 1e6 / p.rate_hz))  # len: `p.n` without the property
+        end_us = p.t0_us + int(round((p.n - 1) * 1e6 / p.rate_hz))
         verdict = stream.clock.check(p.boot_id, p.t0_us, end_us)
         if not verdict.accept:
             c.drop(p.kind, p.device_id, verdict.reason or "", f"t0_us {p.t0_us} (boot {p.boot_id}, seq {p.seq})",
@@ -450,7 +450,7 @@ class GatewayService:
                    "clock; the packet is used without it", arrival)  # fmt: skip
             p = p.model_copy(update={"wall_t0_us": None})
         meter, used_before = stream.rate, stream.rate.used_hz
-        rate_hz = meter.update(p.boot_id, p.seq, p.t0_us, len(p.gyr_rad_s), p.rate_hz)
+        rate_hz = meter.update(p.boot_id, p.seq, p.t0_us, p.n, p.rate_hz)
         if meter.used_hz != used_before:
             if used_before is None:
                 c.drop(p.kind, p.device_id, "rate_hz_measured", f"declares rate_hz {p.rate_hz:g} but its t0_us advance "
