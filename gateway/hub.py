@@ -15,7 +15,7 @@ import itertools
 import logging
 import time
 from collections.abc import Callable, Sequence
-from typing import TypeVar
+from typing import Final, TypeVar
 
 from gateway import schemas
 from gateway.alarm.engine import Alarm
@@ -34,6 +34,33 @@ PlotListener = Callable[[list[PlotPoint]], None]
 for every such sink (history, live stream)."""
 PacketListener = Callable[[schemas.Packet], None]
 """A decoded device packet the ingest task accepted (after sequence and time checks), before the pipeline."""
+
+
+class _Every:
+    def __contains__(self, topic: object) -> bool:
+        return True
+
+
+_EVERY_TOPIC: Final = _Every()
+_L = TypeVar("_L", bound=Callable[..., None])
+
+
+def listens_to(*topics: str) -> Callable[[_L], _L]:
+    """Mark a `Listener` (function or method) as wanting only these topics: the hub then skips the call for any
+    other, decided once per batch and topic (the heights, a put per device per batch, go to no listener)."""
+
+    def mark(fn: _L) -> _L:
+        fn.topics = frozenset(topics)  # type: ignore[attr-defined]
+        return fn
+
+    return mark
+
+
+def wants(listener: Listener, topic: str) -> bool:
+    """Whether `listener` takes messages of `topic` (`listens_to`; unmarked listeners take every topic)."""
+    return topic in getattr(listener, "topics", _EVERY_TOPIC)
+
+
 _Dev = schemas.Attitude | schemas.AttitudeBlock | schemas.Swing | schemas.Height  # a device's own output message
 MAX_KEYS = 100_000  # cached output keys (a few topics per device)
 STATE_OF_CHANGE = {"raised": "raised", "updated": "raised", "cleared": "cleared", "acknowledged": "acknowledged"}
@@ -84,9 +111,14 @@ class Hub:
         else:
             self.bus.put(key, payload, encoding=topic.encoding, block=topic.block, express=topic.express)
 
+    def listeners_of(self, topic: str) -> list[Listener]:
+        """The listeners that take `topic` (`listens_to`), in registration order."""
+        return [cb for cb in self.listeners if wants(cb, topic)]
+
     def _put(self, topic: schemas.Topic, model: schemas.WireModel, kind: str | None = None,
-             device_id: str | None = None) -> None:  # fmt: skip
-        """Publish on the topic's key with the row's encoding and congestion control (BLOCK or DROP)."""
+             device_id: str | None = None, listeners: list[Listener] | None = None) -> None:  # fmt: skip
+        """Publish on the topic's key with the row's encoding and congestion control (BLOCK or DROP); then hand the
+        model to the listeners (`listeners`: those of the topic, when the caller already knows them)."""
         key = self._keys.get((topic.name, kind, device_id))
         if key is None:
             if len(self._keys) >= MAX_KEYS:  # devices come and go: start over rather than grow for good
@@ -94,7 +126,7 @@ class Hub:
             key = self._keys[(topic.name, kind, device_id)] = topic.key(kind, device_id)
         self._send(key, model.to_json(), topic)
         self.published += 1
-        for cb in self.listeners:
+        for cb in self.listeners_of(topic.name) if listeners is None else listeners:
             try:
                 cb(topic.name, model)
             except Exception:
@@ -102,8 +134,12 @@ class Hub:
 
     def _put_devices(self, topic: schemas.Topic, models: Sequence[_Dev]) -> None:
         """`_put` of each of a batch's device messages of one topic, in order."""
+        if not models:
+            return
+        listeners = self.listeners_of(topic.name)
         for m in models:
-            self._put(topic, m, getattr(m, "kind", "hook"), m.device_id)  # Swing has no kind: only hooks send it
+            kind = "hook" if topic is schemas.T_SWING else m.kind  # type: ignore[union-attr]  # only hooks swing
+            self._put(topic, m, kind, m.device_id, listeners)
 
     def emit(self, out: Output) -> None:
         """Alarms first (they matter most and are rare), then reel commands, attitude, attitude blocks (BLOCK: a
@@ -149,7 +185,7 @@ class Hub:
         )  # fmt: skip
         t = schemas.T_REEL_CMD
         self._send(t.key("rod", device_id), cmd.to_json(), t)
-        for cb in self.listeners:
+        for cb in self.listeners_of("reel_cmd"):
             cb("reel_cmd", cmd)
         return cmd
 

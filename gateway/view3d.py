@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from gateway import schemas
 from gateway.config import HookThresholds, Settings
 from gateway.fusion import quaternion as quat
+from gateway.hub import listens_to
 from gateway.ingest.runner import GatewayService
 
 log = logging.getLogger("gateway.view3d")
@@ -193,6 +194,7 @@ class View3D:
         return int(self.server.get_port())
 
     # callbacks: hub (event loop) and bus (zenoh threads) only store values
+    @listens_to("attitude", "swing")
     def on_hub(self, topic: str, model: schemas.WireModel) -> None:
         if not self.watched:
             return

@@ -29,7 +29,7 @@ from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect
 
 from gateway import schemas
 from gateway.api.security import origin_allowed
-from gateway.hub import HubSink
+from gateway.hub import HubSink, listens_to
 from gateway.ingest.runner import GatewayService
 from gateway.store import ApiToken
 from gateway.views import PlotPoint, device_view
@@ -181,6 +181,7 @@ class LiveStream(HubSink):
         gateway without a dashboard open pays nothing per output or packet here."""
         return bool(self.clients) or self.remote
 
+    @listens_to("alarm", "reel_cmd")
     def on_hub(self, topic: str, model: schemas.WireModel) -> None:
         """Hub listener (ingest task): broadcast alarms and reel commands at once (attitude and swing come as
         points, `on_plot`; another shard's mirrored ones are its own stream's)."""

@@ -338,7 +338,7 @@ class ShardNode:
                 model = MIRROR_MODELS[topic].model_validate_json(payload)
             except ValueError:
                 continue
-            for cb in list(hub.listeners):
+            for cb in hub.listeners_of(topic):
                 try:
                     cb(topic, model)
                 except Exception:

@@ -16,7 +16,7 @@ from gateway import schemas
 from gateway.api.ws import ClientQueue, LiveStream
 from gateway.fusion import hook as hook_geo
 from gateway.fusion.bank import gather, gather_all
-from gateway.hub import Hub
+from gateway.hub import Hub, listens_to, wants
 from gateway.ingest.bus import MemoryBus
 from gateway.pipeline import Output, Pipeline, PipelineSettings
 from gateway.views import plot_point
@@ -44,6 +44,27 @@ def test_hub_hands_each_batch_s_points_to_every_plot_sink_once() -> None:
     want = [plot_point(m) for m in (out.attitudes[1], out.attitudes[2], swing)]
     assert got[0] == [want] and got[1] is not got[0] and got[1] == [want]
     assert got[0][0] is got[1][0]  # computed once, shared
+
+
+def test_a_listener_marked_for_some_topics_gets_only_those_and_unmarked_ones_get_all() -> None:
+    """`listens_to`: the hub calls a marked listener only for its topics (decided once per batch and topic), an
+    unmarked one for every published model, each in publishing order; what was published is the same."""
+    hub = Hub(MemoryBus(), writer=None)  # type: ignore[arg-type]  # no alarms: the store writer is not used
+    every: list[tuple[str, Any]] = []
+    swings: list[tuple[str, Any]] = []
+    hub.listeners += [lambda t, m: every.append((t, m)),
+                      listens_to("swing", "reel_cmd")(lambda t, m: swings.append((t, m)))]  # fmt: skip
+    swing = schemas.Swing(device_id="hook-1", seq=1, t_us=1, wall_t_us=10**15, swing_angle_rad=0.1,
+                          swing_direction_rad=0.2, torsion_rad=0.3)  # fmt: skip
+    height = schemas.Height(device_id="rod-1", kind="rod", seq=1, t_us=1, wall_t_us=10**15, vz_m_s=0.0, height_m=0.1,
+                            at_rest=True, aided="rest")  # fmt: skip
+    out = Output(attitudes=[attitude("rod-1", 1, 0.1), attitude("rod-2", 1, 0.2)], swings=[swing], heights=[height])
+    hub.emit(out)
+    cmd = hub.send_reel("rod-1", "stop")
+    assert every == [("attitude", out.attitudes[0]), ("attitude", out.attitudes[1]), ("swing", swing),
+                     ("height", height), ("reel_cmd", cmd)]  # fmt: skip
+    assert swings == [("swing", swing), ("reel_cmd", cmd)]
+    assert hub.published == 4 and [wants(cb, "height") for cb in hub.listeners] == [True, False]
 
 
 def live_stream() -> LiveStream:

@@ -18,6 +18,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 
 from gateway import schemas
+from gateway.hub import listens_to
 from gateway.ingest.runner import GatewayService
 
 router = APIRouter(tags=["health"])
@@ -115,6 +116,7 @@ class Metrics:
             child = self._latency[(kind, topic)] = self.latency.labels(kind, topic)
         child.observe(max(0.0, delay_s))
 
+    @listens_to("attitude", "alarm")
     def on_hub(self, topic: str, model: schemas.WireModel) -> None:
         """Hub listener (ingest task): one observation per attitude / alarm with a device wall time."""
         if isinstance(model, schemas.Attitude) and model.wall_t_us is not None:
