@@ -113,8 +113,16 @@ def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
     from_rows = any(r is not None for r in kept)
     rows = [r if r is not None else _tuple_rows(p) for r, p in zip(kept, pk, strict=True)] if from_rows else []
 
+    sel = [i for i, g in enumerate(groups) if all(p.has_mag for p in g)]
+    # the common case, every packet 6 wide or every one 9 wide: one concatenation, then its columns
+    whole = np.concatenate(rows, dtype=np.float64) if from_rows and len({r.shape[1] for r in rows}) == 1 else None
+    if whole is not None and whole.shape[1] == 9 and len(sel) < len(groups):
+        whole = None  # a device with a packet of 6 among 9-wide ones: its magnetometer is not taken
+
     def column(a: int, b: int, which: Iterable[int] | None = None) -> FloatArray:
         """Columns a:b of the kept rows of packets `which` (all), as one contiguous float64 array."""
+        if whole is not None:
+            return np.ascontiguousarray(whole[:, a:b])
         picked = rows if which is None else [rows[j] for j in which]
         return np.concatenate([r[:, a:b] for r in picked], dtype=np.float64)
 
@@ -126,7 +134,6 @@ def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
     rate = np.repeat(np.array([p.rate_hz for p in pk], dtype=np.float64), n)
     t_all = t0 + (np.arange(first.shape[0]) - first) / rate
     mags: list[FloatArray | None] = [None] * len(groups)
-    sel = [i for i, g in enumerate(groups) if all(p.has_mag for p in g)]
     if sel:
         if from_rows:
             first_pkt = np.cumsum([0, *map(len, groups)]).tolist()  # each device's first packet in `pk`
