@@ -19,7 +19,6 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validat
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 ZenohMode = Literal["peer", "client", "router"]
-DeviceKind = Literal["rod", "hook", "ball", "imu"]  # the wire kinds of gateway.schemas
 
 
 class Settings(BaseSettings):

@@ -13,7 +13,8 @@ from fastapi import APIRouter, Body, HTTPException
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from gateway.api.deps import DeviceIdPath, ServiceDep, WriterDep
-from gateway.config import THRESHOLD_MODELS, CalibrationJson, DeviceKind, DeviceSettings, ThresholdModel
+from gateway.config import THRESHOLD_MODELS, CalibrationJson, DeviceSettings, ThresholdModel
+from gateway.schemas import DeviceKind
 
 router = APIRouter(tags=["config"])
 Kind = DeviceKind
