@@ -125,7 +125,11 @@ class HookFilterSettings:
     force_noise_m_s2: float = 0.06  # accelerometer x/y as the force input: noise + lever-arm derivative noise
     mag_noise_uT: float = 3.0  # a calibrated compass (hard iron ~0.5 µT): 30 µT left the z bias of a hook twisting at
     # start unlearnt (torsion drifted ~1 °/s, bench.hook_suite seed 5); 1 µT couples its errors into the swing
-    tip_accel_std_m_s2: float = 0.06  # boom-tip acceleration (trolley, slewing): stationary std of its state
+    tip_accel_std_m_s2: float = 0.03  # boom-tip acceleration (trolley, slewing): stationary std of its state (and its
+    # prior). 0.06 before issue 11's tenth round (`HOIST_ROUND`): between moves the tip state wandered by that much
+    # (0.35° of swing centre) and took part of every swing's error; a move is opened for by the jump test and
+    # followed by the tracking after it, not by this random walk (tuning seeds 1-30 0.1506 -> 0.1251°, not told
+    # 0.2174 -> 0.1787°, windy 0.2720 -> 0.2640° but windy seed 8 above VQF; docs/fusion.md, tenth round)
     tip_accel_tau_s: float = 20.0  # ... and its correlation time: long, a slew's centripetal part lasts (the jump
     # test opens the state when a move starts or stops; 5 s before it, when nothing opened it)
     tip_accel_psd: float = 1e-4  # (m/s²)²/Hz: white part of the unmeasured horizontal accelerations (0.001 before the
@@ -311,6 +315,10 @@ TRACKING: dict[str, float] = PREVIOUS_DEFAULT | {"slow_mean_gate": 20.0, "move_t
 # length's column of the process Jacobian through the force's running mean, the swing gate on the length at 0.1°
 # instead of 0.2°): `HookFilterSettings(**ROPE_ROUND)`.
 ROPE_ROUND: dict[str, float] = {"hoist_gate": 0.0, "length_force_tau_s": 0.0, "rope_observe_swing_rad": 0.00175}
+
+# The defaults before issue 11's tenth round (the boom-tip state's stationary std 0.06 m/s² instead of 0.03):
+# `HookFilterSettings(**HOIST_ROUND)`.
+HOIST_ROUND: dict[str, float] = {"tip_accel_std_m_s2": 0.06}
 
 # Issue 11's eighth round: the tip tracking held past its 10 s while a 3 s mean of the tip estimate exceeds
 # 0.12 m/s², for at most 5 s more, with the jump test's gate at χ² 5 while held for a tip estimate shrinking below
