@@ -374,8 +374,8 @@ def test_a_slewing_move_is_followed_not_averaged_away():
     `HOIST_ROUND` too, the same figures). The hoist round's default 0.36° / 0.89° (0.31° / 0.83° with `ROPE_ROUND`):
     it holds the hoist acceleration at 0.015 m/s² between ramps (0.05 before), so the tension channel's errors
     through a slew (it lacks the boom tip's acceleration along the rope) go into the swing instead (0.30° / 0.74°
-    with the hoist test off). Today's default (the tenth round's tighter tip state) ≤ 0.33° / 0.85° (measured
-    0.29° / 0.73°; `HOIST_ROUND` 0.36° / 0.89°)."""
+    with the hoist test off). Today's default (the tenth round's tighter tip state and slower tracking) ≤ 0.35° /
+    0.85° (measured 0.33° / 0.81°, 0.29° / 0.73° with the tracking at 1e-3; `HOIST_ROUND` 0.36° / 0.89°)."""
     truth, gyr, acc, mag = slew_data(seed=41)
     assert truth.swing_rad.max() > math.radians(2.0)
     errors = []
@@ -392,7 +392,7 @@ def test_a_slewing_move_is_followed_not_averaged_away():
     assert rmse[3] <= 0.5 and worst[3] <= 1.7, (rmse[3], worst[3])
     assert rmse[3] > 1.3 * rmse[0] and worst[3] > 1.5 * worst[0], (rmse, worst)
     assert rmse[4] > 1.5 * rmse[3] and worst[4] > 1.4 * worst[3], (rmse, worst)
-    assert rmse[5] <= 0.33 and worst[5] <= 0.85, (rmse[5], worst[5])
+    assert rmse[5] <= 0.35 and worst[5] <= 0.85, (rmse[5], worst[5])
 
 
 def first_detection_s(bias: float, seed: int, duration_s: float) -> tuple[float, float]:
@@ -557,7 +557,7 @@ def test_a_tight_tip_state_lets_the_jump_test_see_a_sub_gate_step():
     state random-walked far enough to absorb a 0.1 m/s² step on an 8 m rope slowly, so the swing-rate innovation's
     mean stayed below the jump gate and the step's a/g was taken for tilt; with the tight one the innovation shows
     it. Θ RMSE from the step on, mean over four draws: ≤ 0.3° and less than half of `HOIST_ROUND`'s (measured
-    0.18° vs 0.48°; 0.14-0.24° vs 0.43-0.54° per draw)."""
+    0.19° vs 0.48°; 0.16-0.23° vs 0.43-0.54° per draw)."""
     new, old = [], []
     for seed in (41, 42, 43, 44):
         truth, gyr, acc = small_step_data(seed)
