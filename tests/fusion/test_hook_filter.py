@@ -19,6 +19,7 @@ from devices.hook_physics import HookPhysicsSettings, HookScenario, SlewMove, Tr
 from gateway.fusion import hook
 from gateway.fusion.hook_filter import (
     FOURTH_ROUND,
+    HOIST_ROUND,
     PREVIOUS_DEFAULT,
     ROPE_ROUND,
     TRACKING,
@@ -262,7 +263,7 @@ def test_a_tag_line_pull_is_measured_not_guessed():
         truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, DT_S)  # fmt: skip
     assert truth.swing_rad.max() > math.radians(3.0)
     errors = []
-    for over in ({}, PREVIOUS_DEFAULT | ROPE_ROUND | {"use_force_input": False}):
+    for over in ({}, PREVIOUS_DEFAULT | ROPE_ROUND | HOIST_ROUND | {"use_force_input": False}):
         f = HookFilter(HookFilterSettings(**over), use_mag=False)
         f.start(gyr[:50], acc[:50], None, DT_S)
         q = f.run(gyr, acc, None, DT_S)
@@ -369,15 +370,17 @@ def test_a_slewing_move_is_followed_not_averaged_away():
     squared-innovation test stayed below its gate) 0.80° / 2.36°. The default filter (the tracking, a slow gyro
     bias, jump gate 13.8) ≤ 0.35° / 1.0° (measured 0.31° / 0.86°). These on the rope settings before the hoist round
     (`ROPE_ROUND`, measured again: `TRACKING` 0.31° / 0.82°, without its tracking 0.49° / 1.23°, without its noise
-    across 0.39° / 0.91°, `PREVIOUS_DEFAULT` 0.43° / 1.49°, the old tip 0.80° / 2.36°). Today's default ≤ 0.40° /
-    1.0° (measured 0.36° / 0.89°; 0.31° / 0.83° with `ROPE_ROUND`): the hoist round holds the hoist acceleration at
-    0.015 m/s² between ramps (0.05 before), so the tension channel's errors through a slew (it lacks the boom tip's
-    acceleration along the rope) go into the swing instead (0.30° / 0.74° with the hoist test off)."""
+    across 0.39° / 0.91°, `PREVIOUS_DEFAULT` 0.43° / 1.49°, the old tip 0.80° / 2.36°; since the tenth round with
+    `HOIST_ROUND` too, the same figures). The hoist round's default 0.36° / 0.89° (0.31° / 0.83° with `ROPE_ROUND`):
+    it holds the hoist acceleration at 0.015 m/s² between ramps (0.05 before), so the tension channel's errors
+    through a slew (it lacks the boom tip's acceleration along the rope) go into the swing instead (0.30° / 0.74°
+    with the hoist test off). Today's default (the tenth round's tighter tip state and slower tracking) ≤ 0.35° /
+    0.85° (measured 0.33° / 0.81°, 0.29° / 0.73° with the tracking at 1e-3; `HOIST_ROUND` 0.36° / 0.89°)."""
     truth, gyr, acc, mag = slew_data(seed=41)
     assert truth.swing_rad.max() > math.radians(2.0)
     errors = []
     for over in (TRACKING, NO_TRACK, NO_TURN, PREVIOUS_DEFAULT, OLD_TIP, {}):
-        over = over | ROPE_ROUND if over else over
+        over = over | ROPE_ROUND | HOIST_ROUND if over else over
         f = HookFilter(HookFilterSettings(rope_length_m=8.0, rope_length_known=True, **over), use_mag=False)
         f.start(gyr[:50], acc[:50], None, DT_S)
         q = f.run(gyr, acc, None, DT_S)
@@ -389,7 +392,7 @@ def test_a_slewing_move_is_followed_not_averaged_away():
     assert rmse[3] <= 0.5 and worst[3] <= 1.7, (rmse[3], worst[3])
     assert rmse[3] > 1.3 * rmse[0] and worst[3] > 1.5 * worst[0], (rmse, worst)
     assert rmse[4] > 1.5 * rmse[3] and worst[4] > 1.4 * worst[3], (rmse, worst)
-    assert rmse[5] <= 0.40 and worst[5] <= 1.0, (rmse[5], worst[5])
+    assert rmse[5] <= 0.35 and worst[5] <= 0.85, (rmse[5], worst[5])
 
 
 def first_detection_s(bias: float, seed: int, duration_s: float) -> tuple[float, float]:
@@ -539,13 +542,29 @@ def test_a_trial_jump_sees_a_tip_step_below_the_jump_gate():
     """`TRIAL_JUMP`: below the jump gate the filter tries the jump (goes back 1 s, opens the tip state) and keeps it
     when the re-run's swing-rate innovations are likelier. On a 0.1 m/s² step on an 8 m rope, Θ RMSE from the step
     on, mean over four draws, is more than 2x lower than without trials (measured 0.18° vs 0.52°; 0.11-0.23° vs
-    0.45-0.55° per draw)."""
+    0.45-0.55° per draw). Measured on the boom-tip state of its round (`HOIST_ROUND`): with today's tighter tip
+    state the jump test sees this step itself (`test_a_tight_tip_state_lets_the_jump_test_see_a_sub_gate_step`)."""
     on, off = [], []
     for seed in (41, 42, 43, 44):
         truth, gyr, acc = small_step_data(seed)
-        on.append(swing_rmse_from(truth, gyr, acc, 8.0, TRIAL_JUMP, 19.5))
-        off.append(swing_rmse_from(truth, gyr, acc, 8.0, {}, 19.5))
+        on.append(swing_rmse_from(truth, gyr, acc, 8.0, HOIST_ROUND | TRIAL_JUMP, 19.5))
+        off.append(swing_rmse_from(truth, gyr, acc, 8.0, HOIST_ROUND, 19.5))
     assert np.mean(off) > 2.0 * np.mean(on), (on, off)
+
+
+def test_a_tight_tip_state_lets_the_jump_test_see_a_sub_gate_step():
+    """Issue 11's tenth round: the boom-tip state's stationary std 0.03 m/s² (0.06 before, `HOIST_ROUND`). The looser
+    state random-walked far enough to absorb a 0.1 m/s² step on an 8 m rope slowly, so the swing-rate innovation's
+    mean stayed below the jump gate and the step's a/g was taken for tilt; with the tight one the innovation shows
+    it. Θ RMSE from the step on, mean over four draws: ≤ 0.3° and less than half of `HOIST_ROUND`'s (measured
+    0.19° vs 0.48°; 0.16-0.23° vs 0.43-0.54° per draw)."""
+    new, old = [], []
+    for seed in (41, 42, 43, 44):
+        truth, gyr, acc = small_step_data(seed)
+        new.append(swing_rmse_from(truth, gyr, acc, 8.0, {}, 19.5))
+        old.append(swing_rmse_from(truth, gyr, acc, 8.0, HOIST_ROUND, 19.5))
+    assert np.mean(new) <= 0.3, new
+    assert np.mean(old) > 2.0 * np.mean(new), (new, old)
 
 
 def test_a_trial_the_likelihood_rejects_changes_nothing():
@@ -575,8 +594,8 @@ def test_a_stops_re_run_from_a_zero_tip_estimate_helps_after_a_trolley_stop():
     on, off = [], []
     for seed in (41, 42, 43, 44):
         truth, gyr, acc = trolley_stop_data(seed)
-        on.append(swing_rmse_from(truth, gyr, acc, 3.0, ROPE_ROUND | {"jump_stop_std_m_s2": 0.2}, 21.0))
-        off.append(swing_rmse_from(truth, gyr, acc, 3.0, ROPE_ROUND, 21.0))
+        on.append(swing_rmse_from(truth, gyr, acc, 3.0, ROPE_ROUND | HOIST_ROUND | {"jump_stop_std_m_s2": 0.2}, 21.0))
+        off.append(swing_rmse_from(truth, gyr, acc, 3.0, ROPE_ROUND | HOIST_ROUND, 21.0))
     assert np.mean(off) > 1.05 * np.mean(on), (on, off)
 
 
