@@ -6,6 +6,7 @@
     python -m bench.pipeline_cost --stage ingest --rods 300 --seconds 8 --compare <tree>   # all-in, two trees
     python -m bench.pipeline_cost --stage ingest --rods 300 --profile /tmp/ingest.prof        # where it goes
     python -m bench.pipeline_cost --stage ingest --rods 300 --encoding binary --compare <tree>  # protocol v2 packets
+    python -m bench.pipeline_cost --stage ingest --rods 1000 --encoding binary --gil-threads 2   # with GIL pressure
 
 `--stage ingest`: 80 % rods / 20 % hooks, JSON packets as `bench.fleet` sends them (its pooled simulator streams,
 `--spp` samples per packet), one batch per packet period holding every device's packet, through the service
@@ -158,10 +159,13 @@ def ingest_payloads(n: int, hook_share: float, seconds: float, spp: int, seed: i
 
 
 def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 10, hook_share: float = 0.2,
-                   profile: Path | None = None, encoding: str = "json") -> dict[str, Any]:  # fmt: skip
+                   profile: Path | None = None, encoding: str = "json", gil_threads: int = 0,
+                   ) -> dict[str, Any]:  # fmt: skip
     """CPU seconds per packet of `GatewayService.handle` at `n` devices, with the sinks `create_app` wires (dashboard
     history, live stream without clients, metrics) and the blocking-put thread; the bus only digests the puts.
-    `encoding="binary"`: the packets in the binary IMU encoding (protocol v2, as `bench.fleet --encoding binary`)."""
+    `encoding="binary"`: the packets in the binary IMU encoding (protocol v2, as `bench.fleet --encoding binary`).
+    `gil_threads`: that many threads each take the GIL 1000 times a second for a moment (ten deque appends), as
+    zenoh's receive threads do when they call a subscriber callback per packet: what that costs the ingest thread."""
     import asyncio
     import tempfile
 
@@ -182,6 +186,19 @@ def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 
                     for key, payload in batch] for batch in batches]  # fmt: skip
     period_s = spp / RATE_HZ
     skip = int(round(skip_s / period_s))
+
+    import collections
+    import threading
+
+    stop = threading.Event()
+
+    def take_the_gil(box: collections.deque[int]) -> None:
+        while not stop.wait(0.001):
+            for i in range(10):
+                box.append(i)
+
+    for _ in range(gil_threads):
+        threading.Thread(target=take_the_gil, args=(collections.deque(maxlen=100),), daemon=True).start()
 
     async def run() -> dict[str, Any]:
         bus = _CountingBus()
@@ -230,7 +247,10 @@ def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 
                 "handle_ms_per_packet": 1e3 * handle_s / packets, "puts": bus.puts,
                 "digest": f"{bus.digest:016x}"}  # fmt: skip
 
-    return asyncio.run(run())
+    try:
+        return asyncio.run(run())
+    finally:
+        stop.set()
 
 
 def same_outputs(a: dict[str, Any], b: dict[str, Any]) -> str:
@@ -253,7 +273,7 @@ def _child(tree: Path, rods: int, args: argparse.Namespace) -> dict[str, Any]:
     `gateway` is that tree's (the bench module is this one)."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", str(rods), "--seconds", str(args.seconds),
            "--skip-s", str(args.skip_s), "--seed", str(args.seed), "--stage", args.stage, "--spp", str(args.spp),
-           "--encoding", args.encoding]
+           "--encoding", args.encoding, "--gil-threads", str(args.gil_threads)]
     here = Path(__file__).resolve().parents[1]
     env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{here}" if args.stage == "ingest" else str(tree))
     res = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True)
@@ -277,13 +297,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--compare", type=Path, default=None, help="another source tree (e.g. a worktree of main)")
     p.add_argument("--repeat", type=int, default=3, help="with --compare: runs per tree, interleaved; the least CPU "
                    "per packet is shown (the one least disturbed by other load; default: 3)")
+    p.add_argument("--gil-threads", type=int, default=0, help="with --stage ingest: threads that each take the GIL "
+                   "1000 times a second, as zenoh's receive threads calling a callback per packet (default 0)")
     p.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
 
     def run(n: int) -> dict[str, Any]:
         if args.stage == "ingest":
             return measure_ingest(n, args.seconds, args.skip_s, args.seed, args.spp, profile=args.profile,
-                                  encoding=args.encoding)
+                                  encoding=args.encoding, gil_threads=args.gil_threads)
         return measure(n, args.seconds, args.skip_s, args.seed)
 
     if args.child is not None:
@@ -293,7 +315,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.stage == "ingest":
         print(f"GatewayService.handle all-in CPU per packet (process CPU incl. the blocking-put thread; handle = the "
               f"ingest thread): 80 % rods / 20 % hooks at 100 Hz, {args.spp} samples/packet, {args.encoding}, one "
-              f"batch per packet period, {args.seconds:g} s (first {args.skip_s:g} s untimed), seed {args.seed}")
+              f"batch per packet period, {args.seconds:g} s (first {args.skip_s:g} s untimed), seed {args.seed}"
+              + (f", {args.gil_threads} GIL-taking threads" if args.gil_threads else ""))
     else:
         print(f"Pipeline.process CPU per packet: rods at 100 Hz, 5 samples/packet, {args.seconds:g} s simulated "
               f"(first {args.skip_s:g} s untimed), seed {args.seed}")
