@@ -15,7 +15,7 @@ import itertools
 import logging
 import time
 from collections.abc import Callable, Sequence
-from typing import Final, TypeVar
+from typing import TypeVar
 
 from gateway import schemas
 from gateway.alarm.engine import Alarm
@@ -36,12 +36,6 @@ PacketListener = Callable[[schemas.Packet], None]
 """A decoded device packet the ingest task accepted (after sequence and time checks), before the pipeline."""
 
 
-class _Every:
-    def __contains__(self, topic: object) -> bool:
-        return True
-
-
-_EVERY_TOPIC: Final = _Every()
 _L = TypeVar("_L", bound=Callable[..., None])
 
 
@@ -58,7 +52,8 @@ def listens_to(*topics: str) -> Callable[[_L], _L]:
 
 def wants(listener: Listener, topic: str) -> bool:
     """Whether `listener` takes messages of `topic` (`listens_to`; unmarked listeners take every topic)."""
-    return topic in getattr(listener, "topics", _EVERY_TOPIC)
+    topics: frozenset[str] | None = getattr(listener, "topics", None)
+    return topics is None or topic in topics
 
 
 _Dev = schemas.Attitude | schemas.AttitudeBlock | schemas.Swing | schemas.Height  # a device's own output message

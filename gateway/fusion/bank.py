@@ -94,12 +94,6 @@ def _rows3(blocks: Iterable[Sequence[tuple[float, float, float]]], rows: int) ->
     return flat.reshape(rows, 3)
 
 
-def _tuple_rows(p: schemas.ImuPacket) -> FloatArray:
-    """A JSON packet's samples as rows [gyr acc (mag)], (n, 6 or 9) float64."""
-    return np.hstack([np.asarray(p.gyr_rad_s, dtype=np.float64), np.asarray(p.acc_m_s2, dtype=np.float64),
-                      *([] if p.mag_uT is None else [np.asarray(p.mag_uT, dtype=np.float64)])])  # fmt: skip
-
-
 def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
     """`gather` of many devices with one array conversion per sensor for all of them (the same values). Packets
     decoded from the binary encoding bring their float32 rows (`schemas.sample_rows`, their sample tuples are not
@@ -111,7 +105,8 @@ def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
     total = stop[-1] if stop else 0
     kept = [schemas.sample_rows(p) for p in pk]
     from_rows = any(r is not None for r in kept)
-    rows = [r if r is not None else _tuple_rows(p) for r, p in zip(kept, pk, strict=True)] if from_rows else []
+    rows = [r if r is not None else np.hstack([a for a in p.arrays() if a is not None])  # JSON: [gyr acc (mag)]
+            for r, p in zip(kept, pk, strict=True)] if from_rows else []  # fmt: skip
 
     sel = [i for i, g in enumerate(groups) if all(p.has_mag for p in g)]
     # the common case, every packet 6 wide or every one 9 wide: one concatenation, then its columns
