@@ -8,6 +8,9 @@ devices round-robin, and a client subscriber (as a local shard is), each its own
 
 - `catch-all`: one `rig/*/*/imu` subscriber, receives every sample (what a shard held before per-device
   subscriptions: it then drops the other shards' samples in its inbox);
+- `catch-all-direct`: the same with its callbacks on zenoh's receive thread (`Callback(indirect=False)`);
+- `catch-all-fifo`: the same as a `FifoChannel` that a Python thread empties every 2 ms (`try_recv` until empty): no
+  callback per sample (tried as the gateway's intake and dropped: docs/gateway.md "How far one machine goes");
 - `half-wildcard`: one `rig/*/a$*/imu`, receives half (the ideal: half the traffic, one subscriber);
 - `half-per-device`: one exact-key subscriber per device of the `a` half, callbacks on zenoh's receive thread
   (`Callback(indirect=False)`: what a shard beside another now holds);
@@ -19,7 +22,7 @@ devices round-robin, and a client subscriber (as a local shard is), each its own
   `gateway.ingest.bus.RouteKeys` does: zenoh then caches each key's route instead of matching the key against every
   token on every sample.
 
-The catch-all and wildcard cases use the default callbacks, as the gateway's catch-all subscriptions do.
+The other catch-all and wildcard cases use the default callbacks, as the gateway's catch-all subscriptions do.
 
 Prints the subscriber's and the router's CPU (share of one core) and the subscriber's CPU per received sample.
 The callbacks only count (the gateway's do a little more: `Inbox.offer`). gateway/shard/subscriptions.py uses the
@@ -31,6 +34,7 @@ from __future__ import annotations
 import argparse
 import multiprocessing as mp
 import os
+import threading
 import time
 from multiprocessing.synchronize import Event
 from typing import Any
@@ -40,8 +44,8 @@ import zenoh
 from bench.bite_latency import free_port
 from devices.common import zenoh_config
 
-CASES = ("catch-all", "half-wildcard", "half-per-device", "half-per-device-threads", "catch-all+tokens",
-         "catch-all+tokens+keys")
+CASES = ("catch-all", "catch-all-direct", "catch-all-fifo", "half-wildcard", "half-per-device",
+         "half-per-device-threads", "catch-all+tokens", "catch-all+tokens+keys")
 
 
 def _cpu_s() -> float:
@@ -79,6 +83,14 @@ def publisher(ep: str, devices: int, rate: int, start: Event, stop: Event) -> No
             time.sleep(0.001)
 
 
+def _drain(sub: Any, on_sample: Any, stop: Event) -> None:
+    """Take what the FIFO holds every 2 ms (no callback, no wake-up per sample)."""
+    while not stop.is_set():
+        while (sample := sub.try_recv()) is not None:
+            on_sample(sample)
+        time.sleep(0.002)
+
+
 def subscriber(ep: str, case: str, devices: int, seconds: float, out: Any, start: Event, stop: Event) -> None:
     with zenoh.open(zenoh_config("client", connect=(ep,))) as s:
         got = [0]
@@ -88,7 +100,12 @@ def subscriber(ep: str, case: str, devices: int, seconds: float, out: Any, start
             sample.payload.to_bytes()
             got[0] += 1
 
-        if case.startswith("catch-all"):
+        if case == "catch-all-direct":
+            subs = [s.declare_subscriber("rig/*/*/imu", zenoh.handlers.Callback(on_sample, indirect=False))]
+        elif case == "catch-all-fifo":
+            subs = [s.declare_subscriber("rig/*/*/imu", zenoh.handlers.FifoChannel(10_000))]
+            threading.Thread(target=_drain, args=(subs[0], on_sample, stop), daemon=True).start()
+        elif case.startswith("catch-all"):
             subs = [s.declare_subscriber("rig/*/*/imu", on_sample)]
             if "+tokens" in case:
                 subs.append(s.liveliness().declare_subscriber("rig/*/*", lambda sample: None, history=True))
