@@ -170,7 +170,7 @@ class HookFilterSettings:
     # `jump_onset_lr` above the usual re-run's (0: off, the filter before issue 11's eleventh round, `TIP_ROUND`). A
     # step on a swinging hook can peak the statistic below the gate and the jump come seconds later, the swing fitted
     # about the wrong centre meanwhile, and the 0.3 s re-run then took the wrong tip estimate (windy seed 8: a 0.14
-    # m/s² slew onset at 6.1 s peaked at 7.7, the jump at 9.3 s re-ran to -0.08 against +0.13 m/s²; 0.635 -> 0.30°)
+    # m/s² slew onset at 6.1 s peaked at 7.7, the jump at 9.3 s re-ran to -0.08 against +0.13 m/s²; 0.635 -> 0.229°)
     move_rollback_max_s: float = 4.0  # ... the furthest such a re-run goes back (the rollback ring holds this much:
     # 400 states and covariances at 100 Hz, 1.9 MB; 2.5 s missed windy seed 8's onset)
     jump_onset_lr: float = 0.0  # ... (1e9: always kept)
