@@ -99,8 +99,8 @@ N_INPUT = 8  # per-sample process input: accelerometer x/y, gyroscope (3), its b
  _TRACK_PSD, _TURN_PSD, _TRACK_CAP, _TURN_CAP, _TRIAL_GATE, _TRIAL_LR, _TRIAL_EVERY, _TRIAL_OPEN,
  _ROLLBACK, _TRIAL_WIN, _TRIAL_QUIET, _HOLD_TAU, _HOLD_MIN, _HOLD_GATE, _HOLD_MAX, _STOP_STD, _STOP_MIN,
  _STOP_LR, _STOP_RATIO, _L_OBS_SWING, _HOIST_GATE, _HOIST_MEAN_TAU, _HOIST_OPEN, _HOIST_HOLD, _HOIST_CRUISE,
- _HOIST_KEEP, _HOIST_STOP, _L_FORCE_TAU, _HOIST_BACK) = range(61)
-N_MONITOR = 20  # `ekf_step`'s innovation statistics, move and hoist timers, the tip estimate's, the swing energy's and
+ _HOIST_KEEP, _HOIST_STOP, _L_FORCE_TAU, _HOIST_BACK, _ONSET_GATE, _ROLLBACK_MAX, _ONSET_LR, _ONSET_QUIET) = range(65)
+N_MONITOR = 22  # `ekf_step`'s innovation statistics, move and hoist timers, the tip estimate's, the swing energy's and
 # the force input's means
 
 
@@ -164,6 +164,19 @@ class HookFilterSettings:
     # only (tried: no gain on the tuning seeds)
     move_hold_s: float = 0.0  # a detected move lasts at least this long (s)
     move_rollback_s: float = 0.3  # on a jump, go back this far, open the tip state there and run again (0: no)
+    jump_onset_gate: float = 4.0  # χ² (2 dof): a jump is also run again from `move_rollback_s` before the jump test's
+    # statistic first passed this in the episode of passes that ended in the jump (an episode ends after
+    # `move_rollback_max_s` below it), and that re-run kept when its swing-rate -2 log-likelihood is at most
+    # `jump_onset_lr` above the usual re-run's (0: off, the filter before issue 11's eleventh round, `TIP_ROUND`). A
+    # step on a swinging hook can peak the statistic below the gate and the jump come seconds later, the swing fitted
+    # about the wrong centre meanwhile, and the 0.3 s re-run then took the wrong tip estimate (windy seed 8: a 0.14
+    # m/s² slew onset at 6.1 s peaked at 7.7, the jump at 9.3 s re-ran to -0.08 against +0.13 m/s²; 0.635 -> 0.229°)
+    move_rollback_max_s: float = 4.0  # ... the furthest such a re-run goes back (the rollback ring holds this much:
+    # 400 states and covariances at 100 Hz, 1.9 MB; 2.5 s missed windy seed 8's onset)
+    jump_onset_lr: float = 0.0  # ... (1e9: always kept)
+    jump_onset_quiet_s: float = 5.0  # ... not for a jump within this long of the start or of the last jump (a filter
+    # settling on a swinging start with a wrongly told length took its error for a tip acceleration: told 2x seeds 5
+    # and 8 +0.13 and +0.21° without it)
     jump_rope_rel_std: float = 0.1  # a jump also opens the rope length by this (relative): a wrong configured length
     # trips the jump test as a move does, and the two explanations must compete (0.3: 0.49° on the 12 m/6 m case)
     move_mean_tau_s: float = 0.5  # running mean of the whitened swing-rate innovation *vector*: a boom-tip
@@ -322,6 +335,10 @@ ROPE_ROUND: dict[str, float] = {"hoist_gate": 0.0, "length_force_tau_s": 0.0, "r
 # The defaults before issue 11's tenth round (the boom-tip state's stationary std 0.06 m/s² instead of 0.03, the
 # tracking after a jump 1e-3 (m/s²)²/s instead of 5e-4): `HookFilterSettings(**HOIST_ROUND)`.
 HOIST_ROUND: dict[str, float] = {"tip_accel_std_m_s2": 0.06, "move_track_psd": 1e-3}
+
+# The defaults before issue 11's eleventh round (no re-run from the jump test's onset):
+# `HookFilterSettings(**TIP_ROUND)`.
+TIP_ROUND: dict[str, float] = {"jump_onset_gate": 0.0}
 
 # Issue 11's eighth round: the tip tracking held past its 10 s while a 3 s mean of the tip estimate exceeds
 # 0.12 m/s², for at most 5 s more, with the jump test's gate at χ² 5 while held for a tip estimate shrinking below
@@ -1265,7 +1282,9 @@ def _ekf_step_into(
     constant), [10] the seconds until the next candidate may be raised, [11:13] the running mean of the tip estimate
     (`params[_HOLD_TAU]`; off unless `params[_HOLD_MIN]` > 0): while it is longer than that, the tracking is held
     past `params[_TRACK_S]` (for at most `params[_HOLD_MAX]`), and the jump test's gate is `params[_HOLD_GATE]` for
-    a shrinking tip estimate; [13] the swing energy's mean (`_length_observability`). Jump test: when the fast mean
+    a shrinking tip estimate; [13] the swing energy's mean (`_length_observability`); [20] the seconds since the
+    jump test's statistic first passed `params[_ONSET_GATE]` in the current episode of passes, [21] since it last did
+    (an episode ends after `params[_ROLLBACK_MAX]` without one, or at a jump). Jump test: when the fast mean
     fails its χ² gate, the boom tip's acceleration has jumped (a move started, turned or stopped): `params[_TIP_MOVE]`²
     is added to the tip state's variance once and the means restart; when the slow mean fails its gate (a tip
     acceleration turning slowly), `params[_SLOW_OPEN]`² is added and the slow mean restarts. After either, for
@@ -1300,7 +1319,15 @@ def _ekf_step_into(
     gate = params[_MEAN_GATE]
     if params[_HOLD_GATE] > 0.0 and monitor[8] <= 0.0 and _held(x_pred, monitor, params, True):
         gate = params[_HOLD_GATE]  # a held move's stop: the tracking follows it, the jump test sees less of it
-    if params[_MEAN_GATE] > 0.0 and _mean_test(w0, w1, params[_MEAN_TAU], gate, dt_s, monitor, 2):
+    jumped = params[_MEAN_GATE] > 0.0 and _mean_test(w0, w1, params[_MEAN_TAU], gate, dt_s, monitor, 2)
+    if params[_ONSET_GATE] > 0.0 and params[_MEAN_GATE] > 0.0:  # [20] seconds since the episode's first pass of the
+        monitor[20] += dt_s  # onset gate, [21] since its last (a jump ends the episode)
+        monitor[21] += dt_s
+        if _mean_stat(monitor, 2, min(1.0, dt_s / params[_MEAN_TAU])) > params[_ONSET_GATE]:
+            if monitor[21] > params[_ROLLBACK_MAX]:
+                monitor[20] = 0.0
+            monitor[21] = 1e9 if jumped else 0.0
+    if jumped:
         _mark_jump(monitor, params)  # a jump of the boom-tip acceleration: open its state once, test afresh
         for i in (17, 18):
             p_pred[i, i] += params[_TIP_MOVE] * params[_TIP_MOVE]
@@ -1420,6 +1447,32 @@ def _stop_rerun(x: FloatArray, p: FloatArray, mon: FloatArray, x0: FloatArray, p
 
 
 @njit
+def _onset_rerun(x: FloatArray, p: FloatArray, mon: FloatArray, back_s: float, hist_x: FloatArray, hist_p: FloatArray,
+                 hist_mon: FloatArray, hist_z: FloatArray, hist_u: FloatArray, j1: int, m: int, dt_s: float,
+                 quiet: FloatArray, q_psd: FloatArray, r_diag: FloatArray, vecs: FloatArray, mats: FloatArray,
+                 hm: FloatArray, ss: FloatArray, idx: NDArray[np.int64], cnt: NDArray[np.int64]) -> None:
+    """A late jump (`settings.jump_onset_gate`): run the ring's samples again from `back_s` before (the jump test's
+    onset plus the rollback; at most `params[_ROLLBACK_MAX]`, within the ring) with the tip state opened as a jump
+    opens it, and keep that over the jump's re-run (`x`, `p`, `mon`) when its swing-rate -2 log-likelihood, summed
+    along each path from the same start, is at most `params[_ONSET_LR]` above the re-run's."""
+    b = hist_x.shape[0]
+    back = min(j1, b, round(min(back_s, quiet[_ROLLBACK_MAX]) / dt_s))
+    if back <= round(quiet[_ROLLBACK] / dt_s):
+        return
+    j0 = j1 - back
+    x2, p2, mon2 = hist_x[j0 % b].copy(), hist_p[j0 % b].copy(), hist_mon[j0 % b].copy()
+    mon2[8] = quiet[_TRACK_S]
+    for t in (17, 18):
+        p2[t, t] += quiet[_TIP_MOVE] * quiet[_TIP_MOVE]
+    p2[_LOG_L, _LOG_L] += quiet[_JUMP_ROPE] * quiet[_JUMP_ROPE]
+    _rerun(x2, p2, hist_z, hist_u, j0, j1, m, dt_s, quiet, q_psd, r_diag, mon2, vecs, mats, hm, ss, idx, cnt)
+    if mon2[9] - mon[9] <= quiet[_ONSET_LR]:
+        x[:] = x2
+        p[:, :] = p2
+        mon[:] = mon2
+
+
+@njit
 def ekf_run(
     x0: FloatArray, p0: FloatArray, z: FloatArray, u: FloatArray, dt_s: float, params: FloatArray,
     q_psd: FloatArray, r_diag: FloatArray, monitor: FloatArray, hist_x: FloatArray, hist_p: FloatArray,
@@ -1436,7 +1489,8 @@ def ekf_run(
     A trial jump (`ekf_step`'s candidate, off by default) goes back `params[_TRIAL_WIN]` instead, opens the tip state by
     `params[_TRIAL_OPEN]` and is kept only if the re-run's -2 log-likelihood of the swing-rate innovations
     (`monitor[9]`) is lower than the kept path's by more than `params[_TRIAL_LR]`; otherwise state, covariance and
-    monitor stay as they were."""
+    monitor stay as they were. A jump whose test statistic rose well before it (`params[_ONSET_GATE]`, `monitor[20]`)
+    is also run again from that onset (`_onset_rerun`), and the likelier of the two re-runs kept."""
     n, m = z.shape[0], z.shape[1]
     b = hist_x.shape[0]
     out = np.empty((n, 4))
@@ -1486,6 +1540,10 @@ def ekf_run(
             if not trial and params[_STOP_STD] > 0.0:
                 _stop_rerun(x, p, mon, hist_x[j0 % b], hist_p[j0 % b], hist_mon[j0 % b], hist_z, hist_u, j0,
                             hist_n[0], m, dt_s, quiet, q_psd, r_diag, vecs, mats, hm, ss, idx, cnt)
+            if (not trial and params[_ONSET_GATE] > 0.0
+                    and params[_MOVE_HOLD] - hist_mon[(hist_n[0] - 1) % b, 4] > params[_ONSET_QUIET]):
+                _onset_rerun(x, p, mon, monitor[20] + params[_ROLLBACK], hist_x, hist_p, hist_mon, hist_z, hist_u,
+                             hist_n[0], m, dt_s, quiet, q_psd, r_diag, vecs, mats, hm, ss, idx, cnt)
             # a trial is kept when the re-run explains the swing rate better (generalised likelihood ratio)
             if trial and monitor[9] - mon[9] <= params[_TRIAL_LR]:
                 x[:] = x_kept
@@ -1580,7 +1638,8 @@ class HookFilter(AttitudeFilter):
                          s.jump_stop_std_m_s2, s.jump_stop_min_m_s2, s.jump_stop_lr, s.jump_stop_ratio,
                          s.rope_observe_swing_rad, s.hoist_gate, s.hoist_mean_tau_s, s.hoist_open_std_m_s2,
                          s.hoist_hold_s, s.hoist_cruise_s, s.hoist_keep_m_s2, s.hoist_stop_m_s,
-                         s.length_force_tau_s, 1.0 if s.hoist_rollback else 0.0])  # fmt: skip
+                         s.length_force_tau_s, 1.0 if s.hoist_rollback else 0.0, s.jump_onset_gate,
+                         s.move_rollback_max_s, s.jump_onset_lr, s.jump_onset_quiet_s])  # fmt: skip
 
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings
@@ -1744,7 +1803,9 @@ class HookFilter(AttitudeFilter):
         """The jump-rollback history of `ekf_run` (`settings.move_rollback_s` of samples, or the trial window if
         trials are on and it is longer), made on first use."""
         s = self.settings
-        b = max(1, round(max(s.move_rollback_s, s.jump_trial_window_s if s.jump_trial_gate > 0.0 else 0.0) / dt_s))
+        back_s = max(s.move_rollback_s, s.jump_trial_window_s if s.jump_trial_gate > 0.0 else 0.0,
+                     s.move_rollback_max_s if s.jump_onset_gate > 0.0 else 0.0)
+        b = max(1, round(back_s / dt_s))
         if self._history is None or self._history[0].shape[0] != b:
             self._history = (np.zeros((b, N_STATE)), np.zeros((b, N_STATE, N_STATE)), np.zeros((b, 7)),
                              np.zeros((b, N_INPUT)), np.zeros((b, N_MONITOR)), np.zeros(2, dtype=np.int64))  # fmt: skip
