@@ -1446,6 +1446,40 @@ def _stop_rerun(x: FloatArray, p: FloatArray, mon: FloatArray, x0: FloatArray, p
         mon[:] = mon2
 
 
+N_PACKED = N_STATE * (N_STATE + 1) // 2  # a covariance's upper triangle, row by row: the rollback ring's rows
+
+
+@njit
+def _pack_sym(p: FloatArray, out: FloatArray) -> None:
+    """The upper triangle of the symmetric `p` (N_STATE, N_STATE), row by row, into `out` (N_PACKED,). The kernel
+    keeps P exactly symmetric (`_covariance_update`), so `_unpack_sym` gives back the same matrix, bit for bit, in a
+    little over half the memory: the rollback ring holds 4 s of covariances per hook."""
+    k = 0
+    for i in range(p.shape[0]):
+        for j in range(i, p.shape[0]):
+            out[k] = p[i, j]
+            k += 1
+
+
+@njit
+def _unpack_sym(v: FloatArray, p: FloatArray) -> None:
+    """`_pack_sym`'s inverse: `p` (N_STATE, N_STATE) from the upper triangle `v`, mirrored."""
+    k = 0
+    for i in range(p.shape[0]):
+        for j in range(i, p.shape[0]):
+            p[i, j] = v[k]
+            p[j, i] = v[k]
+            k += 1
+
+
+@njit
+def _ring_p(hist_p: FloatArray, j: int) -> FloatArray:
+    """The covariance stored for ring sample `j` (`hist_p` rows are `_pack_sym`'s), as a new matrix."""
+    p = np.empty((N_STATE, N_STATE))
+    _unpack_sym(hist_p[j % hist_p.shape[0]], p)
+    return p
+
+
 @njit
 def _onset_rerun(x: FloatArray, p: FloatArray, mon: FloatArray, back_s: float, hist_x: FloatArray, hist_p: FloatArray,
                  hist_mon: FloatArray, hist_z: FloatArray, hist_u: FloatArray, j1: int, m: int, dt_s: float,
@@ -1460,7 +1494,7 @@ def _onset_rerun(x: FloatArray, p: FloatArray, mon: FloatArray, back_s: float, h
     if back <= round(quiet[_ROLLBACK] / dt_s):
         return
     j0 = j1 - back
-    x2, p2, mon2 = hist_x[j0 % b].copy(), hist_p[j0 % b].copy(), hist_mon[j0 % b].copy()
+    x2, p2, mon2 = hist_x[j0 % b].copy(), _ring_p(hist_p, j0), hist_mon[j0 % b].copy()
     mon2[8] = quiet[_TRACK_S]
     for t in (17, 18):
         p2[t, t] += quiet[_TIP_MOVE] * quiet[_TIP_MOVE]
@@ -1481,11 +1515,12 @@ def ekf_run(
     """Batch filter over measurements z (N, 4 or 7) and process inputs u (N, N_INPUT): quaternions (N, 4), rope lengths
     (N,), final state and covariance.
 
-    Jump rollback: the `hist_*` rings (B rows, kept across calls in `hist_n` = [samples stored, measurement width])
-    hold the state before each of the last B samples and that sample's inputs. When `ekf_step` finds a boom-tip
-    jump, the jump test has needed those samples to see it, and the pendulum law has meanwhile bent the tilt: the
-    filter goes back B samples, opens the tip state there, and runs them again (the jump test off), so the tilt
-    keeps the gyroscope's integral from before the move. Past outputs are not rewritten (a live filter cannot).
+    Jump rollback: the `hist_*` rings (B rows, kept across calls in `hist_n` = [samples stored, measurement width];
+    covariances as `_pack_sym` rows) hold the state before each of the last B samples and that sample's inputs. When
+    `ekf_step` finds a boom-tip jump, the jump test has needed those samples to see it, and the pendulum law has
+    meanwhile bent the tilt: the filter goes back B samples, opens the tip state there, and runs them again (the jump
+    test off), so the tilt keeps the gyroscope's integral from before the move. Past outputs are not rewritten (a live
+    filter cannot).
     A trial jump (`ekf_step`'s candidate, off by default) goes back `params[_TRIAL_WIN]` instead, opens the tip state by
     `params[_TRIAL_OPEN]` and is kept only if the re-run's -2 log-likelihood of the swing-rate innovations
     (`monitor[9]`) is lower than the kept path's by more than `params[_TRIAL_LR]`; otherwise state, covariance and
@@ -1504,14 +1539,15 @@ def ekf_run(
     x_kept, p_kept = np.empty_like(x), np.empty_like(p)
     for i in range(n):
         k = hist_n[0] % b
-        hist_x[k], hist_p[k], hist_mon[k] = x, p, monitor
+        hist_x[k], hist_mon[k] = x, monitor
+        _pack_sym(p, hist_p[k])
         hist_z[k, :m], hist_u[k] = z[i], u[i]
         hist_n[0] += 1
         _ekf_step_into(x, p, z[i], u[i], dt_s, params, q_psd, r_diag, monitor, vecs, mats, hm, ss, idx, cnt)
         if monitor[19] > 0.0 and monitor[5] == 0.0 and b > 1 and params[_HOIST_BACK] > 0.0:
             j0 = hist_n[0] - min(hist_n[0], b, max(1, round(params[_ROLLBACK] / dt_s)))
             x[:] = hist_x[j0 % b]
-            p[:, :] = hist_p[j0 % b]
+            _unpack_sym(hist_p[j0 % b], p)
             mon = hist_mon[j0 % b].copy()
             mon[15], mon[16] = params[_HOIST_HOLD], params[_HOIST_CRUISE]
             _rerun(x, p, hist_z, hist_u, j0, hist_n[0], m, dt_s, quiet, q_psd, r_diag, mon, vecs, mats, hm, ss, idx,
@@ -1528,7 +1564,7 @@ def ekf_run(
             back = max(1, round((params[_TRIAL_WIN] if trial else params[_ROLLBACK]) / dt_s))
             j0 = hist_n[0] - min(hist_n[0], b, back)
             x[:] = hist_x[j0 % b]
-            p[:, :] = hist_p[j0 % b]
+            _unpack_sym(hist_p[j0 % b], p)
             mon = hist_mon[j0 % b].copy()
             mon[8] = params[_TRACK_S]
             open_std = params[_TRIAL_OPEN] if trial else params[_TIP_MOVE]
@@ -1538,7 +1574,7 @@ def ekf_run(
             _rerun(x, p, hist_z, hist_u, j0, hist_n[0], m, dt_s, quiet, q_psd, r_diag, mon, vecs, mats, hm, ss, idx,
                    cnt)
             if not trial and params[_STOP_STD] > 0.0:
-                _stop_rerun(x, p, mon, hist_x[j0 % b], hist_p[j0 % b], hist_mon[j0 % b], hist_z, hist_u, j0,
+                _stop_rerun(x, p, mon, hist_x[j0 % b], _ring_p(hist_p, j0), hist_mon[j0 % b], hist_z, hist_u, j0,
                             hist_n[0], m, dt_s, quiet, q_psd, r_diag, vecs, mats, hm, ss, idx, cnt)
             if (not trial and params[_ONSET_GATE] > 0.0
                     and params[_MOVE_HOLD] - hist_mon[(hist_n[0] - 1) % b, 4] > params[_ONSET_QUIET]):
@@ -1801,13 +1837,14 @@ class HookFilter(AttitudeFilter):
     def _rings(self, dt_s: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
                                             NDArray[np.int64]]:  # fmt: skip
         """The jump-rollback history of `ekf_run` (`settings.move_rollback_s` of samples, or the trial window if
-        trials are on and it is longer), made on first use."""
+        trials are on, or `move_rollback_max_s` if the onset re-run is, whichever is longest), made on first use;
+        covariances packed (`_pack_sym`)."""
         s = self.settings
         back_s = max(s.move_rollback_s, s.jump_trial_window_s if s.jump_trial_gate > 0.0 else 0.0,
                      s.move_rollback_max_s if s.jump_onset_gate > 0.0 else 0.0)
         b = max(1, round(back_s / dt_s))
         if self._history is None or self._history[0].shape[0] != b:
-            self._history = (np.zeros((b, N_STATE)), np.zeros((b, N_STATE, N_STATE)), np.zeros((b, 7)),
+            self._history = (np.zeros((b, N_STATE)), np.zeros((b, N_PACKED)), np.zeros((b, 7)),
                              np.zeros((b, N_INPUT)), np.zeros((b, N_MONITOR)), np.zeros(2, dtype=np.int64))  # fmt: skip
         return self._history
 

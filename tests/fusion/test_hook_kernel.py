@@ -218,8 +218,10 @@ def test_the_kernel_gives_the_dense_steps_estimates_on_suite_cranes(seed, use_ma
     cols = [gyr, acc[:, 2:3] - ref.acc_z_offset_m_s2] + ([mag] if use_mag else [])
     z = np.ascontiguousarray(np.concatenate(cols, axis=1))
     u = ref._inputs(gyr, acc, DT_S)
+    hist_x, hist_p, hist_z, hist_u, hist_mon, hist_n = ref._rings(DT_S)  # the reference keeps whole covariances
+    rings = (hist_x, np.zeros((hist_p.shape[0], hf.N_STATE, hf.N_STATE)), hist_z, hist_u, hist_mon, hist_n)
     q_ref, l_ref, x_ref, p_ref = reference_run(ref.x, ref.P, z, u, DT_S, ref._params(use_mag), ref._q_psd,
-                                               ref._r_diag(z.shape[1]), ref._monitor, *ref._rings(DT_S))  # fmt: skip
+                                               ref._r_diag(z.shape[1]), ref._monitor, *rings)  # fmt: skip
     assert np.max(angle_rad(q_fast, q_ref)) <= 1e-6
     assert np.max(np.abs(l_fast / l_ref - 1.0)) <= 5e-6
     assert np.array_equal(fast._monitor[4:6] > 0.0, ref._monitor[4:6] > 0.0)  # the same gate state at the end
@@ -337,3 +339,25 @@ def test_the_exact_jacobians_are_the_plain_forward_differences(seed, use_mag, fo
     assert np.array_equal(h0, h0_plain)
     tol = 1e-5 * np.abs(h_plain) + 1e-7 * (1.0 + np.abs(h0) + length)[:, None]
     assert np.all(np.abs(h_jac - h_plain) <= tol)
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 2**31))
+def test_a_packed_covariance_comes_back_bit_for_bit(seed: int) -> None:
+    """The rollback ring keeps each covariance's upper triangle (`_pack_sym`, 300 of 576 numbers: 4 s of them per
+    hook); the kernel keeps P exactly symmetric, so unpacking must give the same matrix to the last bit, or a
+    rollback would restart from a different covariance than the one the filter had."""
+    p = random_spd(np.random.default_rng(seed), hf.N_STATE)
+    p = np.triu(p) + np.triu(p, 1).T  # exactly symmetric, as the kernel keeps it
+    packed, back = np.empty(hf.N_PACKED), np.full((hf.N_STATE, hf.N_STATE), np.nan)
+    hf._pack_sym(p, packed)
+    hf._unpack_sym(packed, back)
+    assert np.array_equal(back, p)
+    assert np.array_equal(hf._ring_p(packed[None, :], 0), p)
+
+
+def test_the_rollback_ring_keeps_covariances_packed() -> None:
+    """4 s of covariances at 100 Hz: 400 rows of 300 numbers (0.96 MB) instead of 400 × 24 × 24 (1.84 MB)."""
+    f = hf.HookFilter(hf.HookFilterSettings())
+    _, hist_p, *_ = f._rings(DT_S)
+    assert hist_p.shape == (round(f.settings.move_rollback_max_s / DT_S), hf.N_PACKED) and hf.N_PACKED == 300
