@@ -1417,6 +1417,23 @@ def _rerun(x: FloatArray, p: FloatArray, hist_z: FloatArray, hist_u: FloatArray,
 
 
 @njit
+def _rerun_keep_likelier(x: FloatArray, p: FloatArray, mon: FloatArray, x2: FloatArray, p2: FloatArray,
+                         mon2: FloatArray, hist_z: FloatArray, hist_u: FloatArray, j0: int, j1: int, m: int,
+                         dt_s: float, quiet: FloatArray, q_psd: FloatArray, r_diag: FloatArray, vecs: FloatArray,
+                         mats: FloatArray, hm: FloatArray, ss: FloatArray, idx: NDArray[np.int64],
+                         cnt: NDArray[np.int64], max_lr: float) -> None:  # fmt: skip
+    """An alternative re-run (`_stop_rerun`, `_onset_rerun`): the ring's samples `j0 .. j1-1` again from `x2`, `p2`,
+    `mon2` with the rope length opened as a jump opens it, kept over the re-run in `x`, `p`, `mon` when its swing-rate
+    -2 log-likelihood (`mon[9]`) is at most `max_lr` above that one's."""
+    p2[_LOG_L, _LOG_L] += quiet[_JUMP_ROPE] * quiet[_JUMP_ROPE]
+    _rerun(x2, p2, hist_z, hist_u, j0, j1, m, dt_s, quiet, q_psd, r_diag, mon2, vecs, mats, hm, ss, idx, cnt)
+    if mon2[9] - mon[9] <= max_lr:
+        x[:] = x2
+        p[:, :] = p2
+        mon[:] = mon2
+
+
+@njit
 def _stop_rerun(x: FloatArray, p: FloatArray, mon: FloatArray, x0: FloatArray, p0: FloatArray, mon0: FloatArray,
                 hist_z: FloatArray, hist_u: FloatArray, j0: int, j1: int, m: int, dt_s: float, quiet: FloatArray,
                 q_psd: FloatArray, r_diag: FloatArray, vecs: FloatArray, mats: FloatArray, hm: FloatArray,
@@ -1438,12 +1455,8 @@ def _stop_rerun(x: FloatArray, p: FloatArray, mon: FloatArray, x0: FloatArray, p
         p2[t, :] = 0.0
         p2[:, t] = 0.0
         p2[t, t] = quiet[_STOP_STD] * quiet[_STOP_STD]
-    p2[_LOG_L, _LOG_L] += quiet[_JUMP_ROPE] * quiet[_JUMP_ROPE]
-    _rerun(x2, p2, hist_z, hist_u, j0, j1, m, dt_s, quiet, q_psd, r_diag, mon2, vecs, mats, hm, ss, idx, cnt)
-    if mon2[9] - mon[9] <= quiet[_STOP_LR]:
-        x[:] = x2
-        p[:, :] = p2
-        mon[:] = mon2
+    _rerun_keep_likelier(x, p, mon, x2, p2, mon2, hist_z, hist_u, j0, j1, m, dt_s, quiet, q_psd, r_diag, vecs, mats,
+                         hm, ss, idx, cnt, quiet[_STOP_LR])  # fmt: skip
 
 
 N_PACKED = N_STATE * (N_STATE + 1) // 2  # a covariance's upper triangle, row by row: the rollback ring's rows
@@ -1498,12 +1511,8 @@ def _onset_rerun(x: FloatArray, p: FloatArray, mon: FloatArray, back_s: float, h
     mon2[8] = quiet[_TRACK_S]
     for t in (17, 18):
         p2[t, t] += quiet[_TIP_MOVE] * quiet[_TIP_MOVE]
-    p2[_LOG_L, _LOG_L] += quiet[_JUMP_ROPE] * quiet[_JUMP_ROPE]
-    _rerun(x2, p2, hist_z, hist_u, j0, j1, m, dt_s, quiet, q_psd, r_diag, mon2, vecs, mats, hm, ss, idx, cnt)
-    if mon2[9] - mon[9] <= quiet[_ONSET_LR]:
-        x[:] = x2
-        p[:, :] = p2
-        mon[:] = mon2
+    _rerun_keep_likelier(x, p, mon, x2, p2, mon2, hist_z, hist_u, j0, j1, m, dt_s, quiet, q_psd, r_diag, vecs, mats,
+                         hm, ss, idx, cnt, quiet[_ONSET_LR])  # fmt: skip
 
 
 @njit
