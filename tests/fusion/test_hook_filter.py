@@ -542,17 +542,23 @@ def small_step_data(seed: int):
     return trolley_step_data(seed, 8.0, 0.1, 20.0, 15.0, 40.0)
 
 
+def small_step_rmses(*overrides: dict) -> list[list[float]]:
+    """Θ RMSE from the small step on (`small_step_data`), per settings override, over the four draws 41-44."""
+    out: list[list[float]] = [[] for _ in overrides]
+    for seed in (41, 42, 43, 44):
+        truth, gyr, acc = small_step_data(seed)
+        for rmses, over in zip(out, overrides, strict=True):
+            rmses.append(swing_rmse_from(truth, gyr, acc, 8.0, over, 19.5))
+    return out
+
+
 def test_a_trial_jump_sees_a_tip_step_below_the_jump_gate():
     """`TRIAL_JUMP`: below the jump gate the filter tries the jump (goes back 1 s, opens the tip state) and keeps it
     when the re-run's swing-rate innovations are likelier. On a 0.1 m/s² step on an 8 m rope, Θ RMSE from the step
     on, mean over four draws, is more than 2x lower than without trials (measured 0.18° vs 0.52°; 0.11-0.23° vs
     0.45-0.55° per draw). Measured on the boom-tip state of its round (`HOIST_ROUND`): with today's tighter tip
     state the jump test sees this step itself (`test_a_tight_tip_state_lets_the_jump_test_see_a_sub_gate_step`)."""
-    on, off = [], []
-    for seed in (41, 42, 43, 44):
-        truth, gyr, acc = small_step_data(seed)
-        on.append(swing_rmse_from(truth, gyr, acc, 8.0, HOIST_ROUND | TRIAL_JUMP, 19.5))
-        off.append(swing_rmse_from(truth, gyr, acc, 8.0, HOIST_ROUND, 19.5))
+    on, off = small_step_rmses(HOIST_ROUND | TRIAL_JUMP, HOIST_ROUND)
     assert np.mean(off) > 2.0 * np.mean(on), (on, off)
 
 
@@ -562,11 +568,7 @@ def test_a_tight_tip_state_lets_the_jump_test_see_a_sub_gate_step():
     mean stayed below the jump gate and the step's a/g was taken for tilt; with the tight one the innovation shows
     it. Θ RMSE from the step on, mean over four draws: ≤ 0.3° and less than half of `HOIST_ROUND`'s (measured
     0.19° vs 0.48°; 0.16-0.23° vs 0.43-0.54° per draw; since the eleventh round's onset re-run 0.15°)."""
-    new, old = [], []
-    for seed in (41, 42, 43, 44):
-        truth, gyr, acc = small_step_data(seed)
-        new.append(swing_rmse_from(truth, gyr, acc, 8.0, {}, 19.5))
-        old.append(swing_rmse_from(truth, gyr, acc, 8.0, HOIST_ROUND, 19.5))
+    new, old = small_step_rmses({}, HOIST_ROUND)
     assert np.mean(new) <= 0.3, new
     assert np.mean(old) > 2.0 * np.mean(new), (new, old)
 
@@ -577,11 +579,7 @@ def test_a_late_jump_is_run_again_from_the_jump_tests_onset():
     along it. On a 0.1 m/s² step on an 8 m rope swinging 2°, Θ RMSE from the step on, mean over four draws: ≤ 0.18° and
     more than 1.2x lower than without it (`TIP_ROUND`; measured 0.146° vs 0.191°, 0.10-0.21° vs 0.16-0.23° per draw).
     The case of windy tuning seed 8, whose slew onset peaked the statistic at 7.7 and tripped it 3.2 s later."""
-    new, old = [], []
-    for seed in (41, 42, 43, 44):
-        truth, gyr, acc = small_step_data(seed)
-        new.append(swing_rmse_from(truth, gyr, acc, 8.0, {}, 19.5))
-        old.append(swing_rmse_from(truth, gyr, acc, 8.0, TIP_ROUND, 19.5))
+    new, old = small_step_rmses({}, TIP_ROUND)
     assert np.mean(new) <= 0.18, new
     assert np.mean(old) > 1.2 * np.mean(new), (new, old)
 
