@@ -48,6 +48,11 @@ log = logging.getLogger("gateway.fusion.bank")
 G_M_S2 = 9.80665
 DEFAULT_FILTER = "default"
 HOOK_FILTER = "hook"
+# The hook EKF without the magnetometer: for a compass it cannot trust (uncalibrated, or a steel load or hook block
+# beside it), which misleads the 9D filter's twist and with it the swing (docs/fusion.md, "A compass the hook filter
+# cannot trust"). Heading, bearing and torsion are then relative to the start.
+HOOK_FILTER_6D = "hook-6d"
+COMPASS_FREE = frozenset({HOOK_FILTER_6D})  # filters that never get the magnetometer, whatever the device sends
 
 Block = tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]  # gyr, acc, mag (None: 6D), t_s
 
@@ -57,14 +62,14 @@ def make_filter(name: str, use_mag: bool, rope_length_m: float | None = None) ->
     (KeyError when unknown)."""
     from gateway.fusion import registry
 
-    if name == HOOK_FILTER:
+    if name in (HOOK_FILTER, HOOK_FILTER_6D):
         from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
 
         # The hook setting's length (configured, or the 10 m default) is a prior the pendulum frequency corrects: a
         # wrong one is found within seconds of swinging, while a wide prior would let a trolley jerk read as a rope.
         settings = HookFilterSettings() if rope_length_m is None else HookFilterSettings(
             rope_length_m=rope_length_m, rope_length_known=True)
-        return HookFilter(settings, use_mag=use_mag)
+        return HookFilter(settings, use_mag=use_mag and name not in COMPASS_FREE)
     if name in registry.FILTERS:
         return registry.make_filter(name, use_mag=use_mag)
     raise KeyError(name)
@@ -74,7 +79,7 @@ def known_filters() -> set[str]:
     """Every filter name a device may choose."""
     from gateway.fusion.registry import FILTERS
 
-    return {DEFAULT_FILTER, HOOK_FILTER, *FILTERS}
+    return {DEFAULT_FILTER, HOOK_FILTER, HOOK_FILTER_6D, *FILTERS}
 
 
 def gather(pkts: list[schemas.ImuPacket]) -> Block:
@@ -323,6 +328,8 @@ class FusionBank:
         n_warm = max(1, int(math.ceil(self.warmup_s * p.rate_hz)))  # a big first batch: use its start only
         gyr, acc, mag = gyr[:n_warm], acc[:n_warm], None if mag is None else mag[:n_warm]
         name, th = self._effective(p.kind, p.device_id)
+        if name in COMPASS_FREE:
+            mag = None
         use_mag = mag is not None
         acc0, mag0 = acc.mean(axis=0), None if mag is None else mag.mean(axis=0)
         filt: AttitudeFilter | None = None

@@ -1,0 +1,74 @@
+"""`hook-6d`: the hook EKF without the magnetometer, for a compass the 9D filter cannot trust (docs/fusion.md, "A
+compass the hook filter cannot trust"). Crane suite seed 7 (10.9 m rope, 13.7 t, swinging at start) with the raw
+board's errors (`ImuErrorModel.uncalibrated()`: ~30 mg accelerometer offset, 15 µT hard iron, 3 % soft iron)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bench.hook_suite import simulate_seed
+from gateway import schemas
+from gateway.config import DeviceSettings, HookThresholds
+from gateway.fusion import hook as hook_geo
+from gateway.fusion.bank import HOOK_FILTER_6D, make_filter
+from gateway.pipeline import Pipeline
+
+SEED, DURATION_S, SPP, RATE_HZ = 7, 60.0, 10, 100.0
+
+
+@pytest.fixture(scope="module")
+def raw_board() -> tuple:
+    case, truth, gyr, acc, mag = simulate_seed(SEED, DURATION_S, "uncalibrated", True)
+    assert mag is not None
+    return case, truth, gyr, acc, mag
+
+
+def _packets(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray) -> list[schemas.ImuPacket]:
+    """10-sample packets of the samples, magnetometer included, as a 9-axis hook would send them."""
+    def rows(a: np.ndarray) -> list[tuple[float, ...]]:
+        return [tuple(r) for r in a.tolist()]
+
+    return [schemas.ImuPacket(v=1, device_id="hook-1", kind="hook", boot_id=1, seq=k, t0_us=round(i * 1e6 / RATE_HZ),
+                              rate_hz=RATE_HZ, gyr_rad_s=rows(gyr[i:i + SPP]), acc_m_s2=rows(acc[i:i + SPP]),
+                              mag_uT=rows(mag[i:i + SPP]))
+            for k, i in enumerate(range(0, gyr.shape[0] - SPP + 1, SPP))]  # fmt: skip
+
+
+def _swing_errors_deg(name: str | None, raw_board: tuple) -> tuple[np.ndarray, Pipeline]:
+    """|Θ_est - Θ_true| (degrees) at every published attitude after 5 s, the hook on filter `name` (None: default)."""
+    case, truth, gyr, acc, mag = raw_board
+    th = {"rope_length_m": case.physics.rope_length_m}
+    pipe = Pipeline(device_settings={"hook-1": ("hook", DeviceSettings(filter_name=name, thresholds=th))})
+    errors = []
+    for p in _packets(gyr, acc, mag):
+        for a in pipe.process([p], 1.8e9 + p.t0_us * 1e-6).attitudes:
+            i = round(a.t_us * RATE_HZ / 1e6)
+            if a.t_us >= 5e6:
+                theta = float(hook_geo.swing_angle(np.array([a.quat_wxyz]))[0])
+                errors.append(abs(math.degrees(theta - truth.swing_rad[i])))
+    return np.array(errors), pipe
+
+
+def test_the_hook_6d_filter_never_takes_the_magnetometer() -> None:
+    f = make_filter(HOOK_FILTER_6D, use_mag=True, rope_length_m=8.0)
+    assert not f.use_mag
+    assert isinstance(HookThresholds().rope_length_m, float)
+
+
+def test_hook_6d_keeps_the_swing_of_a_hook_whose_compass_is_raw(raw_board: tuple) -> None:
+    """Through the pipeline with the device's `filter_name` set to `hook-6d`: Θ within 0.3° RMSE and 1° max from 5 to
+    60 s (measured 0.075° / 0.17°). The default 9D filter on the same packets, whose twist the raw compass misleads,
+    is printed for comparison (measured 64° RMSE, 81° max: docs/fusion.md), not asserted: that is a weakness to fix,
+    not a behaviour to keep."""
+    err_6d, pipe = _swing_errors_deg(HOOK_FILTER_6D, raw_board)
+    assert pipe.devices["hook-1"].filter_name == HOOK_FILTER_6D and not pipe.devices["hook-1"].use_mag
+    assert err_6d.size > 100
+    rmse_6d = float(np.sqrt(np.mean(err_6d**2)))
+    err_9d, _ = _swing_errors_deg(None, raw_board)
+    print(f"seed {SEED}, raw board, 5-{DURATION_S:.0f} s: hook-6d Θ RMSE {rmse_6d:.3f}° max {err_6d.max():.2f}°; "
+          f"hook (9D) {float(np.sqrt(np.mean(err_9d**2))):.3f}° max {err_9d.max():.2f}°")
+    assert rmse_6d < 0.3
+    assert err_6d.max() < 1.0
