@@ -50,7 +50,8 @@ def test_version_1_still_takes_seed_902s_rope_to_0_57_m_and_version_2_to_its_tar
 
 
 @settings(max_examples=300, deadline=None)
-@given(seed=st.integers(0, 10**6), duration_s=st.floats(30.0, 180.0), family=st.sampled_from(["crane", "windy", "short"]))
+@given(seed=st.integers(0, 10**6), duration_s=st.floats(30.0, 180.0),
+       family=st.sampled_from(["crane", "windy", "short"]))
 def test_version_2_keeps_the_rope_within_2_30_m_and_changes_only_hoist_speeds(seed: int, duration_s: float,
                                                                               family: str) -> None:  # fmt: skip
     """The same draws in both versions: every event's timing, the crane and the wind are the same, and a hoist keeps
