@@ -41,7 +41,10 @@ iron (µT, body).
   devices.hook_physics); accelerometer z `l |n'|² + g n_z - l'' + [ω' × r + ω × (ω × r)]_z + offset` after
   subtracting the zero-g offset calibrated at start; in 9D the magnetometer `Rᵀ m_ref + h` for heading and the
   hard iron `h` only (its Jacobian is restricted to `α` and `h`, so magnetometer errors cannot tilt the estimate;
-  `h` is body-fixed while the field turns with the twist, so a hook that twists reveals it).
+  `h` is body-fixed while the field turns with the twist, so a hook that twists reveals it). The heading still
+  turns the gyroscope's swing rates into the swing's directions, so a compass that is wrong by an amount that changes
+  with the twist (a raw board's hard iron) misleads the swing through it: `start()` runs a twin without the
+  magnetometer beside the filter, which takes over when its swing rates fit markedly better (`_check_compass`).
 * Rope length: the pendulum frequency (gravity's restoring term) and the response of the rope rate to a
   measured pull (`W / l`) make `l` observable whenever the hook swings or is pushed; a configured length is the
   prior (`rope_length_known`), not a constraint. On a hook that hardly swings (below `rope_observe_swing_rad`)
@@ -77,6 +80,8 @@ keeps its hard iron's heading error. 6D heading is a free gauge
 
 from __future__ import annotations
 
+import collections
+import copy
 import math
 from dataclasses import dataclass
 
@@ -104,6 +109,7 @@ N_MONITOR = 22  # `ekf_step`'s innovation statistics, move and hoist timers, the
 # the force input's means
 
 
+COMPASS_CHECK_S = 1.0  # `HookFilter.run_with_length` runs longer calls in pieces of this while the compass is tested
 COAST_R_SCALE = 1e8  # `run_bridged`: measurement variances × this on rows that were never measured
 
 
@@ -294,6 +300,16 @@ class HookFilterSettings:
     moving_acc_offset_std_m_s2: float = 0.5  # the window's mean tension is not g when swinging
     rest_gyr_std_rad_s: float = 0.01  # `start()`: a warm-up window counts as rest below this gyro std per axis
     rest_acc_tol_m_s2: float = 0.5  # ... and with |acc| within this of g
+    # `start()` with a magnetometer also starts a twin without it (`compass_trusted`): when the twin's swing-rate
+    # -2 log-likelihood over the last `compass_check_window_s` is more than `compass_check_excess` below this
+    # filter's, the compass is misleading the twist (uncalibrated, steel beside it) and the filter goes on as the twin
+    # (0: no twin, the filter before issue 11's compass round). In the first `compass_check_after_s` the bar is
+    # `compass_check_early_excess`: a wrong or unknown rope length makes the two differ by up to 481 there on a
+    # calibrated board (tuning seeds, not told), against at most 79 after 20 s.
+    compass_check_window_s: float = 10.0
+    compass_check_excess: float = 120.0
+    compass_check_after_s: float = 20.0
+    compass_check_early_excess: float = 600.0
     start_mag_levelled: bool = True  # `start()`: the magnetometer reference and start heading from the window's field
     # turned to ENU by the start tilt and the twist (`level_mag_reference`); False: the body-frame mean (the filter
     # before the fifth round: a 5° swing put 4 µT of the vertical field into the heading, 11°, and the z gyro bias
@@ -309,6 +325,9 @@ class HookFilterSettings:
 # changes over tens of seconds is no longer the cheaper explanation), and the jump test at χ² p = 0.001 (13.8) so it
 # sees smaller steps. Fresh seeds 501-510: whole-run Θ 0.260 -> 0.170°, better on 10/10 seeds (docs/fusion.md).
 # `PREVIOUS_DEFAULT` below undoes exactly these four settings.
+
+# The defaults before issue 11's compass round (no twin without the magnetometer): `HookFilterSettings(**COMPASS_ROUND)`
+COMPASS_ROUND: dict[str, float] = {"compass_check_excess": 0.0}
 
 # The defaults before issue 11's fifth round (a magnetometer reference from the body-frame mean of the warm-up
 # window, tilted or not): `HookFilterSettings(**FOURTH_ROUND)`.
@@ -1650,6 +1669,11 @@ class HookFilter(AttitudeFilter):
         self._monitor[0] = 2.0  # swing-rate innovation statistics (`ekf_step`)
         self._history: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, NDArray[np.int64]] | None
         self._history = None
+        self._twin: HookFilter | None = None  # the same filter without the magnetometer (`start()`, `_check_compass`)
+        self._twin_marks: collections.deque[tuple[float, float]] = collections.deque()  # (t s, -2 ln L difference)
+        self._twin_t_s = 0.0
+        self.compass_trusted = True  # False: the magnetometer misled the swing; the filter runs without it since
+        self.compass_dropped_s: float | None = None  # ... this many seconds after the start (`_check_compass`)
         hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
         self._q_psd = np.array(
             [0.0, 0.0, 0.0, 0.0, 0.0, s.torsion_accel_psd]
@@ -1773,6 +1797,38 @@ class HookFilter(AttitudeFilter):
             # the swing's bearing was read with the unlevelled heading (tuning seed 7: 18° off, p 1.8° off): again
             if swinging and self._set_start_swing(self.swing_from_window(gyr, dt_s)):
                 self.level_mag_reference(gyr, mag, dt_s)
+        self._twin = None
+        if self.use_mag and self.mag_ref_uT is not None and mag_uT is not None and s.compass_check_excess > 0.0:
+            twin = copy.deepcopy(self)  # the start heading (from the compass) kept, then the gyroscope alone
+            twin.use_mag = False
+            self._twin, self._twin_marks, self._twin_t_s = twin, collections.deque([(0.0, 0.0)]), 0.0
+
+    def _check_compass(self, gyr: FloatArray, acc: FloatArray, dt_s: float, r_scale: float,
+                       out: tuple[FloatArray, FloatArray]) -> tuple[FloatArray, FloatArray]:
+        """Step the twin without the magnetometer on the same samples and compare the two swing-rate -2 log-likelihoods
+        (`monitor[9]`) over the last `compass_check_window_s`: when this filter's exceeds the twin's by more than
+        `compass_check_excess`, the compass has been misleading the twist, and so the swing (an uncalibrated board's
+        hard iron turns with the hook): take the twin's state and go on without the magnetometer for good
+        (`compass_trusted` False). Returns this call's output (the twin's when it switched). The test runs at the
+        end of each call (`run_with_length` cuts longer calls into `COMPASS_CHECK_S` pieces while the twin runs)."""
+        twin = self._twin
+        assert twin is not None
+        twin_out = twin.run_with_length(gyr, acc, None, dt_s, r_scale)
+        self._twin_t_s += gyr.shape[0] * dt_s
+        now, diff = self._twin_t_s, float(self._monitor[9] - twin._monitor[9])
+        marks, window = self._twin_marks, self.settings.compass_check_window_s
+        marks.append((now, diff))
+        while len(marks) > 1 and marks[1][0] <= now - window:
+            marks.popleft()
+        s = self.settings
+        if diff - marks[0][1] <= (s.compass_check_early_excess if now < s.compass_check_after_s
+                                  else s.compass_check_excess):  # fmt: skip
+            return out
+        self.x, self.P, self._monitor, self._history = twin.x, twin.P, twin._monitor, twin._history
+        self._gyr_prev, self.use_mag, self.compass_trusted, self._twin = twin._gyr_prev, False, False, None
+        self.compass_dropped_s = now
+        self._constants = None
+        return twin_out
 
     def _set_start_swing(self, swing: tuple[FloatArray, FloatArray, float] | None) -> bool:
         """Start from `swing_from_window`'s swing (True), unless there is none or the rope length is unknown (p
@@ -1884,6 +1940,8 @@ class HookFilter(AttitudeFilter):
         _, _, self.x, self.P = ekf_run(self.x, self.P, zv[None, :], u[None, :], dt_s, self._params(use_mag),
                                        self._q_psd, self._r_diag(zv.shape[0]), self._monitor,
                                        *self._rings(dt_s))  # fmt: skip
+        if self._twin is not None and use_mag:
+            self._check_compass(gyr[None, :], acc[None, :], dt_s, 1.0, (np.zeros((1, 4)), np.zeros(1)))
         return self.quaternion
 
     def run_with_length(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
@@ -1894,6 +1952,12 @@ class HookFilter(AttitudeFilter):
         if not self._initialised:
             self.initialise(acc[0], None if mag_uT is None else mag_uT[0])
         use_mag = self.use_mag and mag_uT is not None and self.mag_ref_uT is not None
+        piece = max(1, round(COMPASS_CHECK_S / dt_s))
+        if self._twin is not None and use_mag and gyr.shape[0] > piece:  # the compass test at most a second apart
+            assert mag_uT is not None
+            parts = [self.run_with_length(gyr[a:a + piece], acc[a:a + piece], mag_uT[a:a + piece], dt_s, r_scale)
+                     for a in range(0, gyr.shape[0], piece)]  # fmt: skip
+            return np.concatenate([q for q, _ in parts]), np.concatenate([ln for _, ln in parts])
         z, u = _packet_rows(gyr, acc, np.asarray(mag_uT, dtype=np.float64) if use_mag else gyr, 7 if use_mag else 4,
                             self.acc_z_offset_m_s2, self._gyr_before(gyr), dt_s)  # fmt: skip
         params, r_diag = self._kernel_constants(use_mag, z.shape[1])
@@ -1901,6 +1965,8 @@ class HookFilter(AttitudeFilter):
             r_diag = r_diag * r_scale
         quats, lengths, self.x, self.P = ekf_run(self.x, self.P, z, u, dt_s, params, self._q_psd, r_diag,
                                                  self._monitor, *self._rings(dt_s))  # fmt: skip
+        if self._twin is not None and use_mag:
+            return self._check_compass(gyr, acc, dt_s, r_scale, (quats, lengths))
         return quats, lengths
 
     _constants: tuple[HookFilterSettings, bool, int, bytes, FloatArray, FloatArray] | None = None
