@@ -49,6 +49,11 @@ def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dic
         out["reel"] = pl.reel[device_id][0].model_dump()
     if detail:
         out["gyro_bias_rad_s"] = pl.bias_rad_s(device_id)
+        filt = dev.filt if dev is not None else None
+        compass = getattr(filt, "compass", None)
+        if isinstance(compass, str):  # the hook filter's magnetometer: tested, trusted or dropped (docs/fusion.md)
+            out["compass"] = compass
+            out["compass_dropped_s"] = getattr(filt, "compass_dropped_s", None)
         if stream is not None:
             t = stream.main()
             out["stream"] = {"ok": t.ok, "lost": t.lost, "duplicates": t.duplicates, "reordered": t.reordered,

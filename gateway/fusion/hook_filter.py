@@ -310,6 +310,11 @@ class HookFilterSettings:
     compass_check_excess: float = 120.0
     compass_check_after_s: float = 20.0
     compass_check_early_excess: float = 600.0
+    # ... and the twin stops (its cost, a second filter, ends) once the compass has been trusted through this many
+    # seconds of swinging (`monitor[13]`: a mean swing amplitude above `compass_check_swing_rad`); 0: it never stops.
+    # A compass that turns bad later is then not caught (`hook-6d` for that).
+    compass_check_evidence_s: float = 120.0
+    compass_check_swing_rad: float = 0.0087  # 0.5°
     start_mag_levelled: bool = True  # `start()`: the magnetometer reference and start heading from the window's field
     # turned to ENU by the start tilt and the twist (`level_mag_reference`); False: the body-frame mean (the filter
     # before the fifth round: a 5° swing put 4 µT of the vertical field into the heading, 11°, and the z gyro bias
@@ -1672,6 +1677,7 @@ class HookFilter(AttitudeFilter):
         self._twin: HookFilter | None = None  # the same filter without the magnetometer (`start()`, `_check_compass`)
         self._twin_marks: collections.deque[tuple[float, float]] = collections.deque()  # (t s, -2 ln L difference)
         self._twin_t_s = 0.0
+        self._twin_evidence_s = 0.0  # seconds of swinging the twin has been compared through
         self.compass_trusted = True  # False: the magnetometer misled the swing; the filter runs without it since
         self.compass_dropped_s: float | None = None  # ... this many seconds after the start (`_check_compass`)
         hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
@@ -1802,6 +1808,18 @@ class HookFilter(AttitudeFilter):
             twin = copy.deepcopy(self)  # the start heading (from the compass) kept, then the gyroscope alone
             twin.use_mag = False
             self._twin, self._twin_marks, self._twin_t_s = twin, collections.deque([(0.0, 0.0)]), 0.0
+            self._twin_evidence_s = 0.0
+
+    @property
+    def compass(self) -> str | None:
+        """The magnetometer's standing, for REST: None without one; `tested` while the twin runs, `trusted` once it
+        has been kept through `compass_check_evidence_s` of swinging (or with no test), `dropped` when it misled the
+        swing."""
+        if not self.compass_trusted:
+            return "dropped"
+        if not self.use_mag or self.mag_ref_uT is None:
+            return None
+        return "tested" if self._twin is not None else "trusted"
 
     def _check_compass(self, gyr: FloatArray, acc: FloatArray, dt_s: float, r_scale: float,
                        out: tuple[FloatArray, FloatArray]) -> tuple[FloatArray, FloatArray]:
@@ -1815,6 +1833,8 @@ class HookFilter(AttitudeFilter):
         assert twin is not None
         twin_out = twin.run_with_length(gyr, acc, None, dt_s, r_scale)
         self._twin_t_s += gyr.shape[0] * dt_s
+        if self._monitor[13] > self.settings.compass_check_swing_rad**2:
+            self._twin_evidence_s += gyr.shape[0] * dt_s
         now, diff = self._twin_t_s, float(self._monitor[9] - twin._monitor[9])
         marks, window = self._twin_marks, self.settings.compass_check_window_s
         marks.append((now, diff))
@@ -1823,6 +1843,8 @@ class HookFilter(AttitudeFilter):
         s = self.settings
         if diff - marks[0][1] <= (s.compass_check_early_excess if now < s.compass_check_after_s
                                   else s.compass_check_excess):  # fmt: skip
+            if 0.0 < s.compass_check_evidence_s <= self._twin_evidence_s:
+                self._twin = None  # trusted through enough swinging: the compass is kept, the twin's cost ends
             return out
         self.x, self.P, self._monitor, self._history = twin.x, twin.P, twin._monitor, twin._history
         self._gyr_prev, self.use_mag, self.compass_trusted, self._twin = twin._gyr_prev, False, False, None

@@ -230,3 +230,20 @@ def test_paper_filter_variants_are_selectable_per_device(running: Callable[[], R
     assert r.status_code == 200, r.text
     got = app.client.get("/api/devices/rod-1/settings").json()
     assert got["effective"]["filter_name"] == name
+
+
+def test_a_hooks_dropped_compass_shows_in_its_device_detail(running: Callable[[], Running]) -> None:
+    """A hook whose raw compass misleads its swing (crane suite seed 7, `--imu uncalibrated`): the filter drops it
+    (docs/fusion.md, "A compass the hook filter cannot trust") and `GET /api/devices/{id}` says so and when."""
+    from bench.hook_suite import simulate_seed
+    from tests.fusion.test_hook_compass import _packets
+
+    case, _, gyr, acc, mag = simulate_seed(7, 60.0, "uncalibrated", True)  # the draws depend on the duration
+    assert mag is not None
+    app = running()
+    body = {"kind": "hook", "thresholds": {"rope_length_m": case.physics.rope_length_m}}
+    assert app.client.put("/api/devices/hook-1/settings", json=body, headers=app.auth).status_code == 200
+    app.feed([("rig/hook/hook-1/imu", p.to_json()) for p in _packets(gyr, acc, mag)])
+    dev = app.client.get("/api/devices/hook-1").json()
+    assert dev["compass"] == "dropped", dev
+    assert 0.0 < dev["compass_dropped_s"] < 10.0
