@@ -139,6 +139,12 @@ def prepare(settings: Settings) -> int:
     from gateway.pipeline import Pipeline
 
     Pipeline(pipeline_settings_from(settings)).warm_up()
+    # Once more in a fresh process: numba keeps a kernel it compiled as another kernel's callee under that signature,
+    # and a new process calling it directly looked it up under another and compiled `_step_context` again (39 s at
+    # the first gateway start after this command, 2 s at later ones). Done here, the first start is as fast.
+    import subprocess
+
+    subprocess.run([sys.executable, "-c", "from gateway.pipeline import Pipeline; Pipeline().warm_up()"], check=False)
     print(f"[prepare] fusion kernels ready in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
     return 0
 
