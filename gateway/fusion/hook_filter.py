@@ -1678,8 +1678,8 @@ class HookFilter(AttitudeFilter):
         self._twin_marks: collections.deque[tuple[float, float]] = collections.deque()  # (t s, -2 ln L difference)
         self._twin_t_s = 0.0
         self._twin_evidence_s = 0.0  # seconds of swinging the twin has been compared through
-        self.compass_trusted = True  # False: the magnetometer misled the swing; the filter runs without it since
-        self.compass_dropped_s: float | None = None  # ... this many seconds after the start (`_check_compass`)
+        self.compass_dropped_s: float | None = None  # the magnetometer misled the swing: dropped this many seconds
+        # after the start (`_check_compass`); None while it is used
         hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
         self._q_psd = np.array(
             [0.0, 0.0, 0.0, 0.0, 0.0, s.torsion_accel_psd]
@@ -1811,6 +1811,11 @@ class HookFilter(AttitudeFilter):
             self._twin_evidence_s = 0.0
 
     @property
+    def compass_trusted(self) -> bool:
+        """False once the magnetometer misled the swing and the filter runs without it (`compass_dropped_s`)."""
+        return self.compass_dropped_s is None
+
+    @property
     def compass(self) -> str | None:
         """The magnetometer's standing, for REST: None without one; `tested` while the twin runs, `trusted` once it
         has been kept through `compass_check_evidence_s` of swinging (or with no test), `dropped` when it misled the
@@ -1847,8 +1852,7 @@ class HookFilter(AttitudeFilter):
                 self._twin = None  # trusted through enough swinging: the compass is kept, the twin's cost ends
             return out
         self.x, self.P, self._monitor, self._history = twin.x, twin.P, twin._monitor, twin._history
-        self._gyr_prev, self.use_mag, self.compass_trusted, self._twin = twin._gyr_prev, False, False, None
-        self.compass_dropped_s = now
+        self._gyr_prev, self.use_mag, self._twin, self.compass_dropped_s = twin._gyr_prev, False, None, now
         self._constants = None
         return twin_out
 
