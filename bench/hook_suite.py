@@ -16,6 +16,7 @@
     python -m bench.hook_suite --settings tip03             # the default before the eleventh round (TIP_ROUND)
     python -m bench.hook_suite --settings compass           # no twin without the compass (COMPASS_ROUND)
     python -m bench.hook_suite --length-factor 2            # the rope length told 2x too long at t = 0
+    python -m bench.hook_suite --sensor-draw 1              # the same cranes with another board of the preset
     python -m bench.hook_suite --suite-version 1            # the cranes before the hoist fix (earlier figures)
 
 Each seed draws a crane (issue 11): rope 2-30 m (log-uniform), hook + load 0.5-20 t, torsion stiffness and
@@ -86,6 +87,7 @@ from gateway.fusion.hook_filter import (
 
 RATE_HZ = 100.0  # the IMU's sampling rate unless `rate_hz` / `--rate-hz` says otherwise (the filters take dt from it)
 WARMUP_S = 0.5
+SENSOR_DRAW_STRIDE = 1_000_003  # `sensor_draw` k uses rng seed 10_000 + seed + k x this: no draw meets another seed's
 AFTER_EVENT_S = 5.0
 PHASES = ("free", "pull", "move")
 SUITE_VERSIONS = (1, 2)  # 1: the hoist generator before issue 11's fix (figures documented before it); 2: fixed
@@ -263,11 +265,13 @@ def score(q: np.ndarray, truth: HookTruth, keep: np.ndarray, absolute: bool) -> 
 
 def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length: bool, paper_ekf: bool = False,
              family: str = "crane", tracking: bool = False, overrides: dict[str, float] | None = None,
-             rate_hz: float = RATE_HZ, length_factor: float = 1.0, suite_version: int = SUITE_VERSION
-             ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+             rate_hz: float = RATE_HZ, length_factor: float = 1.0, suite_version: int = SUITE_VERSION,
+             sensor_draw: int = 0) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`; the filter is told
-    `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1)."""
-    case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz, suite_version)
+    `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1); `sensor_draw`: see
+    `simulate_seed`."""
+    case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz, suite_version,
+                                               sensor_draw)  # fmt: skip
     out: dict[str, dict[str, dict[str, float]]] = {}
     told = case.physics.rope_length_m * length_factor if tell_length else None
     q_hook, length = hook_estimate(gyr, acc, mag, told, tracking, overrides, rate_hz)
@@ -281,13 +285,15 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
 
 
 def simulate_seed(seed: int, duration_s: float, imu: str, use_mag: bool, family: str = "crane",
-                  rate_hz: float = RATE_HZ, suite_version: int = SUITE_VERSION
+                  rate_hz: float = RATE_HZ, suite_version: int = SUITE_VERSION, sensor_draw: int = 0
                   ) -> tuple[SuiteCase, HookTruth, np.ndarray, np.ndarray, np.ndarray | None]:  # fmt: skip
     """The crane of `seed`, its ground truth and the IMU's samples (gyr, acc, mag or None, at `rate_hz`) as the suite
-    (`suite_version`, see `make_case`) draws them."""
+    (`suite_version`, see `make_case`) draws them. `sensor_draw` > 0: the same crane and motion with another board
+    of the same preset (its biases, scales and noise drawn afresh; 0: the suite's own board for the seed)."""
     case = make_case(seed, duration_s, family, rate_hz, suite_version)
     truth = simulate(case.physics, case.scenario)
-    sensor = SensorModel(ImuErrorModel.preset(imu), 1, np.random.default_rng(10_000 + seed))
+    rng = np.random.default_rng(10_000 + seed + SENSOR_DRAW_STRIDE * sensor_draw)
+    sensor = SensorModel(ImuErrorModel.preset(imu), 1, rng)
     gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / rate_hz)
     return case, truth, gyr, acc, mag if use_mag else None
 
@@ -370,13 +376,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     p.add_argument("--rate-hz", type=float, default=RATE_HZ,
                    help="IMU sampling rate (default 100; the suite was tuned at 100 only)")
+    p.add_argument("--sensor-draw", type=int, default=0,
+                   help="another board for the same cranes: its errors and noise drawn afresh (default 0: the "
+                   "suite's own; figures tuned on draw 0 say nothing of another draw's)")
     p.add_argument("--length-factor", type=float, default=1.0,
                    help="tell the filter this times the true rope length (a wrongly configured length; default 1)")
     add_suite_version_argument(p)
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
     told = "not told" if args.no_length else f"{args.length_factor:g}x told at t = 0"
-    print(f"hook suite v{args.suite_version} ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}, "
+    board = f" (board draw {args.sensor_draw})" if args.sensor_draw else ""
+    print(f"hook suite v{args.suite_version} ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}{board}, "
           f"{args.duration:g} s per seed, rope length {told}, {args.rate_hz:g} Hz; degrees; whole run after "
           f"{WARMUP_S:g} s")
     print(f"{'seed':>4} {'crane':<44}{'':>6}{'Θ RMSE':>8}{'Θ max':>7}{'dir':>7}{'tors':>7}{'rope m':>8}")
@@ -387,7 +397,7 @@ def main(argv: list[str] | None = None) -> int:
         case = make_case(seed, args.duration, args.family, args.rate_hz, args.suite_version)
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
                      args.tracking, parse_settings(args.settings), args.rate_hz, args.length_factor,
-                     args.suite_version)
+                     args.suite_version, args.sensor_draw)
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]
