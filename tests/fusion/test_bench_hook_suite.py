@@ -94,3 +94,21 @@ def test_the_command_line_names_the_version_it_ran(capsys: pytest.CaptureFixture
     assert "hook suite v1 " in capsys.readouterr().out
     with pytest.raises(SystemExit):
         main(["--seeds", "902", "--duration", "2", "--suite-version", "3"])
+
+
+def test_another_board_draw_keeps_the_crane_and_redraws_only_the_sensor() -> None:
+    """`--sensor-draw`: draw 0 is the suite's own board for the seed (its samples are those of the rng seed 10_000 +
+    seed, as before the option); draw 1 has the same truth and other samples."""
+    from bench.hook_suite import simulate_seed
+    from devices.common import ImuErrorModel, SensorModel
+
+    case0, truth0, gyr0, acc0, _ = simulate_seed(3, 5.0, "calibrated", True)
+    old = SensorModel(ImuErrorModel.calibrated(), 1, np.random.default_rng(10_003))
+    gyr_old, acc_old, _ = old.measure(truth0.gyr_rad_s, truth0.acc_m_s2, truth0.mag_uT, 0.01)
+    np.testing.assert_array_equal(gyr0, gyr_old)
+    np.testing.assert_array_equal(acc0, acc_old)
+    case1, truth1, gyr1, acc1, _ = simulate_seed(3, 5.0, "calibrated", True, sensor_draw=1)
+    assert repr(case1.scenario) == repr(case0.scenario)
+    np.testing.assert_array_equal(truth1.gyr_rad_s, truth0.gyr_rad_s)
+    assert not np.array_equal(gyr1, gyr0)
+    assert np.abs(gyr1 - gyr0).max() < 0.2  # the same motion read by another board (biases ~1 deg/s)
