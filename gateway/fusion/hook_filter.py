@@ -30,9 +30,11 @@ iron (µT, body).
   estimate is not near 0) and takes process noise across its own direction (a slew's acceleration turns with the
   boom); optionally (`TRACKING`) a slower test on the same innovation opens it when the acceleration turns too
   slowly for the jump test; optionally (`TRIAL_JUMP`) a step below the jump gate is *tried*: the filter goes back,
-  opens the tip state, and keeps the re-run if the likelihood of its innovations says so (`ekf_run`); optionally
-  (`HELD_TRACKING`) the tracking is held past its 10 s while the tip estimate stays long, with a lower jump gate for
-  the move's stop.
+  opens the tip state, and keeps the re-run if the likelihood of its innovations says so (`ekf_run`). The tracking
+  is held past its 10 s while the tip estimate stays long (a slew's acceleration keeps growing and turning), with a
+  lower jump gate for the move's stop, and while the jump test's statistic is high the swing rate does not correct
+  the rope length, so a step below the gate is left to the tip state (both the default since issue 11's thirteenth
+  round; `SLEW_ROUND` is the filter before).
   A small white part stays on `v` (`tip_accel_psd / l²`).
   `α` integrates `α'`; `α'`, the biases and the offset random-walk (the gyro bias only as fast as the sensor's
   does: faster, it takes a slew's slowly changing acceleration for bias); `c` is constant; `l` integrates `l'`, which
@@ -379,7 +381,8 @@ SLEW_ROUND: dict[str, float] = {"move_track_hold_m_s2": 0.0, "move_track_hold_ga
 
 # Issue 11's eighth round: the tip tracking held past its 10 s while a 3 s mean of the tip estimate exceeds
 # 0.12 m/s², for at most 5 s more, with the jump test's gate at χ² 5 while held for a tip estimate shrinking below
-# that mean (a held move's stop): `HookFilterSettings(**HELD_TRACKING)`.
+# that mean (a held move's stop): `HookFilterSettings(**HELD_TRACKING)`. The default since the thirteenth round (with
+# `jump_length_hold_gate`).
 HELD_TRACKING: dict[str, float] = {"move_track_hold_m_s2": 0.12, "move_track_hold_gate": 5.0,
                                    "move_track_hold_max_s": 5.0}  # fmt: skip
 
