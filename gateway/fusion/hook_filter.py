@@ -30,9 +30,11 @@ iron (µT, body).
   estimate is not near 0) and takes process noise across its own direction (a slew's acceleration turns with the
   boom); optionally (`TRACKING`) a slower test on the same innovation opens it when the acceleration turns too
   slowly for the jump test; optionally (`TRIAL_JUMP`) a step below the jump gate is *tried*: the filter goes back,
-  opens the tip state, and keeps the re-run if the likelihood of its innovations says so (`ekf_run`); optionally
-  (`HELD_TRACKING`) the tracking is held past its 10 s while the tip estimate stays long, with a lower jump gate for
-  the move's stop.
+  opens the tip state, and keeps the re-run if the likelihood of its innovations says so (`ekf_run`). The tracking
+  is held past its 10 s while the tip estimate stays long (a slew's acceleration keeps growing and turning), with a
+  lower jump gate for the move's stop, and while the jump test's statistic is high the swing rate does not correct
+  the rope length, so a step below the gate is left to the tip state (both the default since issue 11's thirteenth
+  round; `SLEW_ROUND` is the filter before).
   A small white part stays on `v` (`tip_accel_psd / l²`).
   `α` integrates `α'`; `α'`, the biases and the offset random-walk (the gyro bias only as fast as the sensor's
   does: faster, it takes a slew's slowly changing acceleration for bias); `c` is constant; `l` integrates `l'`, which
@@ -104,7 +106,8 @@ N_INPUT = 8  # per-sample process input: accelerometer x/y, gyroscope (3), its b
  _TRACK_PSD, _TURN_PSD, _TRACK_CAP, _TURN_CAP, _TRIAL_GATE, _TRIAL_LR, _TRIAL_EVERY, _TRIAL_OPEN,
  _ROLLBACK, _TRIAL_WIN, _TRIAL_QUIET, _HOLD_TAU, _HOLD_MIN, _HOLD_GATE, _HOLD_MAX, _STOP_STD, _STOP_MIN,
  _STOP_LR, _STOP_RATIO, _L_OBS_SWING, _HOIST_GATE, _HOIST_MEAN_TAU, _HOIST_OPEN, _HOIST_HOLD, _HOIST_CRUISE,
- _HOIST_KEEP, _HOIST_STOP, _L_FORCE_TAU, _HOIST_BACK, _ONSET_GATE, _ROLLBACK_MAX, _ONSET_LR, _ONSET_QUIET) = range(65)
+ _HOIST_KEEP, _HOIST_STOP, _L_FORCE_TAU, _HOIST_BACK, _ONSET_GATE, _ROLLBACK_MAX, _ONSET_LR, _ONSET_QUIET,
+ _LENGTH_HOLD_GATE) = range(66)
 N_MONITOR = 22  # `ekf_step`'s innovation statistics, move and hoist timers, the tip estimate's, the swing energy's and
 # the force input's means
 
@@ -183,6 +186,11 @@ class HookFilterSettings:
     jump_onset_quiet_s: float = 5.0  # ... not for a jump within this long of the start or of the last jump (a filter
     # settling on a swinging start with a wrongly told length took its error for a tip acceleration: told 2x seeds 5
     # and 8 +0.13 and +0.21° without it)
+    jump_length_hold_gate: float = 8.0  # χ² (2 dof): while the jump test's statistic is above this, the swing rate
+    # does not correct the rope length (0: off, the filter before issue 11's thirteenth round). A step of the boom
+    # tip's acceleration below the jump gate was partly taken by the length (short seed 1506: 2.49 -> 2.20 m within
+    # 0.5 s of a slew's onset), which kept the statistic below the gate and the step out of the tip state. With the
+    # held tracking it keeps the raw board's seeds level (1-10: 0.2623 without, 0.2597 with, 0.2569 before both)
     jump_rope_rel_std: float = 0.1  # a jump also opens the rope length by this (relative): a wrong configured length
     # trips the jump test as a move does, and the two explanations must compete (0.3: 0.49° on the 12 m/6 m case)
     move_mean_tau_s: float = 0.5  # running mean of the whitened swing-rate innovation *vector*: a boom-tip
@@ -222,16 +230,18 @@ class HookFilterSettings:
     move_track_cap_m_s2: float = 0.1  # ... scaled by |tip estimate|² / this² up to 1 (0: not scaled): a move that
     # goes on leaves a tip estimate, one that stopped does not (unscaled: tuning seeds 0.161 vs 0.154°, and the tip
     # state stayed loose in the free swing after a violent kick)
-    move_track_hold_m_s2: float = 0.0  # the tracking goes on after `move_track_s` while a running mean of the tip
-    # estimate (restarted at each jump) is longer than this (0: off; issue 11's seventh round: 0.1, eighth:
-    # `HELD_TRACKING`): a slew's centripetal part grows long after the 10 s (tuning seed 15: 0.17 m/s² behind after
-    # 14 s). Off: fresh seeds 901-910 0.237 vs 0.245° with `HELD_TRACKING` (docs/fusion.md, eighth round)
+    move_track_hold_m_s2: float = 0.12  # the tracking goes on after `move_track_s` while a running mean of the tip
+    # estimate (restarted at each jump) is longer than this (0: off, the filter before issue 11's thirteenth round,
+    # `SLEW_ROUND`; seventh round: 0.1, eighth: `HELD_TRACKING`): a slew's centripetal part grows long after the 10 s
+    # (tuning seed 15: 0.17 m/s² behind after 14 s). Off in the eighth round (fresh seeds 901-910 0.237 vs 0.245°);
+    # on since the thirteenth, with `jump_length_hold_gate` (tuning seeds 1-30 0.1222 -> 0.1134°, seed 15 max 1.07 ->
+    # 0.62°; docs/fusion.md)
     move_track_hold_tau_s: float = 3.0  # ... the time constant of that mean (s)
-    move_track_hold_gate: float = 0.0  # χ² gate of the jump test while held, for a tip estimate whose part along
+    move_track_hold_gate: float = 5.0  # χ² gate of the jump test while held, for a tip estimate whose part along
     # that mean is shorter than the mean (0: the jump gate): the held tracking follows a move's stop, so the jump test
     # missed it (windy seed 8: statistic 6.4 against 13.8)
-    move_track_hold_max_s: float = 1e9  # held at most this long after `move_track_s` (a tip estimate holding a
-    # wrongly told rope length's error was held for 90 s: tuning seed 9 told 2x)
+    move_track_hold_max_s: float = 5.0  # held at most this long after `move_track_s` (a tip estimate holding a
+    # wrongly told rope length's error was held for 90 s: tuning seed 9 told 2x; 3 s: told 2x 1-15 0.3440 vs 0.3415°)
     jump_stop_std_m_s2: float = 0.0  # a jump whose re-run puts the tip estimate on the other side of zero (its part
     # along the estimate at the rollback point negative: the acceleration fell, a move stopping) is run again from
     # a tip estimate of 0 with this std, and that re-run kept when its swing-rate -2 log-likelihood is at most
@@ -364,9 +374,15 @@ HOIST_ROUND: dict[str, float] = {"tip_accel_std_m_s2": 0.06, "move_track_psd": 1
 # `HookFilterSettings(**TIP_ROUND)`.
 TIP_ROUND: dict[str, float] = {"jump_onset_gate": 0.0}
 
+# The defaults before issue 11's thirteenth round (the tip tracking not held past its 10 s, the rope length corrected
+# by the swing rate whatever the jump test's statistic): `HookFilterSettings(**SLEW_ROUND)`.
+SLEW_ROUND: dict[str, float] = {"move_track_hold_m_s2": 0.0, "move_track_hold_gate": 0.0, "move_track_hold_max_s": 1e9,
+                                "jump_length_hold_gate": 0.0}  # fmt: skip
+
 # Issue 11's eighth round: the tip tracking held past its 10 s while a 3 s mean of the tip estimate exceeds
 # 0.12 m/s², for at most 5 s more, with the jump test's gate at χ² 5 while held for a tip estimate shrinking below
-# that mean (a held move's stop): `HookFilterSettings(**HELD_TRACKING)`.
+# that mean (a held move's stop): `HookFilterSettings(**HELD_TRACKING)`. The default since the thirteenth round (with
+# `jump_length_hold_gate`).
 HELD_TRACKING: dict[str, float] = {"move_track_hold_m_s2": 0.12, "move_track_hold_gate": 5.0,
                                    "move_track_hold_max_s": 5.0}  # fmt: skip
 
@@ -1344,6 +1360,8 @@ def _ekf_step_into(
     if params[_HOLD_GATE] > 0.0 and monitor[8] <= 0.0 and _held(x_pred, monitor, params, True):
         gate = params[_HOLD_GATE]  # a held move's stop: the tracking follows it, the jump test sees less of it
     jumped = params[_MEAN_GATE] > 0.0 and _mean_test(w0, w1, params[_MEAN_TAU], gate, dt_s, monitor, 2)
+    hold_length = (params[_LENGTH_HOLD_GATE] > 0.0 and params[_MEAN_GATE] > 0.0 and not jumped
+                   and _mean_stat(monitor, 2, min(1.0, dt_s / params[_MEAN_TAU])) > params[_LENGTH_HOLD_GATE])
     if params[_ONSET_GATE] > 0.0 and params[_MEAN_GATE] > 0.0:  # [20] seconds since the episode's first pass of the
         monitor[20] += dt_s  # onset gate, [21] since its last (a jump ends the episode)
         monitor[21] += dt_s
@@ -1413,6 +1431,10 @@ def _ekf_step_into(
     if ramp:  # a hoist ramp: the tension offset does not take it
         for j in range(m):
             k[_ACC_BIAS, j] = 0.0
+    if hold_length:  # a step the jump test has begun to see: the swing rate's surprise is not the length's
+        for j in range(m):
+            if j != 3:
+                k[_LOG_L, j] = 0.0
     if (moving or jump) and params[_MOVE_FREEZE] > 0.0:
         for j in range(k.shape[1]):
             for i in (14, 15, 16):
@@ -1714,7 +1736,8 @@ class HookFilter(AttitudeFilter):
                          s.rope_observe_swing_rad, s.hoist_gate, s.hoist_mean_tau_s, s.hoist_open_std_m_s2,
                          s.hoist_hold_s, s.hoist_cruise_s, s.hoist_keep_m_s2, s.hoist_stop_m_s,
                          s.length_force_tau_s, 1.0 if s.hoist_rollback else 0.0, s.jump_onset_gate,
-                         s.move_rollback_max_s, s.jump_onset_lr, s.jump_onset_quiet_s])  # fmt: skip
+                         s.move_rollback_max_s, s.jump_onset_lr, s.jump_onset_quiet_s,
+                         s.jump_length_hold_gate])  # fmt: skip
 
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings

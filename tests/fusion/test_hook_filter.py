@@ -22,6 +22,7 @@ from gateway.fusion.hook_filter import (
     HOIST_ROUND,
     PREVIOUS_DEFAULT,
     ROPE_ROUND,
+    SLEW_ROUND,
     TIP_ROUND,
     TRACKING,
     TRIAL_JUMP,
@@ -249,10 +250,12 @@ def test_seeded_bias_is_used():
 def test_a_tag_line_pull_is_measured_not_guessed():
     """A 300 N pull on a 500 kg hook for 3 s (0.6 m/s², 3.5° of equilibrium shift) and let go: with the
     accelerometer's x/y as the force input, Θ stays within 0.3° of the truth through the pull and after it (measured
-    0.20°; 0.17° before the hoist round, `ROPE_ROUND`); without it, on the boom-tip settings before the third round and
-    the rope settings before the hoist round, the error is at least 3× larger (0.77°). (Without it on today's defaults
-    0.24°: the jump test and the tip tracking read the pull as a boom-tip move, and the length, gated at a 0.2° swing,
-    does not take the unmeasured pull for a longer rope; 0.40° with the 0.1° gate before the hoist round.)"""
+    0.19°, 0.20° before the thirteenth round; 0.17° before the hoist round, `ROPE_ROUND`); without it, on the boom-tip
+    settings before the third round and the thirteenth (`SLEW_ROUND`: its rope length held while the jump test's
+    statistic is high keeps the unmeasured pull out of the length, 0.24°) and the rope settings before the hoist
+    round, the error is at least 3× larger (0.77°). (Without it on today's defaults 0.24°: the jump test and the tip
+    tracking read the pull as a boom-tip move, and the length, gated at a 0.2° swing, does not take the unmeasured
+    pull for a longer rope; 0.40° with the 0.1° gate before the hoist round.)"""
     from devices.hook_physics import Pull
 
     physics = HookPhysicsSettings(gravity_m_s2=G_M_S2, earth_field_uT=EARTH_FIELD_ENU_UT, internal_rate_hz=500.0,
@@ -264,7 +267,7 @@ def test_a_tag_line_pull_is_measured_not_guessed():
         truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, DT_S)  # fmt: skip
     assert truth.swing_rad.max() > math.radians(3.0)
     errors = []
-    for over in ({}, PREVIOUS_DEFAULT | ROPE_ROUND | HOIST_ROUND | {"use_force_input": False}):
+    for over in ({}, PREVIOUS_DEFAULT | ROPE_ROUND | HOIST_ROUND | SLEW_ROUND | {"use_force_input": False}):
         f = HookFilter(HookFilterSettings(**over), use_mag=False)
         f.start(gyr[:50], acc[:50], None, DT_S)
         q = f.run(gyr, acc, None, DT_S)
@@ -375,13 +378,16 @@ def test_a_slewing_move_is_followed_not_averaged_away():
     `HOIST_ROUND` too, the same figures). The hoist round's default 0.36° / 0.89° (0.31° / 0.83° with `ROPE_ROUND`):
     it holds the hoist acceleration at 0.015 m/s² between ramps (0.05 before), so the tension channel's errors
     through a slew (it lacks the boom tip's acceleration along the rope) go into the swing instead (0.30° / 0.74°
-    with the hoist test off). Today's default (the tenth round's tighter tip state and slower tracking) ≤ 0.35° /
-    0.85° (measured 0.33° / 0.81°, 0.29° / 0.73° with the tracking at 1e-3; `HOIST_ROUND` 0.36° / 0.89°)."""
+    with the hoist test off). The tenth round's default (tighter tip state, slower tracking) 0.33° / 0.81° (0.29° /
+    0.73° with the tracking at 1e-3; `HOIST_ROUND` 0.36° / 0.89°), the eleventh's the same. Today's default (the
+    thirteenth round's tracking held while the tip estimate is long, and the length held while the jump test's
+    statistic is high) ≤ 0.3° / 0.7° (measured 0.27° / 0.63°); the older filters above are compared without it
+    (`SLEW_ROUND`)."""
     truth, gyr, acc, mag = slew_data(seed=41)
     assert truth.swing_rad.max() > math.radians(2.0)
     errors = []
     for over in (TRACKING, NO_TRACK, NO_TURN, PREVIOUS_DEFAULT, OLD_TIP, {}):
-        over = over | ROPE_ROUND | HOIST_ROUND if over else over
+        over = over | ROPE_ROUND | HOIST_ROUND | SLEW_ROUND if over else over
         f = HookFilter(HookFilterSettings(rope_length_m=8.0, rope_length_known=True, **over), use_mag=False)
         f.start(gyr[:50], acc[:50], None, DT_S)
         q = f.run(gyr, acc, None, DT_S)
@@ -393,7 +399,7 @@ def test_a_slewing_move_is_followed_not_averaged_away():
     assert rmse[3] <= 0.5 and worst[3] <= 1.7, (rmse[3], worst[3])
     assert rmse[3] > 1.3 * rmse[0] and worst[3] > 1.5 * worst[0], (rmse, worst)
     assert rmse[4] > 1.5 * rmse[3] and worst[4] > 1.4 * worst[3], (rmse, worst)
-    assert rmse[5] <= 0.35 and worst[5] <= 0.85, (rmse[5], worst[5])
+    assert rmse[5] <= 0.3 and worst[5] <= 0.7, (rmse[5], worst[5])
 
 
 def first_detection_s(bias: float, seed: int, duration_s: float) -> tuple[float, float]:
@@ -503,7 +509,7 @@ def test_the_jump_test_at_p_0001_sees_a_small_trolley_step_on_a_short_rope():
     jump test missed on tuning seed 8's slew): with the jump gate at χ² p = 0.001 (13.8, the default) Θ
     RMSE from the move on, mean over four draws, is more than 1.2x lower than with the gate at 20 (measured 0.43° vs
     0.61° when written: the lower gate caught the step on two of the four draws, the other two were missed by both).
-    On the filter before issue 11's eleventh round (`TIP_ROUND`), measured again: 0.119° vs 0.159°. With that round's
+    On the filter before issue 11's eleventh round (`TIP_ROUND`, `SLEW_ROUND`), again: 0.119° vs 0.159°. With its
     re-run from the jump test's onset (the default) both gates read 0.117°: the step the gate at 20 sees late is run
     again from where the statistic first rose."""
     physics = HookPhysicsSettings(rope_length_m=5.0, gravity_m_s2=G_M_S2, earth_field_uT=EARTH_FIELD_ENU_UT,
@@ -516,8 +522,8 @@ def test_the_jump_test_at_p_0001_sees_a_small_trolley_step_on_a_short_rope():
         truth = simulate(physics, scenario)
         gyr, acc, _ = SensorModel(ImuErrorModel.calibrated(), 1, np.random.default_rng(seed)).measure(
             truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, DT_S)  # fmt: skip
-        low.append(swing_rmse_from(truth, gyr, acc, 5.0, TIP_ROUND, 19.5))
-        high.append(swing_rmse_from(truth, gyr, acc, 5.0, TIP_ROUND | {"move_mean_gate": 20.0}, 19.5))
+        low.append(swing_rmse_from(truth, gyr, acc, 5.0, TIP_ROUND | SLEW_ROUND, 19.5))
+        high.append(swing_rmse_from(truth, gyr, acc, 5.0, TIP_ROUND | SLEW_ROUND | {"move_mean_gate": 20.0}, 19.5))
     assert np.mean(high) > 1.2 * np.mean(low), (low, high)
     assert np.mean(low) <= 0.5, low
 
