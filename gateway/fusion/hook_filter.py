@@ -91,7 +91,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gateway.fusion.base import AttitudeFilter, FloatArray
-from gateway.fusion.quaternion import njit, rotate
+from gateway.fusion.quaternion import njit, rotate, to_matrix
 
 N_STATE = 24
 _P, _V, _ALPHA, _ALPHA_RATE, _BIAS, _ACC_BIAS = slice(0, 2), slice(2, 4), 4, 5, slice(6, 9), 9
@@ -107,7 +107,8 @@ N_INPUT = 8  # per-sample process input: accelerometer x/y, gyroscope (3), its b
  _ROLLBACK, _TRIAL_WIN, _TRIAL_QUIET, _HOLD_TAU, _HOLD_MIN, _HOLD_GATE, _HOLD_MAX, _STOP_STD, _STOP_MIN,
  _STOP_LR, _STOP_RATIO, _L_OBS_SWING, _HOIST_GATE, _HOIST_MEAN_TAU, _HOIST_OPEN, _HOIST_HOLD, _HOIST_CRUISE,
  _HOIST_KEEP, _HOIST_STOP, _L_FORCE_TAU, _HOIST_BACK, _ONSET_GATE, _ROLLBACK_MAX, _ONSET_LR, _ONSET_QUIET,
- _LENGTH_HOLD_GATE) = range(66)
+ _LENGTH_HOLD_GATE, _MAG_FRAME) = range(67)  # _MAG_FRAME: a flag, then the 3×3 `mag_ref_frame` by rows (67-75)
+N_PARAMS = 76
 N_MONITOR = 22  # `ekf_step`'s innovation statistics, move and hoist timers, the tip estimate's, the swing energy's and
 # the force input's means
 
@@ -260,6 +261,15 @@ class HookFilterSettings:
     mag_hard_iron_std_uT: float = 0.5  # prior std of the magnetometer's residual hard iron, per body axis (0: not
     # estimated). A calibrated board keeps ~0.5 µT (devices.common.ImuErrorModel.calibrated): 1-4° of heading
     mag_hard_iron_psd: float = 1e-6  # µT²/s: its drift (battery and motor currents)
+    mag_reference_hard_iron: bool = False  # True (`HARD_IRON_REFERENCE`, off by default): the magnetometer reference
+    # is read at start with the hard iron in it, so the model is `Rᵀ (m_ref - M h) + h`, `M` the attitude the
+    # reference was read at (`mag_ref_frame`): the hard iron is unobservable at start and learnt as the hook twists,
+    # the reference with it, and the output is turned to the North of the field so learnt (`_output_quaternion`).
+    # False: `Rᵀ m_ref + h`, where a hard iron the start took into the reference fits no constant `h` once the hook
+    # twists, and the heading error, turning with the twist, misleads the swing (the MPU-6050/HMC5883L bare defaults,
+    # 5 µT: crane seeds 1-10 Θ 0.186 -> 0.130°). Off because the true model also frees the compass's gain (a hard iron
+    # along the start field scales the heading it reads), which then no longer corrects the gyroscope's z scale: on the
+    # calibrated board seed 8 goes 0.165 -> 0.543° (docs/fusion.md, the crane suite's legacy-board round)
     rope_observe_swing_rad: float = 0.0035  # 0.2° (0.1° before the hoist round): the swing rate (and magnetometer)
     # correct the rope length and the tension offset fully from this swing amplitude (the rate's energy over a period)
     # on, not at all below half of it (`_length_observability`; 0: always, the filter before issue 11's rope round: a
@@ -340,6 +350,11 @@ class HookFilterSettings:
 # changes over tens of seconds is no longer the cheaper explanation), and the jump test at χ² p = 0.001 (13.8) so it
 # sees smaller steps. Fresh seeds 501-510: whole-run Θ 0.260 -> 0.170°, better on 10/10 seeds (docs/fusion.md).
 # `PREVIOUS_DEFAULT` below undoes exactly these four settings.
+
+# Issue 11's legacy-board round, off by default (the calibrated board's seed 8 decides): the magnetometer reference
+# taken with the hard iron read into it at start (`mag_reference_hard_iron`):
+# `HookFilterSettings(**HARD_IRON_REFERENCE)`.
+HARD_IRON_REFERENCE: dict[str, float] = {"mag_reference_hard_iron": True}
 
 # The defaults before issue 11's compass round (no twin without the magnetometer): `HookFilterSettings(**COMPASS_ROUND)`
 COMPASS_ROUND: dict[str, float] = {"compass_check_excess": 0.0}
@@ -583,15 +598,28 @@ def _measurement_trig(x: FloatArray, params: FloatArray, l: float,
     lever_z = dwx * ry - dwy * rx + wz * (wx * rx + wy * ry + wz * rz) - rz * (wx * wx + wy * wy + wz * wz)
     out[0], out[1], out[2] = wx + x[6] + x[12] * wz, wy + x[7] + x[13] * wz, wz + x[8]
     out[3] = l * (vx * vx + vy * vy + vz * vz) + g * nz - x[_L_ACC] + lever_z + x[9]
-    if with_mag and params[_USE_MAG] > 0.0:  # Rᵀ m_ref + hard iron
+    if with_mag and params[_USE_MAG] > 0.0:  # Rᵀ (m_ref - M h) + h: the reference read with the hard iron in it
         mx, my, mz = params[_MX], params[_MY], params[_MZ]
-        xx, yy, zz, xy, xz, yz = qx * qx, qy * qy, qz * qz, qx * qy, qx * qz, qy * qz
-        wx_, wy_, wz_ = qw * qx, qw * qy, qw * qz
-        out[4] = (1.0 - 2.0 * (yy + zz)) * mx + 2.0 * (xy + wz_) * my + 2.0 * (xz - wy_) * mz + x[21]
-        out[5] = 2.0 * (xy - wz_) * mx + (1.0 - 2.0 * (xx + zz)) * my + 2.0 * (yz + wx_) * mz + x[22]
-        out[6] = 2.0 * (xz + wy_) * mx + 2.0 * (yz - wx_) * my + (1.0 - 2.0 * (xx + yy)) * mz + x[23]
+        if params[_MAG_FRAME] > 0.0:
+            k = _MAG_FRAME + 1
+            mx -= params[k] * x[21] + params[k + 1] * x[22] + params[k + 2] * x[23]
+            my -= params[k + 3] * x[21] + params[k + 4] * x[22] + params[k + 5] * x[23]
+            mz -= params[k + 6] * x[21] + params[k + 7] * x[22] + params[k + 8] * x[23]
+        bx, by, bz = _to_body(qw, qx, qy, qz, mx, my, mz)
+        out[4], out[5], out[6] = bx + x[21], by + x[22], bz + x[23]
     else:
         out[4] = out[5] = out[6] = 0.0
+
+
+@njit
+def _to_body(qw: float, qx: float, qy: float, qz: float, vx: float, vy: float, vz: float
+             ) -> tuple[float, float, float]:  # fmt: skip
+    """`Rᵀ v`: the ENU vector `v` in the body frame of the attitude `q` (wxyz)."""
+    xx, yy, zz, xy, xz, yz = qx * qx, qy * qy, qz * qz, qx * qy, qx * qz, qy * qz
+    wx_, wy_, wz_ = qw * qx, qw * qy, qw * qz
+    return ((1.0 - 2.0 * (yy + zz)) * vx + 2.0 * (xy + wz_) * vy + 2.0 * (xz - wy_) * vz,
+            2.0 * (xy - wz_) * vx + (1.0 - 2.0 * (xx + zz)) * vy + 2.0 * (yz + wx_) * vz,
+            2.0 * (xz + wy_) * vx + 2.0 * (yz - wx_) * vy + (1.0 - 2.0 * (xx + yy)) * vz)  # fmt: skip
 
 
 # Columns `process_jacobian` differentiates (the rest of F is the identity, with F[4, 5] = dt) and columns
@@ -874,6 +902,14 @@ def _measurement_jacobian_exact(x: FloatArray, params: FloatArray, h0: FloatArra
     if params[_USE_MAG] > 0.0:
         for i in range(3):  # ... but is itself estimated: body-fixed, it turns against the field as the hook twists
             h_jac[4 + i, 21 + i] = 1.0
+        if params[_MAG_FRAME] > 0.0:  # ... and was in the reference as read at start: ∂/∂h = I - Rᵀ M
+            qw, qx, qy, qz, _, _, _ = _attitude_rate(x[0], x[1], x[2], x[3], x[4], x[5])
+            k = _MAG_FRAME + 1
+            for j in range(3):
+                bx, by, bz = _to_body(qw, qx, qy, qz, params[k + j], params[k + 3 + j], params[k + 6 + j])
+                h_jac[4, 21 + j] -= bx
+                h_jac[5, 21 + j] -= by
+                h_jac[6, 21 + j] -= bz
 
 
 @njit
@@ -1645,9 +1681,25 @@ def ekf_run(
                     _mark_jump(monitor, params)
                 monitor[0], monitor[1], monitor[9] = mon[0], mon[1], mon[9]
                 hist_n[0] = 0  # a later jump goes back no further than this one
-        out[i, 0], out[i, 1], out[i, 2], out[i, 3], _, _, _ = _attitude_rate(x[0], x[1], x[2], x[3], x[4], x[5])
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = _output_quaternion(x, params)
         lengths[i] = math.exp(x[_LOG_L])
     return out, lengths, x, p
+
+
+@njit
+def _output_quaternion(x: FloatArray, params: FloatArray) -> tuple[float, float, float, float]:
+    """The attitude `q` of `x`, turned about the vertical by the bearing `β` of the earth's field the filter holds
+    (`m_ref - M h`, `_MAG_FRAME`): the start heading is read from a field with the hard iron in it, so the filter's
+    frame is off North by what the hard iron turned it, which its estimate reveals as the hook twists; q_z(β) ⊗ q."""
+    qw, qx, qy, qz, _, _, _ = _attitude_rate(x[0], x[1], x[2], x[3], x[4], x[5])
+    if params[_USE_MAG] > 0.0 and params[_MAG_FRAME] > 0.0:
+        k = _MAG_FRAME + 1
+        ex = params[_MX] - (params[k] * x[21] + params[k + 1] * x[22] + params[k + 2] * x[23])
+        ny = params[_MY] - (params[k + 3] * x[21] + params[k + 4] * x[22] + params[k + 5] * x[23])
+        beta = math.atan2(ex, ny)
+        c, s = math.cos(0.5 * beta), math.sin(0.5 * beta)
+        return c * qw - s * qz, c * qx - s * qy, c * qy + s * qx, c * qz + s * qw
+    return qw, qx, qy, qz
 
 
 @njit
@@ -1691,6 +1743,7 @@ class HookFilter(AttitudeFilter):
         self.P: FloatArray = np.eye(N_STATE)
         self.acc_z_offset_m_s2 = 0.0
         self.mag_ref_uT: FloatArray | None = None
+        self.mag_ref_frame: FloatArray | None = None  # (3, 3): ENU from body as the reference was read (its mean)
         self._gyr_prev: FloatArray | None = None  # last gyro sample: its difference gives ω' for the lever arm
         self._monitor = np.zeros(N_MONITOR)
         self._monitor[0] = 2.0  # swing-rate innovation statistics (`ekf_step`)
@@ -1737,7 +1790,14 @@ class HookFilter(AttitudeFilter):
                          s.hoist_hold_s, s.hoist_cruise_s, s.hoist_keep_m_s2, s.hoist_stop_m_s,
                          s.length_force_tau_s, 1.0 if s.hoist_rollback else 0.0, s.jump_onset_gate,
                          s.move_rollback_max_s, s.jump_onset_lr, s.jump_onset_quiet_s,
-                         s.jump_length_hold_gate])  # fmt: skip
+                         s.jump_length_hold_gate, *self._frame_params(flag)])  # fmt: skip
+
+    def _frame_params(self, use_mag: float) -> list[float]:
+        """`_MAG_FRAME`'s flag and `mag_ref_frame` row by row (zeros when unused)."""
+        frame = self.mag_ref_frame
+        if use_mag == 0.0 or frame is None or not self.settings.mag_reference_hard_iron:
+            return [0.0] * 10
+        return [1.0, *frame.ravel().tolist()]
 
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings
@@ -1782,8 +1842,9 @@ class HookFilter(AttitudeFilter):
             m = np.asarray(mag_uT, dtype=np.float64)
             self.mag_ref_uT = np.array([0.0, math.hypot(m[0], m[1]), m[2]])
             self._reset(math.atan2(m[0], m[1]), 0.2, np.zeros(2))
+            self.mag_ref_frame = to_matrix(attitude_and_rate(self.x)[0])
         else:
-            self.mag_ref_uT = None
+            self.mag_ref_uT = self.mag_ref_frame = None
             self._reset(0.0, self.settings.init_heading_std_rad, np.zeros(2))
         self._initialised = True
 
@@ -1919,6 +1980,8 @@ class HookFilter(AttitudeFilter):
                 break
         self.x[_ALPHA] = alpha0
         self.mag_ref_uT = np.array([0.0, math.hypot(m[0], m[1]), m[2]])
+        north = _attitude_rate(0.0, 0.0, 0.0, 0.0, turn_north, 0.0)[:4]  # the turn that took `m` North
+        self.mag_ref_frame = to_matrix(np.array(north)) @ to_matrix(q).mean(axis=0)  # the hard iron's way in
 
     def swing_from_window(self, gyr_rad_s: FloatArray, dt_s: float) -> tuple[FloatArray, FloatArray, float] | None:
         """A hook already swinging at start: the rope's horizontal direction `p` and rate `p'` at the window's
@@ -2024,6 +2087,7 @@ class HookFilter(AttitudeFilter):
         """`_params(use_mag)` and `_r_diag(m)`, made again only when the settings, the magnetometer reference or
         the measurement width change (building them cost more Python time than a 10-sample packet's own)."""
         ref = b"" if self.mag_ref_uT is None else self.mag_ref_uT.tobytes()
+        ref += b"" if self.mag_ref_frame is None else self.mag_ref_frame.tobytes()
         c = self._constants
         if c is None or c[0] is not self.settings or c[1] != use_mag or c[2] != m or c[3] != ref:
             c = self._constants = (self.settings, use_mag, m, ref, self._params(use_mag), self._r_diag(m))
@@ -2051,7 +2115,9 @@ class HookFilter(AttitudeFilter):
 
     @property
     def quaternion(self) -> FloatArray:
-        return attitude_and_rate(self.x)[0]
+        """The attitude (wxyz), North from the earth's field the filter holds (`_output_quaternion`)."""
+        use_mag = self.use_mag and self.mag_ref_uT is not None
+        return np.array(_output_quaternion(self.x, self._kernel_constants(use_mag, 7 if use_mag else 4)[0]))
 
     @property
     def rope_length_m(self) -> float:
