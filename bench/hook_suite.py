@@ -16,7 +16,7 @@
     python -m bench.hook_suite --settings tip03             # the default before the eleventh round (TIP_ROUND)
     python -m bench.hook_suite --settings compass           # no twin without the compass (COMPASS_ROUND)
     python -m bench.hook_suite --settings slew              # the default before the thirteenth round (SLEW_ROUND)
-    python -m bench.hook_suite --settings hardiron          # hard iron in the reference (HARD_IRON_REFERENCE)
+    python -m bench.hook_suite --settings iron              # the default before the legacy-board round (IRON_ROUND)
     python -m bench.hook_suite --length-factor 2            # the rope length told 2x too long at t = 0
     python -m bench.hook_suite --sensor-draw 1              # the same cranes with another board of the preset
     python -m bench.hook_suite --suite-version 1            # the cranes before the hoist fix (earlier figures)
@@ -79,6 +79,7 @@ from gateway.fusion.hook_filter import (
     HARD_IRON_REFERENCE,
     HELD_TRACKING,
     HOIST_ROUND,
+    IRON_ROUND,
     PREVIOUS_DEFAULT,
     ROPE_ROUND,
     SLEW_ROUND,
@@ -323,7 +324,7 @@ def rope_errors(length_m: np.ndarray, truth: HookTruth) -> dict[str, float]:
 PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JUMP, "round4": FOURTH_ROUND,
            "held": HELD_TRACKING, "rope": ROPE_ROUND,
            "hoist": HOIST_ROUND, "tip03": TIP_ROUND, "compass": COMPASS_ROUND, "slew": SLEW_ROUND,
-           "hardiron": HARD_IRON_REFERENCE}
+           "hardiron": HARD_IRON_REFERENCE, "iron": IRON_ROUND}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -379,9 +380,9 @@ def main(argv: list[str] | None = None) -> int:
                    "before the eleventh round: no re-run from the jump test's onset), compass (COMPASS_ROUND, the "
                    "default before the compass round: no twin without the magnetometer), slew (SLEW_ROUND, the "
                    "default before the thirteenth round: the tip tracking not held, the rope length not held while "
-                   "the jump test's statistic is high), hardiron (HARD_IRON_REFERENCE, the legacy-board round, off by "
-                   "default: the magnetometer reference taken with the start's hard iron in it, which the filter "
-                   "learns as the hook twists)")
+                   "the jump test's statistic is high), hardiron (HARD_IRON_REFERENCE, the legacy-board round's "
+                   "magnetometer reference taken with the start's hard iron in it, which the filter learns as the hook "
+                   "twists: the default since), iron (IRON_ROUND, the default before it)")
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     p.add_argument("--rate-hz", type=float, default=RATE_HZ,
                    help="IMU sampling rate (default 100; the suite was tuned at 100 only)")

@@ -261,15 +261,16 @@ class HookFilterSettings:
     mag_hard_iron_std_uT: float = 0.5  # prior std of the magnetometer's residual hard iron, per body axis (0: not
     # estimated). A calibrated board keeps ~0.5 µT (devices.common.ImuErrorModel.calibrated): 1-4° of heading
     mag_hard_iron_psd: float = 1e-6  # µT²/s: its drift (battery and motor currents)
-    mag_reference_hard_iron: bool = False  # True (`HARD_IRON_REFERENCE`, off by default): the magnetometer reference
-    # is read at start with the hard iron in it, so the model is `Rᵀ (m_ref - M h) + h`, `M` the attitude the
-    # reference was read at (`mag_ref_frame`): the hard iron is unobservable at start and learnt as the hook twists,
-    # the reference with it, and the output is turned to the North of the field so learnt (`_output_quaternion`).
-    # False: `Rᵀ m_ref + h`, where a hard iron the start took into the reference fits no constant `h` once the hook
-    # twists, and the heading error, turning with the twist, misleads the swing (the MPU-6050/HMC5883L bare defaults,
-    # 5 µT: crane seeds 1-10 Θ 0.186 -> 0.130°). Off because the true model also frees the compass's gain (a hard iron
-    # along the start field scales the heading it reads), which then no longer corrects the gyroscope's z scale: on the
-    # calibrated board seed 8 goes 0.165 -> 0.543° (docs/fusion.md, the crane suite's legacy-board round)
+    mag_reference_hard_iron: bool = True  # the magnetometer reference is read at start with the hard iron in it, so
+    # the model is `Rᵀ (m_ref - M h) + h`, `M` the attitude the reference was read at (`mag_ref_frame`): the hard iron
+    # is unobservable at start and learnt as the hook twists, the reference with it, and the output is turned to the
+    # North of the field so learnt (`_output_quaternion`). False (`IRON_ROUND`, the default before issue 11's
+    # legacy-board round): `Rᵀ m_ref + h`, where a hard iron the start took into the reference fits no constant `h`
+    # once the hook twists, and the heading error, turning with the twist, misleads the swing (the MPU-6050/HMC5883L
+    # bare defaults, 5 µT: crane seeds 1-10 Θ 0.186 -> 0.130°). The true model also frees the compass's gain (a hard
+    # iron along the start field scales the heading it reads), which then no longer corrects the gyroscope's z scale:
+    # the calibrated board's seed 8 went 0.165 -> 0.543°, but on another board it reads 0.60° with either model and
+    # on fresh cranes and other boards the two are level (docs/fusion.md, the crane suite's legacy-board round)
     rope_observe_swing_rad: float = 0.0035  # 0.2° (0.1° before the hoist round): the swing rate (and magnetometer)
     # correct the rope length and the tension offset fully from this swing amplitude (the rate's energy over a period)
     # on, not at all below half of it (`_length_observability`; 0: always, the filter before issue 11's rope round: a
@@ -351,10 +352,10 @@ class HookFilterSettings:
 # sees smaller steps. Fresh seeds 501-510: whole-run Θ 0.260 -> 0.170°, better on 10/10 seeds (docs/fusion.md).
 # `PREVIOUS_DEFAULT` below undoes exactly these four settings.
 
-# Issue 11's legacy-board round, off by default (the calibrated board's seed 8 decides): the magnetometer reference
-# taken with the hard iron read into it at start (`mag_reference_hard_iron`):
-# `HookFilterSettings(**HARD_IRON_REFERENCE)`.
+# Issue 11's legacy-board round: the magnetometer reference taken with the hard iron read into it at start
+# (`mag_reference_hard_iron`), the default since; `HookFilterSettings(**IRON_ROUND)` is the filter before.
 HARD_IRON_REFERENCE: dict[str, float] = {"mag_reference_hard_iron": True}
+IRON_ROUND: dict[str, float] = {"mag_reference_hard_iron": False}
 
 # The defaults before issue 11's compass round (no twin without the magnetometer): `HookFilterSettings(**COMPASS_ROUND)`
 COMPASS_ROUND: dict[str, float] = {"compass_check_excess": 0.0}

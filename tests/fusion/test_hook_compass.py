@@ -20,6 +20,8 @@ from gateway.fusion.hook_filter import COMPASS_ROUND, HookFilter, HookFilterSett
 from gateway.pipeline import Pipeline
 
 SEED, DURATION_S, SPP, RATE_HZ = 7, 60.0, 10, 100.0
+WARM_S = 0.5  # `compass_dropped_s` counts the filter's own seconds; they start at most this far into the data (the
+# gateway's warm-up), so errors are taken from this long after the drop time on
 
 
 @pytest.fixture(scope="module")
@@ -40,8 +42,9 @@ def _packets(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray) -> list[schemas.
             for k, i in enumerate(range(0, gyr.shape[0] - SPP + 1, SPP))]  # fmt: skip
 
 
-def _swing_errors_deg(name: str | None, raw_board: tuple) -> tuple[np.ndarray, Pipeline]:
-    """|Θ_est - Θ_true| (degrees) at every published attitude after 5 s, the hook on filter `name` (None: default)."""
+def _swing_errors_deg(name: str | None, raw_board: tuple, from_s: float = 5.0) -> tuple[np.ndarray, Pipeline]:
+    """|Θ_est - Θ_true| (degrees) at every published attitude from `from_s`, the hook on filter `name` (None:
+    default)."""
     case, truth, gyr, acc, mag = raw_board
     th = {"rope_length_m": case.physics.rope_length_m}
     pipe = Pipeline(device_settings={"hook-1": ("hook", DeviceSettings(filter_name=name, thresholds=th))})
@@ -49,7 +52,7 @@ def _swing_errors_deg(name: str | None, raw_board: tuple) -> tuple[np.ndarray, P
     for p in _packets(gyr, acc, mag):
         for a in pipe.process([p], 1.8e9 + p.t0_us * 1e-6).attitudes:
             i = round(a.t_us * RATE_HZ / 1e6)
-            if a.t_us >= 5e6:
+            if a.t_us >= from_s * 1e6 - 1.0:
                 theta = float(hook_geo.swing_angle(np.array([a.quat_wxyz]))[0])
                 errors.append(abs(math.degrees(theta - truth.swing_rad[i])))
     return np.array(errors), pipe
@@ -88,13 +91,16 @@ def test_hook_6d_keeps_the_swing_of_a_hook_whose_compass_is_raw(raw_board: tuple
 
 def test_the_default_hook_filter_finds_a_raw_compass_out(raw_board: tuple) -> None:
     """The default filter (9D, with its twin) on the same packets: the compass is dropped within the first 10 s
-    (measured at 5.1 s) and Θ is then the twin's, within 0.3° RMSE and 1° max from 5 to 60 s (measured 0.075° /
-    0.17°; 64° / 81° without the twin)."""
-    err, pipe = _swing_errors_deg(None, raw_board)
+    (measured at 5.7 s; 5.1 s before the hard iron was read into the reference, `IRON_ROUND`) and Θ is then the
+    twin's, within 0.3° RMSE and 1° max from the drop to 60 s (measured 0.075° / 0.18°; 64° / 81° over 5-60 s
+    without the twin). The drop time is read from a first run, then the errors from it on."""
+    _, pipe = _swing_errors_deg(None, raw_board)
     f = pipe.devices["hook-1"].filt
     assert isinstance(f, HookFilter) and pipe.devices["hook-1"].use_mag
     assert not f.compass_trusted and f.compass_dropped_s is not None and f.compass_dropped_s < 10.0
     assert f.compass == "dropped"
+    err, _ = _swing_errors_deg(None, raw_board, from_s=WARM_S + f.compass_dropped_s)
+    assert err.size > 100
     assert float(np.sqrt(np.mean(err**2))) < 0.3
     assert err.max() < 1.0
 
@@ -107,19 +113,25 @@ def _run(f: HookFilter, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, calls
 
 def test_the_compass_test_does_not_hang_on_the_call_size(raw_board: tuple) -> None:
     """One call for the whole run (as `bench.hook_suite`), 1-s calls and 10-sample packets: the compass is dropped
-    within one second of the same time and Θ agrees within 0.01° RMSE (the test runs at least once a second)."""
+    within one second of the same time (the test runs at least once a second) and Θ after the last of the drops
+    agrees within 0.01° RMSE. (Before a drop the outputs differ by call size: the call that drops the compass
+    returns the twin's output for all its samples.)"""
     case, truth, gyr, acc, mag = raw_board
     settings = HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True)
-    runs = {}
+    quats, drops = {}, {}
     for calls in (gyr.shape[0], 100, 10):
         f = HookFilter(settings)
-        q = _run(f, gyr, acc, mag, calls)
-        err = np.degrees(hook_geo.swing_angle(q) - truth.swing_rad)[500:]
-        runs[calls] = (f.compass_dropped_s, float(np.sqrt(np.mean(err**2))))
-    dropped = [d for d, _ in runs.values()]
-    assert all(d is not None for d in dropped), runs
-    assert max(dropped) - min(dropped) <= 1.0 + 1e-9, runs  # type: ignore[operator]
-    rmses = [r for _, r in runs.values()]
+        quats[calls] = _run(f, gyr, acc, mag, calls)
+        drops[calls] = f.compass_dropped_s
+    dropped = list(drops.values())
+    assert all(d is not None for d in dropped), drops
+    assert max(dropped) - min(dropped) <= 1.0 + 1e-9, drops  # type: ignore[operator]
+    after = round((WARM_S + max(dropped)) * RATE_HZ) + 1  # type: ignore[operator]
+    runs = {}
+    for calls, q in quats.items():
+        err = np.degrees(hook_geo.swing_angle(q) - truth.swing_rad)[after:]
+        runs[calls] = float(np.sqrt(np.mean(err**2)))
+    rmses = list(runs.values())
     assert max(rmses) - min(rmses) < 0.01, runs
 
 

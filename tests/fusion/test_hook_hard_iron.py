@@ -1,5 +1,5 @@
 """The hard iron the hook filter's start reads into its magnetometer reference (docs/fusion.md, the crane suite's
-legacy-board round): `HookFilterSettings(mag_reference_hard_iron=True)` (`HARD_IRON_REFERENCE`, off by default)
+legacy-board round): `HookFilterSettings(mag_reference_hard_iron=True)` (`HARD_IRON_REFERENCE`, the default since)
 models the reference as read with it, `Rᵀ (m_ref - M h) + h`. Crane suite seed 7 on the MPU-6050/HMC5883L bare
 defaults (`ImuErrorModel()`, `--imu legacy`: 5 µT hard iron per axis, here (7.5, -6.8, 0.2) µT)."""
 
@@ -57,12 +57,13 @@ def _figures(legacy_board: tuple, overrides: dict[str, float]) -> dict[str, floa
 
 
 def test_a_legacy_board_hook_keeps_its_swing_with_the_hard_iron_in_the_reference(legacy_board: tuple) -> None:
-    """With the hard iron in the reference the swing reads 0.074° RMSE over 120 s (max 0.57°), its torsion 2.0°; the
-    default reads 0.360° (max 4.28°: its twin takes over at 13 s, from a swing the heading had already misled),
-    torsion 7.0°."""
-    new = _figures(legacy_board, hf.HARD_IRON_REFERENCE)
-    old = _figures(legacy_board, {})
+    """With the hard iron in the reference (the default since the legacy-board round) the swing reads 0.074° RMSE over
+    120 s (max 0.57°), its torsion 2.0°; the filter before (`IRON_ROUND`) reads 0.360° (max 4.28°: its twin takes
+    over at 13 s, from a swing the heading had already misled), torsion 7.0°."""
+    new = _figures(legacy_board, {})
+    old = _figures(legacy_board, hf.IRON_ROUND)
+    assert new == _figures(legacy_board, hf.HARD_IRON_REFERENCE)  # the default
     assert new["swing_rmse"] < 0.12 and new["swing_max"] < 0.7
     assert new["torsion_rmse"] < 0.8 * old["torsion_rmse"]
-    assert old["swing_rmse"] > 2.0 * new["swing_rmse"]  # the weakness it is for (fails if the default changes)
+    assert old["swing_rmse"] > 2.0 * new["swing_rmse"]  # the weakness it is for
     assert math.isfinite(new["dir_rmse"])
