@@ -41,9 +41,11 @@ iron (µT, body).
   integrates `l''` (mean-reverting: hoist drives accelerate briefly).
 * Update: gyroscope `ω_b(n, n', α, α') + b + (c_x, c_y, 0) ω_z` (exact kinematics of the split, as in
   devices.hook_physics); accelerometer z `l |n'|² + g n_z - l'' + [ω' × r + ω × (ω × r)]_z + offset` after
-  subtracting the zero-g offset calibrated at start; in 9D the magnetometer `Rᵀ m_ref + h` for heading and the
-  hard iron `h` only (its Jacobian is restricted to `α` and `h`, so magnetometer errors cannot tilt the estimate;
-  `h` is body-fixed while the field turns with the twist, so a hook that twists reveals it). The heading still
+  subtracting the zero-g offset calibrated at start; in 9D the magnetometer `Rᵀ (m_ref - M h) + h` for heading and
+  the hard iron `h` only (its Jacobian is restricted to `α` and `h`, so magnetometer errors cannot tilt the estimate;
+  `h` is body-fixed while the field turns with the twist, so a hook that twists reveals it; `M`, the attitude the
+  start read the reference `m_ref` at, takes out the hard iron the start read into it, and the output is turned to
+  the North of the field so learnt: `mag_reference_hard_iron`, the default since issue 11's legacy-board round). The heading still
   turns the gyroscope's swing rates into the swing's directions, so a compass that is wrong by an amount that changes
   with the twist (a raw board's hard iron) misleads the swing through it: `start()` runs a twin without the
   magnetometer beside the filter, which takes over when its swing rates fit markedly better (`_check_compass`).
