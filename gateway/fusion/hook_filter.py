@@ -45,10 +45,11 @@ iron (µT, body).
   the hard iron `h` only (its Jacobian is restricted to `α` and `h`, so magnetometer errors cannot tilt the estimate;
   `h` is body-fixed while the field turns with the twist, so a hook that twists reveals it; `M`, the attitude the
   start read the reference `m_ref` at, takes out the hard iron the start read into it, and the output is turned to
-  the North of the field so learnt: `mag_reference_hard_iron`, the default since issue 11's legacy-board round). The heading still
-  turns the gyroscope's swing rates into the swing's directions, so a compass that is wrong by an amount that changes
-  with the twist (a raw board's hard iron) misleads the swing through it: `start()` runs a twin without the
-  magnetometer beside the filter, which takes over when its swing rates fit markedly better (`_check_compass`).
+  the North of the field so learnt: `mag_reference_hard_iron`, the default since issue 11's legacy-board round).
+  The heading still turns the gyroscope's swing rates into the swing's directions, so a compass that is wrong by an
+  amount that changes with the twist (a raw board's hard iron, at first) misleads the swing through it: `start()`
+  runs a twin without the magnetometer beside the filter, which takes over when its swing rates fit markedly better
+  (`_check_compass`).
 * Rope length: the pendulum frequency (gravity's restoring term) and the response of the rope rate to a
   measured pull (`W / l`) make `l` observable whenever the hook swings or is pushed; a configured length is the
   prior (`rope_length_known`), not a constraint. On a hook that hardly swings (below `rope_observe_swing_rad`)
