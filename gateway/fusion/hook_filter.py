@@ -603,16 +603,24 @@ def _measurement_trig(x: FloatArray, params: FloatArray, l: float,
     out[0], out[1], out[2] = wx + x[6] + x[12] * wz, wy + x[7] + x[13] * wz, wz + x[8]
     out[3] = l * (vx * vx + vy * vy + vz * vz) + g * nz - x[_L_ACC] + lever_z + x[9]
     if with_mag and params[_USE_MAG] > 0.0:  # Rᵀ (m_ref - M h) + h: the reference read with the hard iron in it
-        mx, my, mz = params[_MX], params[_MY], params[_MZ]
-        if params[_MAG_FRAME] > 0.0:
-            k = _MAG_FRAME + 1
-            mx -= params[k] * x[21] + params[k + 1] * x[22] + params[k + 2] * x[23]
-            my -= params[k + 3] * x[21] + params[k + 4] * x[22] + params[k + 5] * x[23]
-            mz -= params[k + 6] * x[21] + params[k + 7] * x[22] + params[k + 8] * x[23]
+        mx, my, mz = _field_held(x, params)
         bx, by, bz = _to_body(qw, qx, qy, qz, mx, my, mz)
         out[4], out[5], out[6] = bx + x[21], by + x[22], bz + x[23]
     else:
         out[4] = out[5] = out[6] = 0.0
+
+
+@njit
+def _field_held(x: FloatArray, params: FloatArray) -> tuple[float, float, float]:
+    """The earth's field (ENU, µT) the filter holds: the reference `m_ref`, less the hard iron `M h` it was read with
+    when `_MAG_FRAME` is on (`mag_reference_hard_iron`)."""
+    mx, my, mz = params[_MX], params[_MY], params[_MZ]
+    if params[_MAG_FRAME] > 0.0:
+        k = _MAG_FRAME + 1
+        mx -= params[k] * x[21] + params[k + 1] * x[22] + params[k + 2] * x[23]
+        my -= params[k + 3] * x[21] + params[k + 4] * x[22] + params[k + 5] * x[23]
+        mz -= params[k + 6] * x[21] + params[k + 7] * x[22] + params[k + 8] * x[23]
+    return mx, my, mz
 
 
 @njit
@@ -1697,9 +1705,7 @@ def _output_quaternion(x: FloatArray, params: FloatArray) -> tuple[float, float,
     frame is off North by what the hard iron turned it, which its estimate reveals as the hook twists; q_z(β) ⊗ q."""
     qw, qx, qy, qz, _, _, _ = _attitude_rate(x[0], x[1], x[2], x[3], x[4], x[5])
     if params[_USE_MAG] > 0.0 and params[_MAG_FRAME] > 0.0:
-        k = _MAG_FRAME + 1
-        ex = params[_MX] - (params[k] * x[21] + params[k + 1] * x[22] + params[k + 2] * x[23])
-        ny = params[_MY] - (params[k + 3] * x[21] + params[k + 4] * x[22] + params[k + 5] * x[23])
+        ex, ny, _ = _field_held(x, params)
         beta = math.atan2(ex, ny)
         c, s = math.cos(0.5 * beta), math.sin(0.5 * beta)
         return c * qw - s * qz, c * qx - s * qy, c * qy + s * qx, c * qz + s * qw
