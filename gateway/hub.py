@@ -4,8 +4,10 @@ in-process sinks (dashboard history and live stream, metrics, 3-D view), wired i
 Alarms (raised, cleared and acknowledged), reel commands, hook swing (at most 20 Hz per hook) and (opt-in) attitude
 blocks are published with CongestionControl.BLOCK, through the `BlockingPublisher` thread so a slow subscriber
 never stalls ingest; attitude and height with DROP (a newer sample follows shortly), coalesced to the newest per
-device per batch. Sinks get the typed outputs (`listeners`) and the decoded, accepted device packets
-(`packet_listeners`): nothing downstream parses a payload again."""
+device per batch, and only while a subscriber takes their key (zenoh's matching status, `Bus.subscribed`): with
+none, such a message is neither encoded nor put (at 1000 devices the heights nobody read were a put per packet).
+Sinks get the typed outputs (`listeners`) and the decoded, accepted device packets (`packet_listeners`): nothing
+downstream parses a payload again."""
 
 from __future__ import annotations
 
@@ -93,6 +95,8 @@ class Hub:
         self.packet_listeners: list[PacketListener] = []
         self._cmd_ids = itertools.count(int(clock()) % 1_000_000 * 1000)
         self.published = 0
+        self.unmatched = 0  # DROP messages no subscriber took, so neither encoded nor put (`_put`)
+        self._subscribed = getattr(bus, "subscribed", None)  # a bus that cannot tell: every message is put
         self._keys: dict[tuple[str, str | None, str | None], str] = {}  # built and checked once per device and topic
 
     def put_diag(self, topic: schemas.Topic, model: schemas.WireModel) -> None:
@@ -119,8 +123,12 @@ class Hub:
             if len(self._keys) >= MAX_KEYS:  # devices come and go: start over rather than grow for good
                 self._keys.clear()
             key = self._keys[(topic.name, kind, device_id)] = topic.key(kind, device_id)
-        self._send(key, model.to_json(), topic)
-        self.published += 1
+        if topic.block or self._subscribed is None or self._subscribed(key, encoding=topic.encoding,
+                                                                        express=topic.express):  # fmt: skip
+            self._send(key, model.to_json(), topic)
+            self.published += 1
+        else:  # a DROP message nobody subscribes to (zenoh's matching status): not encoded, not put
+            self.unmatched += 1
         for cb in self.listeners_of(topic.name) if listeners is None else listeners:
             try:
                 cb(topic.name, model)

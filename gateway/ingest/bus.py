@@ -13,7 +13,7 @@ import logging
 import queue
 import threading
 from collections.abc import Callable
-from typing import Protocol
+from typing import Any, Protocol
 
 import zenoh
 
@@ -37,6 +37,11 @@ class Bus(Protocol):
     def subscribe(self, selector: str, callback: SampleCallback, *, direct: bool = False) -> Unsubscribe: ...
 
     def put(self, key: str, payload: bytes, *, encoding: str, block: bool = False, express: bool = False) -> None: ...
+
+    def subscribed(self, key: str, *, encoding: str, block: bool = False, express: bool = False) -> bool:
+        """Whether a put on `key` would reach a subscriber now (a caller may then skip encoding a message nobody
+        takes); a bus that cannot tell says True."""
+        ...
 
     def watch_liveliness(self, selector: str, callback: PresenceCallback) -> None: ...
 
@@ -181,15 +186,28 @@ class ZenohBus:
         the puts around it. A DROP stream must not be express: zenoh queues a few batches per priority, one message
         each when express, so a batch's burst of express DROP puts overflowed that queue and lost messages
         (`bench.zenoh_burst`); batched, the same burst fits."""
-        with self._lock:
-            pub = self._pubs.get((key, block, express))
-            if pub is None:
-                pub = self.session.declare_publisher(
-                    key, encoding=zenoh.Encoding(encoding), express=express,
-                    congestion_control=zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP,
-                )  # fmt: skip
-                self._pubs[(key, block, express)] = pub
-        pub.put(payload)
+        self._publisher(key, encoding, block, express).put(payload)
+
+    def subscribed(self, key: str, *, encoding: str, block: bool = False, express: bool = False) -> bool:
+        """zenoh's matching status of the key's publisher: True while a subscriber anywhere the routing reaches
+        (this session, a client of this router, another router's) takes `key`; about a microsecond a call. A
+        subscriber declared later matches within milliseconds (tests/ingest/test_bus_matching.py)."""
+        status: Any = self._publisher(key, encoding, block, express).matching_status  # a MatchingStatus (stub: bool)
+        return bool(status.matching)
+
+    def _publisher(self, key: str, encoding: str, block: bool, express: bool) -> zenoh.Publisher:
+        """The key's publisher with that QoS, declared on first use and kept."""
+        pub = self._pubs.get((key, block, express))
+        if pub is None:
+            with self._lock:
+                pub = self._pubs.get((key, block, express))
+                if pub is None:
+                    pub = self.session.declare_publisher(
+                        key, encoding=zenoh.Encoding(encoding), express=express,
+                        congestion_control=zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP,
+                    )  # fmt: skip
+                    self._pubs[(key, block, express)] = pub
+        return pub
 
     def watch_liveliness(self, selector: str, callback: PresenceCallback) -> None:
         def on_sample(sample: zenoh.Sample) -> None:
@@ -263,6 +281,10 @@ class MemoryBus:
         for sel, cb in self.subs:
             if key_matches(sel, key):
                 cb(key, payload)
+
+    def subscribed(self, key: str, *, encoding: str, block: bool = False, express: bool = False) -> bool:
+        """True: a MemoryBus keeps every put in `sent` for the tests to read."""
+        return True
 
     def watch_liveliness(self, selector: str, callback: PresenceCallback) -> None:
         self.watchers.append((selector, callback))

@@ -524,8 +524,8 @@ class ShardNode:
             snap.update(queue_drops=sv.inbox.drops, offered=sv.inbox.offered, ignored=sv.inbox.ignored,
                         queue_depth=len(sv.inbox))  # fmt: skip
         owned = sum(map(self.ownership.owns, sv.pipeline.kinds))
-        snap.update(shard=self.shard_id, patterns=list(self.info.patterns), owned=owned,
-                    batches=sv.batches, published=sv.hub.published, live=sorted(self.ownership.live),
+        snap.update(shard=self.shard_id, patterns=list(self.info.patterns), owned=owned, batches=sv.batches,
+                    published=sv.hub.published, unmatched=sv.hub.unmatched, live=sorted(self.ownership.live),
                     takeovers=self.takeovers[-20:])  # fmt: skip
         if self.data is not None:
             snap.update(self.data.stats())

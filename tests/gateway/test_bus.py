@@ -68,3 +68,56 @@ def test_zenoh_bus_declares_each_key_its_wildcard_subscribers_receive_once_and_w
         assert sorted(str(k) for k in bus.route_keys.declared) == keys[:3]  # once each, exact keys not, cap 3
         assert bus.route_keys.failed == 0
         bus.close()
+
+
+def test_zenoh_bus_says_whether_a_key_has_a_subscriber_across_a_router() -> None:
+    """`ZenohBus.subscribed` (zenoh's matching status) for a router session and one of its clients: False with no
+    subscriber, True once a client of the router subscribes to a wildcard covering the key, False again after it
+    undeclares; a key the wildcard does not cover stays False."""
+    from bench.bite_latency import free_port
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with zenoh.open(zenoh_config("router", connect=(), listen=(endpoint,))) as router, \
+            zenoh.open(zenoh_config("client", connect=(endpoint,))) as client, \
+            zenoh.open(zenoh_config("client", connect=(endpoint,))) as app:  # fmt: skip
+        buses = [ZenohBus(router), ZenohBus(client)]
+        height, attitude = "gw/rod/r1/height", "gw/rod/r1/attitude"
+
+        def matched(key: str) -> list[bool]:
+            return [b.subscribed(key, encoding=schemas.ENCODING_GW) for b in buses]
+
+        time.sleep(0.3)
+        assert matched(height) == [False, False]
+        sub = app.declare_subscriber("gw/*/*/height", lambda s: None)
+        assert _wait(lambda: matched(height) == [True, True]), matched(height)
+        assert matched(attitude) == [False, False]
+        sub.undeclare()
+        assert _wait(lambda: matched(height) == [False, False]), matched(height)
+        for b in buses:
+            b.close()
+
+
+def test_hub_encodes_and_puts_a_drop_message_only_while_its_key_has_a_subscriber() -> None:
+    """The hub skips a DROP output (height) whose key no subscriber takes: not put, counted in `unmatched`, still
+    handed to its listeners; BLOCK outputs (alarms, swing) are put regardless."""
+    from gateway.hub import Hub
+
+    class Bus(MemoryBus):
+        wanted: set[str] = {"gw/rod/r2/height"}
+
+        def subscribed(self, key: str, *, encoding: str, block: bool = False, express: bool = False) -> bool:
+            return key in self.wanted
+
+    class Writer:
+        def upsert_alarm(self, alarm: object) -> None: ...
+
+    bus = Bus()
+    hub = Hub(bus, Writer())  # type: ignore[arg-type]
+    heard: list[str] = []
+    hub.listeners.append(lambda topic, model: heard.append(model.device_id))  # type: ignore[attr-defined]
+    for dev in ("r1", "r2"):
+        h = schemas.Height(device_id=dev, kind="rod", seq=1, t_us=10, wall_t_us=20, vz_m_s=0.0, height_m=0.1,
+                           at_rest=True, aided="none")  # fmt: skip
+        hub._put(schemas.T_HEIGHT, h, "rod", dev)
+    assert [k for k, _, _ in bus.sent] == ["gw/rod/r2/height"]
+    assert (hub.published, hub.unmatched, heard) == (1, 1, ["r1", "r2"])

@@ -53,6 +53,7 @@ async def stats(service: ServiceDep) -> dict[str, Any]:
             "max": 1e3 * delays[-1], "n": len(delays),
         }  # fmt: skip
     snap["published"] = service.hub.published
+    snap["unmatched"] = service.hub.unmatched  # attitude / height messages no subscriber took: not encoded, not put
     publisher = service.hub.publisher
     if publisher is not None:  # BLOCK puts (alarms, swing, reel commands) waiting for a slow subscriber, and dropped
         snap["blocking_puts"] = {"queued": len(publisher), "dropped": publisher.dropped, "failures": publisher.failures}
