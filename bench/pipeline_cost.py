@@ -158,14 +158,23 @@ def ingest_payloads(n: int, hook_share: float, seconds: float, spp: int, seed: i
     return out
 
 
+class _AttitudeReaderBus(_CountingBus):
+    """A counting bus whose only subscriber takes the attitude keys."""
+
+    def subscribed(self, key: str, *, encoding: str, block: bool = False, express: bool = False) -> bool:
+        return key.endswith("/attitude")
+
+
 def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 10, hook_share: float = 0.2,
                    profile: Path | None = None, encoding: str = "json", gil_threads: int = 0,
-                   ) -> dict[str, Any]:  # fmt: skip
+                   subscribed: str = "all") -> dict[str, Any]:  # fmt: skip
     """CPU seconds per packet of `GatewayService.handle` at `n` devices, with the sinks `create_app` wires (dashboard
     history, live stream without clients, metrics) and the blocking-put thread; the bus only digests the puts.
     `encoding="binary"`: the packets in the binary IMU encoding (protocol v2, as `bench.fleet --encoding binary`).
     `gil_threads`: that many threads each take the GIL 1000 times a second for a moment (ten deque appends), as
-    zenoh's receive threads do when they call a subscriber callback per packet: what that costs the ingest thread."""
+    zenoh's receive threads do when they call a subscriber callback per packet: what that costs the ingest thread.
+    `subscribed="attitude"`: only attitude keys have a subscriber (as `bench.fleet`'s observer), so a gateway that
+    asks its bus (`Bus.subscribed`) neither makes nor puts the heights; "all": every key has one."""
     import asyncio
     import tempfile
 
@@ -201,7 +210,7 @@ def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 
         threading.Thread(target=take_the_gil, args=(collections.deque(maxlen=100),), daemon=True).start()
 
     async def run() -> dict[str, Any]:
-        bus = _CountingBus()
+        bus = _CountingBus() if subscribed == "all" else _AttitudeReaderBus()
         with tempfile.TemporaryDirectory() as tmp:
             store = Store(Path(tmp) / "gw.db")
             service = compose(Settings(data_dir=Path(tmp), zenoh_listen=[]), bus, store)  # type: ignore[arg-type]
@@ -273,7 +282,7 @@ def _child(tree: Path, rods: int, args: argparse.Namespace) -> dict[str, Any]:
     `gateway` is that tree's (the bench module is this one)."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", str(rods), "--seconds", str(args.seconds),
            "--skip-s", str(args.skip_s), "--seed", str(args.seed), "--stage", args.stage, "--spp", str(args.spp),
-           "--encoding", args.encoding, "--gil-threads", str(args.gil_threads)]
+           "--encoding", args.encoding, "--gil-threads", str(args.gil_threads), "--subscribed", args.subscribed]
     here = Path(__file__).resolve().parents[1]
     env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{here}" if args.stage == "ingest" else str(tree))
     res = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True)
@@ -299,13 +308,15 @@ def main(argv: list[str] | None = None) -> int:
                    "per packet is shown (the one least disturbed by other load; default: 3)")
     p.add_argument("--gil-threads", type=int, default=0, help="with --stage ingest: threads that each take the GIL "
                    "1000 times a second, as zenoh's receive threads calling a callback per packet (default 0)")
+    p.add_argument("--subscribed", choices=("all", "attitude"), default="all", help="with --stage ingest: which "
+                   "output keys have a subscriber: all (default), or only the attitudes, as bench.fleet's observer")
     p.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
 
     def run(n: int) -> dict[str, Any]:
         if args.stage == "ingest":
             return measure_ingest(n, args.seconds, args.skip_s, args.seed, args.spp, profile=args.profile,
-                                  encoding=args.encoding, gil_threads=args.gil_threads)
+                                  encoding=args.encoding, gil_threads=args.gil_threads, subscribed=args.subscribed)
         return measure(n, args.seconds, args.skip_s, args.seed)
 
     if args.child is not None:

@@ -114,15 +114,28 @@ class Hub:
         """The listeners that take `topic` (`listens_to`), in registration order."""
         return [cb for cb in self.listeners if wants(cb, topic)]
 
-    def _put(self, topic: schemas.Topic, model: schemas.WireModel, kind: str | None = None,
-             device_id: str | None = None, listeners: list[Listener] | None = None) -> None:  # fmt: skip
-        """Publish on the topic's key with the row's encoding and congestion control (BLOCK or DROP); then hand the
-        model to the listeners (`listeners`: those of the topic, when the caller already knows them)."""
+    def _key(self, topic: schemas.Topic, kind: str | None, device_id: str | None) -> str:
         key = self._keys.get((topic.name, kind, device_id))
         if key is None:
             if len(self._keys) >= MAX_KEYS:  # devices come and go: start over rather than grow for good
                 self._keys.clear()
             key = self._keys[(topic.name, kind, device_id)] = topic.key(kind, device_id)
+        return key
+
+    def takes(self, topic: schemas.Topic, kind: str, device_id: str) -> bool:
+        """Whether a message of `topic` from this device would reach anyone now: a listener of the topic, a
+        subscriber of its key, or any BLOCK topic (always put). The pipeline asks it before building the messages
+        only a subscriber reads (heights), so a gateway nobody reads them from does not make them."""
+        if topic.block or self._subscribed is None or any(wants(cb, topic.name) for cb in self.listeners):
+            return True
+        key = self._key(topic, kind, device_id)
+        return bool(self._subscribed(key, encoding=topic.encoding, express=topic.express))
+
+    def _put(self, topic: schemas.Topic, model: schemas.WireModel, kind: str | None = None,
+             device_id: str | None = None, listeners: list[Listener] | None = None) -> None:  # fmt: skip
+        """Publish on the topic's key with the row's encoding and congestion control (BLOCK or DROP); then hand the
+        model to the listeners (`listeners`: those of the topic, when the caller already knows them)."""
+        key = self._key(topic, kind, device_id)
         if topic.block or self._subscribed is None or self._subscribed(key, encoding=topic.encoding,
                                                                         express=topic.express):  # fmt: skip
             self._send(key, model.to_json(), topic)

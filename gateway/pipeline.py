@@ -22,7 +22,7 @@ every `attitude_interval_s` per device (the last sample of a packet), swing once
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -145,6 +145,12 @@ class Pipeline:
             if ds.calibration is not None:
                 self.bank.set_calibration(d, ds.calibration)
         self._ctx = KindContext(s, lambda kind, dev_id: self.effective(kind, dev_id)[1], self._post_failed)
+        self.takes: Callable[[schemas.Topic, str, str], bool] | None = None
+        """Whether anyone takes a device's messages of a topic now (the composition root sets `Hub.takes`): the
+        heights nobody takes are not made (their values stay on the device for REST). None: every one is made."""
+
+    def _takes_height(self, dev: FusedDevice) -> bool:
+        return self.takes is None or self.takes(schemas.T_HEIGHT, dev.kind, dev.device_id)
 
     # -- read views -----------------------------------------------------------------------------------------
 
@@ -346,7 +352,7 @@ class Pipeline:
         batch = None
         if rows is not None and live:
             try:
-                batch = heights_batch(kb, live, rows, s.height_interval_s)
+                batch = heights_batch(kb, live, rows, s.height_interval_s, self._takes_height)
             except Exception:  # then device by device: a failure costs only its device
                 batch = None
         if batch is not None:  # every value passed the batch check: only the attitude blocks are per device

@@ -91,6 +91,10 @@ class Output:
     extra: list[Published] = field(default_factory=list)
 
 
+HeightRow = tuple[int, int, int, float, float, bool, str]
+"""(seq, t_us, wall_t_us, height_m, vz_m_s, at_rest, aided): a Height's values."""
+
+
 @dataclass
 class FusedDevice:
     """Fusion state of one IMU device (any kind) plus its kind's own state in `state` (e.g. `RodState`)."""
@@ -113,7 +117,8 @@ class FusedDevice:
     wall_from_device: bool = False  # wall_offset_us from the device's own wall_t0_us (else from arrival time)
     last_attitude_t_s: float = -math.inf
     heave: Any = None  # gateway.fusion.heave.HeaveEstimator, made on the first fused block
-    height: schemas.Height | None = None  # the last one published
+    last_height: schemas.Height | None = None  # the last height message made (`height`)
+    height_row: HeightRow | None = None  # the last height's values when no message was made for it (`heights_batch`)
     last_height_t_s: float = -math.inf
     last_t_s: float = math.nan  # device time of the newest sample its filter got, s (`gateway.fusion.gaps`)
     last_block: Any = None  # the (gyr, acc, mag, t_s) block that sample ended: the left side of a bridged gap
@@ -135,6 +140,22 @@ class FusedDevice:
     @property
     def rest_heading_set_rad(self) -> float | None:
         return getattr(self.state, "rest_heading_set_rad", None)
+
+    @property
+    def height(self) -> schemas.Height | None:
+        """The last Height (REST views), made from `height_row` on the first read when nobody took it live."""
+        row = self.height_row
+        if row is not None:
+            self.height_row = None
+            self.last_height = schemas.Height(
+                device_id=self.device_id, kind=self.kind, seq=row[0], t_us=row[1],  # type: ignore[arg-type]
+                wall_t_us=row[2], height_m=row[3], vz_m_s=row[4], at_rest=row[5], aided=row[6],  # type: ignore[arg-type]
+            )  # fmt: skip
+        return self.last_height
+
+    @height.setter
+    def height(self, message: schemas.Height | None) -> None:
+        self.last_height, self.height_row = message, None
 
 
 Ends = list[tuple[int, int, int]]  # per packet of a device's block: (last sample index, seq, t_us of that sample)
@@ -477,11 +498,12 @@ def height_messages(f: Fused, rows: FloatArray, interval_s: float) -> list[schem
     return out
 
 
-def heights_batch(kb: KindBatch, live: Sequence[int], rows: FloatArray, interval_s: float
-                  ) -> list[schemas.Height] | None:  # fmt: skip
+def heights_batch(kb: KindBatch, live: Sequence[int], rows: FloatArray, interval_s: float,
+                  takes: Callable[[FusedDevice], bool] | None = None) -> list[schemas.Height] | None:  # fmt: skip
     """`height_messages` of the devices `live` of a batch (heave rows of the whole batch), with one range check of
     all their values instead of pydantic's per message; None (nothing changed) when a value fails it: the caller
-    then builds them device by device through pydantic, which raises for the device it concerns."""
+    then builds them device by device through pydantic, which raises for the device it concerns. A device that
+    `takes` says nobody reads gets no message, only its values kept (`FusedDevice.height` makes one on demand)."""
     from gateway.fusion.heave import AIDED_NAMES
 
     t_all, gap_s = kb.t_s.tolist(), interval_s - 1e-9
@@ -510,13 +532,17 @@ def heights_batch(kb: KindBatch, live: Sequence[int], rows: FloatArray, interval
     for i, t in last.items():
         kb.items[i].dev.last_height_t_s = t
     build, model, fields = schemas.prevalidated, schemas.Height, _HEIGHT_SET
-    out = [build(model, {
-        "v": 1, "device_id": dev.device_id, "kind": dev.kind, "seq": seq, "t_us": t, "wall_t_us": wall,
-        "vz_m_s": v, "height_m": h, "at_rest": bool(rest), "aided": AIDED_NAMES[int(a)],
-    }, fields) for (dev, _, seq, t), wall, (h, v, rest, a) in zip(picks, walls, vals.tolist(), strict=True)
-    ]  # fmt: skip
-    for m, (dev, _, _, _) in zip(out, picks, strict=True):
-        dev.height = m
+    taken = {} if takes is None else {id(d): takes(d) for d in devs}
+    out: list[schemas.Height] = []
+    for (dev, _, seq, t), wall, (h, v, rest, a) in zip(picks, walls, vals.tolist(), strict=True):
+        if taken.get(id(dev), True):
+            dev.height = m = build(model, {
+                "v": 1, "device_id": dev.device_id, "kind": dev.kind, "seq": seq, "t_us": t, "wall_t_us": wall,
+                "vz_m_s": v, "height_m": h, "at_rest": bool(rest), "aided": AIDED_NAMES[int(a)],
+            }, fields)  # fmt: skip
+            out.append(m)
+        else:
+            dev.height_row = (seq, t, wall, h, v, bool(rest), AIDED_NAMES[int(a)])
     return out
 
 

@@ -114,6 +114,27 @@ def test_heights_batch_equals_each_device_validated(devices: list[dict[str, Any]
         assert (f.dev.last_height_t_s, f.dev.height) == (g.dev.last_height_t_s, g.dev.height)
 
 
+@settings(max_examples=100, deadline=None)
+@given(batches(), st.sampled_from([0.0, 0.1]), st.integers(0, 7))
+def test_heights_nobody_takes_are_not_made_but_read_the_same(devices: list[dict[str, Any]], interval_s: float,
+                                                              mask: int) -> None:  # fmt: skip
+    """With `takes` saying no for some devices, `heights_batch` makes no message for them, moves their decimation
+    clock the same, and their `height` (made on demand for REST) equals the last message they would have had."""
+    rows = np.concatenate([d["rows"] for d in devices])
+    rows[:, 2], rows[:, 3] = rows[:, 2] > 0, np.arange(rows.shape[0]) % 4
+    kb, ref = kind_batch(devices), kind_batch(devices)
+    taken = {f.dev.device_id: bool(mask >> i & 1) for i, f in enumerate(kb.items)}
+    got = base.heights_batch(kb, range(len(devices)), rows, interval_s, lambda d: taken[d.device_id])
+    want = base.heights_batch(ref, range(len(devices)), rows, interval_s)
+    if want is None:
+        assert got is None
+        return
+    assert got == [m for m in want if taken[m.device_id]]
+    for f, g in zip(kb.items, ref.items, strict=True):
+        assert (f.dev.last_height_t_s, f.dev.height) == (g.dev.last_height_t_s, g.dev.height)
+        assert f.dev.height is None or f.dev.height.to_json() == g.dev.height.to_json()  # type: ignore[union-attr]
+
+
 class _Rules:
     def update_deg(self, *args: Any) -> list[Any]:
         return []
