@@ -14,7 +14,8 @@ from prometheus_client import CollectorRegistry, Histogram, generate_latest
 from gateway.api.routes import metrics
 from gateway.api.routes.metrics import LATENCY_BUCKETS_S, BatchedHistogram
 
-NAME, HELP, LABELS = "rig_sample_to_publish_seconds", "Device wall time of a sample -> gateway publish", ("kind", "topic")
+NAME, HELP = "rig_sample_to_publish_seconds", "Device wall time of a sample -> gateway publish"
+LABELS = ("kind", "topic")
 SERIES = [("rod", "attitude"), ("hook", "attitude"), ("rod", "alarm")]
 _CREATED = re.compile(rb"^(\S+_created\{[^}]*\}) \S+$", re.MULTILINE)
 
