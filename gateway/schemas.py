@@ -1216,32 +1216,95 @@ def _decode_imu_binary(parsed: ParsedKey, payload: bytes | bytearray | memoryvie
     return _binary_finish(parsed, payload, h, in_range, block)
 
 
-def _decode_binary_batch(todo: list[tuple[int, ParsedKey, bytes | bytearray | memoryview, _BinHeader]],
-                         out: list[Packet | DecodeError]) -> None:  # fmt: skip
-    """`_decode_imu_binary` of many packets, each one's outcome at its index in `out`: the rows of all packets with
-    the same row width are range-checked in one numpy call (per packet it was a dozen calls on ten rows), then each
-    packet is finished alone, keeping its slice of the rows."""
-    by_width: dict[int, list[tuple[int, ParsedKey, bytes | bytearray | memoryview, _BinHeader]]] = {}
-    for item in todo:
-        by_width.setdefault(item[3][0], []).append(item)
+_BIN_HEADER_DTYPE: Final = np.dtype([
+    ("magic", "u1"), ("flags", "u1"), ("kind_code", "u1"), ("id_len", "u1"), ("n", "<u2"), ("reserved", "<u2"),
+    ("boot_id", "<u4"), ("seq", "<u4"), ("t0_us", "<i8"), ("rate_hz", "<f8"), ("wall", "<i8"),
+    *((name, "<f4") for name, _ in _BIN_OPTIONAL),
+])  # fmt: skip  # IMU_BINARY_HEADER as a numpy record: a batch's headers are read in one call
+assert _BIN_HEADER_DTYPE.itemsize == IMU_BINARY_HEADER.size
+
+
+def _binary_headers_ok(heads: NDArray[Any], sizes: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Per header (`_BIN_HEADER_DTYPE` records of payloads of `sizes` bytes): True when `_binary_header` accepts
+    it (known flags, reserved 0, 1..MAX_SAMPLES samples, the length it says) and so does `_binary_finish`'s range
+    and sign checks of rate_hz, the optional scalars, t0_us and wall_t0_us. False: the packet takes the
+    per-packet path, which gives the verdict."""
+    flags = heads["flags"].astype(np.int64)
+    n = heads["n"].astype(np.int64)
+    k = np.where(flags & BIN_MAG, 9, 6)
+    ok: NDArray[np.bool_] = ((flags >> 6) == 0) & (heads["reserved"] == 0) & (n >= 1) & (n <= MAX_SAMPLES)
+    ok &= sizes == IMU_BINARY_HEADER.size + heads["id_len"].astype(np.int64) + 4 * k * n
+    lo, hi = _BIN_RANGES["rate_hz"]
+    ok &= (heads["rate_hz"] >= lo) & (heads["rate_hz"] <= hi)  # NaN compares False
+    for name, bit in _BIN_OPTIONAL:
+        lo, hi = _BIN_RANGES[name]
+        value = heads[name].astype(np.float64)  # as `_binary_finish` compares them: float32 -> Python float
+        ok &= ((flags & bit) == 0) | ((value >= lo) & (value <= hi))
+    ok &= (heads["t0_us"] >= 0) & (((flags & BIN_WALL) == 0) | (heads["wall"] >= 0))
+    ok &= heads["kind_code"] < len(IMU_KINDS)
+    return ok
+
+
+def _decode_imu_binary_alone(parsed: ParsedKey, payload: bytes | bytearray | memoryview) -> ImuPacket | DecodeError:
+    """`_decode_imu_binary`'s packet, or the DecodeError `decode` gives for it (never another exception)."""
+    try:
+        return _decode_imu_binary(parsed, payload)
+    except DecodeError as err:
+        return err
+    except Exception as exc:  # as `decode`: never anything but a DecodeError
+        return DecodeError("schema", f"{type(exc).__name__}: {exc}"[:300])
+
+
+def _decode_binary_batch(todo: list[tuple[int, ParsedKey, bytes | bytearray | memoryview]],
+                         out: list[Packet | DecodeError | None]) -> None:  # fmt: skip
+    """`_decode_imu_binary` of many packets, each one's outcome at its index in `out`, in a few numpy calls per
+    batch instead of a dozen per packet: the headers are read as one record array and checked together
+    (`_binary_headers_ok`), the rows of all packets with the same row width are range-checked in one call, and
+    each packet that passed is built from its header's values and its slice of the rows. A packet that fails any
+    check (hostile or damaged: rare) is decoded alone by the per-packet path, which gives the same verdict and the
+    same reason and detail as `decode` (tests/test_protocol_table.py checks it on random and damaged packets)."""
     size = IMU_BINARY_HEADER.size
+    whole = [item for item in todo if len(item[2]) >= size]
+    for i, parsed, payload in todo:
+        if len(payload) < size:
+            out[i] = _decode_imu_binary_alone(parsed, payload)
+    if not whole:
+        return
+    heads = np.frombuffer(b"".join(payload[:size] for _, _, payload in whole), dtype=_BIN_HEADER_DTYPE)
+    header_ok = _binary_headers_ok(heads, np.array([len(payload) for _, _, payload in whole], dtype=np.int64))
+    columns = (heads["flags"].tolist(), heads["kind_code"].tolist(), heads["id_len"].tolist(), heads["n"].tolist(),
+               heads["boot_id"].tolist(), heads["seq"].tolist(), heads["t0_us"].tolist(), heads["rate_hz"].tolist(),
+               heads["wall"].tolist(), *(heads[name].tolist() for name, _ in _BIN_OPTIONAL))  # fmt: skip
+    by_width: dict[int, list[tuple[int, ParsedKey, bytes | bytearray | memoryview, tuple[Any, ...]]]] = {}
+    for (i, parsed, payload), ok, head in zip(whole, header_ok.tolist(), zip(*columns), strict=True):  # noqa: B905
+        if ok:
+            by_width.setdefault(9 if head[0] & BIN_MAG else 6, []).append((i, parsed, payload, head))
+        else:
+            out[i] = _decode_imu_binary_alone(parsed, payload)
     for k, items in by_width.items():
-        offsets = [size + h[4] for _, _, _, h in items]
-        blob = b"".join(bytes(payload[o:]) if not isinstance(payload, bytes) else payload[o:]
-                        for (_, _, payload, _), o in zip(items, offsets, strict=True))  # fmt: skip
-        counts = [h[1] for _, _, _, h in items]
+        blob = b"".join(payload[size + head[2]:] for _, _, payload, head in items)
         block = np.frombuffer(blob, dtype="<f4").reshape(-1, k)
         row_ok = (np.abs(block) <= _BIN_LIMITS[k]).all(axis=1)  # NaN compares False
+        counts = [head[3] for _, _, _, head in items]
         stops = np.cumsum(counts)
         starts = (stops - counts).tolist()
         pkt_ok = np.logical_and.reduceat(row_ok, starts).tolist()
-        for (i, parsed, payload, h), a, b, ok in zip(items, starts, stops.tolist(), pkt_ok, strict=True):
-            try:
-                out[i] = _binary_finish(parsed, payload, h, ok, block[a:b])
-            except DecodeError as err:
-                out[i] = err
-            except Exception as exc:  # as `decode`: never anything but a DecodeError
-                out[i] = DecodeError("schema", f"{type(exc).__name__}: {exc}"[:300])
+        for (i, parsed, payload, head), a, b, ok in zip(items, starts, stops.tolist(), pkt_ok, strict=True):
+            flags, kind_code, id_len, _, boot_id, seq, t0_us, rate_hz, wall, temp_c, battery_v, rssi_dbm, depth_m = head
+            device_id, kind = parsed.device_id, IMU_KINDS[kind_code]
+            if not (ok and kind == parsed.kind and payload[size:size + id_len] == device_id.encode()):
+                out[i] = _decode_imu_binary_alone(parsed, payload)
+                continue
+            values = {  # `_binary_finish`'s, in its order
+                "v": 1, "device_id": device_id, "kind": kind, "boot_id": boot_id, "seq": seq, "t0_us": t0_us,
+                "rate_hz": rate_hz, "temp_c": temp_c if flags & BIN_TEMP else None,
+                "battery_v": battery_v if flags & BIN_BATTERY else None,
+                "rssi_dbm": rssi_dbm if flags & BIN_RSSI else None, "wall_t0_us": wall if flags & BIN_WALL else None,
+                "gnss": None, "depth_m": depth_m if flags & BIN_DEPTH else None, "_rows": block[a:b],
+            }  # fmt: skip
+            if k == 6:
+                values["mag_uT"] = None
+            out[i] = _construct(ImuPacket, values, set(_BIN_FIELDS_SET[flags]))
 
 
 def sample_rows(packet: ImuPacket) -> NDArray[np.float32] | None:
@@ -1254,15 +1317,15 @@ def sample_rows(packet: ImuPacket) -> NDArray[np.float32] | None:
 def decode_many(items: Sequence[tuple[str, bytes | bytearray | memoryview]]) -> list[Packet | DecodeError]:
     """`decode` of each (key, payload) in order: the packet or the DecodeError it raises, the same ones. Binary IMU
     packets are checked and converted together (`_decode_binary_batch`); the rest one by one."""
-    out: list[Packet | DecodeError] = []
-    binary: list[tuple[int, ParsedKey, bytes | bytearray | memoryview, _BinHeader]] = []
+    out: list[Packet | DecodeError | None] = []
+    binary: list[tuple[int, ParsedKey, bytes | bytearray | memoryview]] = []
     for i, (key, payload) in enumerate(items):
         if payload and payload[0] == IMU_BINARY_MAGIC and len(payload) <= MAX_PAYLOAD_BYTES:  # no slice per packet
             try:
                 parsed, topic = _parse(key)
                 if topic is T_IMU:
-                    binary.append((i, parsed, payload, _binary_header(payload)))
-                    out.append(DecodeError("schema"))  # replaced by the batch
+                    binary.append((i, parsed, payload))
+                    out.append(None)  # filled in by the batch
                     continue
             except DecodeError as err:
                 out.append(err)
@@ -1275,7 +1338,7 @@ def decode_many(items: Sequence[tuple[str, bytes | bytearray | memoryview]]) -> 
             out.append(err)
     if binary:
         _decode_binary_batch(binary, out)
-    return out
+    return out  # type: ignore[return-value]  # every None was filled in
 
 
 def decode(key: str, payload: bytes | bytearray | memoryview, *, fast: bool = True) -> Packet:

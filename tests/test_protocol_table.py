@@ -362,23 +362,29 @@ def _verdict(p: object) -> tuple[str, Any]:
     if isinstance(p, schemas.DecodeError):
         return "reject", (p.reason, str(p))
     assert isinstance(p, schemas.ImuPacket | schemas.EnvPacket | schemas.ReelStatus)
+    keys = tuple(p.__dict__)  # before a read builds the samples: the order the decoder left
+    rows = schemas.sample_rows(p) if isinstance(p, schemas.ImuPacket) else None
     floats = [type(x).__name__ for row in getattr(p, "gyr_rad_s", []) for x in row]
-    return "ok", (p, p.model_fields_set, p.to_json(), floats)
+    kept = None if rows is None else (rows.dtype.str, rows.shape, rows.tobytes())
+    return "ok", (p, keys, p.model_fields_set, p.to_json(), floats, kept)
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(st.lists(st.tuples(imu_contents(), st.sampled_from(["binary", "binary", "json", "flip", "cut"]),
+@given(st.lists(st.tuples(imu_contents(), st.sampled_from(["binary", "binary", "json", "flip", "flip_head", "cut"]),
                           st.sampled_from([IMU_KEY, IMU_KEY, "rig/hook/rod-1/imu", "rig/rod/rod-1/env", "x/y"]),
-                          st.integers(0, 10**6)), min_size=1, max_size=12))  # fmt: skip
+                          st.integers(0, 10**6)), min_size=1, max_size=30))  # fmt: skip
 def test_decode_many_gives_what_decode_gives_each(items: list[tuple[dict[str, Any], str, str, int]]) -> None:
-    """A batch of binary (valid, out of range, damaged), JSON and misaddressed packets: `decode_many` (binary rows
-    checked and converted for the whole batch) returns, in order, the packet or the error (reason and detail) that
-    `decode` gives each one alone."""
+    """A batch of binary (valid, out of range, damaged anywhere or in the header), JSON and misaddressed packets:
+    `decode_many` (headers and rows checked and converted for the whole batch, the rest decoded alone) returns, in
+    order, the packet (values, field order, rows) or the error (reason and detail) that `decode` gives each one
+    alone."""
     batch = []
     for c, how, key, pos in items:
         b = bytearray(schemas.imu_binary(**c)) if how != "json" else bytearray(json_twin(c))
         if how == "flip":
             b[pos % len(b)] ^= 0x5A
+        elif how == "flip_head":  # flags, kind, id length, n, reserved, ..., the scalars; not the magic byte
+            b[1 + pos % (schemas.IMU_BINARY_HEADER.size - 1)] ^= 1 << (pos % 8)
         elif how == "cut":
             del b[pos % len(b):]
         batch.append((key, bytes(b)))

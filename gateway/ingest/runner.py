@@ -36,7 +36,7 @@ from gateway.ingest.bus import Bus, key_matches
 from gateway.ingest.owner import Commands
 from gateway.ingest.presence import Presence
 from gateway.ingest.stats import IngestCounters
-from gateway.ingest.timecheck import wall_time_plausible
+from gateway.ingest.timecheck import ACCEPTED, wall_time_plausible
 from gateway.pipeline import AlarmOut, Output, Pipeline, PipelineSettings
 from gateway.store import Store
 
@@ -434,23 +434,25 @@ class GatewayService:
         packet kept gets the sample rate its device's `t0_us` show when the declared one is off
         (`ingest.samplerate`)."""
         c = self.counters
-        stream = c.stream(p.kind, p.device_id)
-        end_us = p.t0_us + int(round((p.n - 1) * 1e6 / p.rate_hz))
+        stream = c.devices.get(p.device_id) or c.stream(p.kind, p.device_id)  # (known: `accept` saw the packet)
+        n = p.n
+        end_us = p.t0_us + round((n - 1) * 1e6 / p.rate_hz)
         verdict = stream.clock.check(p.boot_id, p.t0_us, end_us)
-        if not verdict.accept:
-            c.drop(p.kind, p.device_id, verdict.reason or "", f"t0_us {p.t0_us} (boot {p.boot_id}, seq {p.seq})",
-                   arrival)  # fmt: skip
-            return None
-        if verdict.restart:
-            c.drop(p.kind, p.device_id, "time_resync", f"device clock moved to t0_us {p.t0_us}; fusion restarts",
-                   arrival)  # fmt: skip
-            self.pipeline.restart(p.device_id)
+        if verdict is not ACCEPTED:  # nearly every packet is on its device's timeline
+            if not verdict.accept:
+                c.drop(p.kind, p.device_id, verdict.reason or "", f"t0_us {p.t0_us} (boot {p.boot_id}, seq {p.seq})",
+                       arrival)  # fmt: skip
+                return None
+            if verdict.restart:
+                c.drop(p.kind, p.device_id, "time_resync", f"device clock moved to t0_us {p.t0_us}; fusion restarts",
+                       arrival)  # fmt: skip
+                self.pipeline.restart(p.device_id)
         if p.wall_t0_us is not None and not wall_time_plausible(p.wall_t0_us, now):
             c.drop(p.kind, p.device_id, "wall_time_ignored", f"wall_t0_us {p.wall_t0_us} is far from the gateway's "
                    "clock; the packet is used without it", arrival)  # fmt: skip
             p = p.model_copy(update={"wall_t0_us": None})
         meter, used_before = stream.rate, stream.rate.used_hz
-        rate_hz = meter.update(p.boot_id, p.seq, p.t0_us, p.n, p.rate_hz)
+        rate_hz = meter.update(p.boot_id, p.seq, p.t0_us, n, p.rate_hz)
         if meter.used_hz != used_before:
             if used_before is None:
                 c.drop(p.kind, p.device_id, "rate_hz_measured", f"declares rate_hz {p.rate_hz:g} but its t0_us advance "

@@ -32,6 +32,9 @@ class SeqResult:
         return self.status in ("conflict", "rival")
 
 
+SEQ_OK: Final = SeqResult("ok")
+"""The result of the next packet of the followed stream (nearly every packet): one shared instance, not one each."""
+
 REORDER_WINDOW: Final = 1024
 """Packets behind the newest that can still be a late (reordered) one; a jump ahead by this many or more is a jump."""
 CONFLICT_EVIDENCE: Final = 2
@@ -128,7 +131,7 @@ class SequenceTracker:
             if ahead > 1:
                 self.lost += ahead - 1
                 return SeqResult("lost", ahead - 1)
-            return SeqResult("ok")
+            return SEQ_OK
         behind = (self.newest - seq) % UINT32
         if behind < self.window and seq not in self._seen:
             self._remember(seq)

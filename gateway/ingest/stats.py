@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 from gateway import schemas
 from gateway.ingest.samplerate import SampleRateMeter
-from gateway.ingest.sequence import SequenceTracker
+from gateway.ingest.sequence import SEQ_OK, SequenceTracker
 from gateway.ingest.timecheck import DeviceClock
 
 log = logging.getLogger("gateway.ingest")
@@ -91,13 +91,15 @@ class IngestCounters:
     def accept(self, kind: str, device_id: str, topic: str, boot_id: int, seq: int, now_s: float) -> bool:
         """Sequence-check one decoded packet; False for a duplicate or a rival publisher's packet (drop it).
         A second publisher on the key is counted as `device_conflict` and remembered in `conflicts_seen`."""
-        dev = self.stream(kind, device_id)
+        dev = self.devices.get(device_id) or self.stream(kind, device_id)
         tracker = dev.trackers.get(topic)
         if tracker is None:
             tracker = dev.trackers[topic] = SequenceTracker()
         res = tracker.update(boot_id, seq)
         dev.last_arrival_s = now_s
         dev.packets += 1
+        if res is SEQ_OK:  # the next packet of the stream: nearly every packet
+            return True
         if res.conflict:
             dev.conflict_last_s = now_s
             self.conflicts_seen.add(device_id)

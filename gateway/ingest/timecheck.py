@@ -20,6 +20,7 @@ that agree with each other, the new timeline is taken and the device's fusion re
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Final
 
 MAX_DEVICE_TIME_US = 2**53
 MAX_WALL_SKEW_S = 7 * 86400.0
@@ -41,6 +42,10 @@ class TimeVerdict:
         return self.reason is None or self.restart
 
 
+ACCEPTED: Final = TimeVerdict()
+"""The verdict of a packet on the device's timeline (nearly every packet): one shared instance, not one each."""
+
+
 @dataclass
 class DeviceClock:
     """Device-time bookkeeping of one device's IMU stream (see module docstring)."""
@@ -55,10 +60,13 @@ class DeviceClock:
             return TimeVerdict("time_range")
         if boot_id != self.boot_id:  # a new boot starts a new timeline
             self.boot_id, self.end_us, self.pending = boot_id, end_us, []
-            return TimeVerdict()
+            return ACCEPTED
         if self.end_us - MAX_BACK_S * 1e6 <= t0_us <= self.end_us + MAX_JUMP_S * 1e6:
-            self.end_us, self.pending = max(self.end_us, end_us), []
-            return TimeVerdict()
+            if end_us > self.end_us:
+                self.end_us = end_us
+            if self.pending:  # (not a new empty list per packet)
+                self.pending = []
+            return ACCEPTED
         reason = "time_backwards" if t0_us < self.end_us else "time_jump"
         prev = self.pending[-1] if self.pending else None
         if prev is not None and prev - MAX_BACK_S * 1e6 <= t0_us <= prev + RESYNC_STEP_S * 1e6:
