@@ -106,7 +106,7 @@ class Gathered(NamedTuple):
 
     gyr: FloatArray  # (N, 3) rad/s, C-contiguous
     acc: FloatArray  # (N, 3) m/s², C-contiguous
-    mag: FloatArray | None  # (N, 3) µT (None: no device has it); a device without it in every packet: not its own
+    mag: FloatArray | None  # (N, 3) µT (None: no device has it); rows of a device without it in every packet unused
     has_mag: list[bool]  # per device: every packet brought a magnetometer
     t_s: FloatArray  # (N,) device time, s
     start: list[int]  # per device: its first row
@@ -549,8 +549,11 @@ class FusionBank:
             rows = batch.rows(ids)
             active = np.zeros(n_dev, dtype=np.bool_)
             active[rows] = True
-            fast = [k for k, d in enumerate(ids) if d in at and d not in inputs] if g is not None else []
-            for k in sorted(set(range(len(ids))).difference(fast)):
+            fast: list[int] = []  # input: the device's rows of the shared arrays
+            own: list[int] = []  # input: a block of its own (bridged, just started, gathered alone)
+            for k, d in enumerate(ids):
+                (fast if g is not None and d in at and d not in inputs else own).append(k)
+            for k in own:
                 gyr, acc, mag, _ = inputs.get(ids[k]) or items[ids[k]][2]
                 r = rows[k]
                 gyr_a[r], acc_a[r] = gyr, acc
