@@ -4,8 +4,9 @@
   the window's mean acc (+ mag), and when the window was at rest its mean gyro seeds the bias estimate.
 * Filter factory: the default filter is a row of one `DefaultFilterBatch` (all such devices stepped by one numba
   call per distinct block length); any other name (the hook EKF, a registry filter) is an object per device.
-* Batching: `fuse` takes one drained batch (packets grouped per device), gathers every device's samples in one
-  array conversion, applies calibrations and steps all filters.
+* Batching: `fuse` takes one drained batch (packets grouped per device), gathers every device's samples into shared
+  arrays in one conversion (`gather_batch`), applies calibrations and steps all filters; the default-filter rows,
+  the gap check and the finiteness check take those arrays with one numpy call per batch, not one per device.
 * Lost packets: for the kinds in `bridge_kinds`, a device's samples that never arrived (a gap in device time up to
   `gaps.MAX_BRIDGE_S`) are interpolated for its filter only, so its state crosses the gap in time; every output
   stays on its own samples.
