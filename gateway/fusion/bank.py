@@ -4,8 +4,9 @@
   the window's mean acc (+ mag), and when the window was at rest its mean gyro seeds the bias estimate.
 * Filter factory: the default filter is a row of one `DefaultFilterBatch` (all such devices stepped by one numba
   call per distinct block length); any other name (the hook EKF, a registry filter) is an object per device.
-* Batching: `fuse` takes one drained batch (packets grouped per device), gathers every device's samples in one
-  array conversion, applies calibrations and steps all filters.
+* Batching: `fuse` takes one drained batch (packets grouped per device), gathers every device's samples into shared
+  arrays in one conversion (`gather_batch`), applies calibrations and steps all filters; the default-filter rows,
+  the gap check and the finiteness check take those arrays with one numpy call per batch, not one per device.
 * Lost packets: for the kinds in `bridge_kinds`, a device's samples that never arrived (a gap in device time up to
   `gaps.MAX_BRIDGE_S`) are interpolated for its filter only, so its state crosses the gap in time; every output
   stays on its own samples.
@@ -22,7 +23,7 @@ import logging
 import math
 from collections.abc import Callable, Iterable, Sequence
 from itertools import chain, pairwise
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -40,6 +41,7 @@ from gateway.fusion.gaps import (
     bridge_block,
     coast_mask,
     has_gap,
+    has_gaps,
 )
 from gateway.kinds.base import Ends, FilterFailure, Fused, FusedDevice, Output
 
@@ -99,51 +101,98 @@ def _rows3(blocks: Iterable[Sequence[tuple[float, float, float]]], rows: int) ->
     return flat.reshape(rows, 3)
 
 
-def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
-    """`gather` of many devices with one array conversion per sensor for all of them (the same values). Packets
+class Gathered(NamedTuple):
+    """Many devices' samples in shared arrays (device i: rows `start[i]:stop[i]`) and their packets' ends: what
+    the bank steps a whole batch from with one numpy operation per sensor, where a loop per device cost ~µs each."""
+
+    gyr: FloatArray  # (N, 3) rad/s, C-contiguous
+    acc: FloatArray  # (N, 3) m/s², C-contiguous
+    mag: FloatArray | None  # (N, 3) µT (None: no device has it); rows of a device without it in every packet unused
+    has_mag: list[bool]  # per device: every packet brought a magnetometer
+    t_s: FloatArray  # (N,) device time, s
+    start: list[int]  # per device: its first row
+    stop: list[int]  # per device: one past its last row
+    ends: list[Ends]  # per device: (last sample's index in its block, seq, device t_us of that sample) per packet
+
+    def block(self, i: int) -> Block:
+        """Device i's (gyr, acc, mag or None, t_s): views of the shared arrays."""
+        a, b = self.start[i], self.stop[i]
+        mag = self.mag[a:b] if self.has_mag[i] and self.mag is not None else None
+        return self.gyr[a:b], self.acc[a:b], mag, self.t_s[a:b]
+
+
+def gather_batch(groups: list[list[schemas.ImuPacket]]) -> Gathered:
+    """`gather` of many devices (the same values) with one array conversion per sensor for all of them. Packets
     decoded from the binary encoding bring their float32 rows (`schemas.sample_rows`, their sample tuples are not
-    even built): a batch with any is gathered from rows, the JSON packets' tuples made rows one by one."""
+    even built): a batch with any is gathered from rows (rows 6 and 9 wide each in one concatenation, the JSON
+    packets' tuples made rows one by one), else from the tuples."""
     pk = [p for g in groups for p in g]
-    sizes = [sum(p.n for p in g) for g in groups]
-    stop = np.cumsum(sizes).tolist()
-    cuts = list(zip([0, *stop[:-1]], stop, strict=True))  # rows of each device (slices: np.split is slow)
-    total = stop[-1] if stop else 0
+    counts = [len(g) for g in groups]  # each at least one packet
     kept = [schemas.sample_rows(p) for p in pk]
-    from_rows = any(r is not None for r in kept)
-    rows = [r if r is not None else np.hstack([a for a in p.arrays() if a is not None])  # JSON: [gyr acc (mag)]
-            for r, p in zip(kept, pk, strict=True)] if from_rows else []  # fmt: skip
+    n_list = [p.n if r is None else r.shape[0] for p, r in zip(pk, kept, strict=True)]
+    mag_pkt = [p.has_mag for p in pk]
+    n = np.array(n_list, dtype=np.int64)
+    first_pkt = np.cumsum(counts, dtype=np.int64) - np.array(counts, dtype=np.int64)  # each device's first packet
+    stops = np.cumsum(n)
+    total = int(stops[-1]) if pk else 0
+    dev_stop = stops[first_pkt + counts - 1] if pk else np.zeros(0, dtype=np.int64)
+    start, stop = (dev_stop - np.add.reduceat(n, first_pkt)).tolist() if pk else [], dev_stop.tolist()
+    has_mag = np.logical_and.reduceat(mag_pkt, first_pkt).tolist() if pk else []
+    mag_rows = np.repeat(np.repeat(has_mag, counts), n) if pk else np.zeros(0, dtype=np.bool_)  # per row: taken
 
-    sel = [i for i, g in enumerate(groups) if all(p.has_mag for p in g)]
-    # the common case, every packet 6 wide or every one 9 wide: one concatenation, then its columns
-    whole = np.concatenate(rows, dtype=np.float64) if from_rows and len({r.shape[1] for r in rows}) == 1 else None
-    if whole is not None and whole.shape[1] == 9 and len(sel) < len(groups):
-        whole = None  # a device with a packet of 6 among 9-wide ones: its magnetometer is not taken
+    mag: FloatArray | None = None
+    if any(r is not None for r in kept):
+        rows = [r if r is not None else np.hstack([a for a in p.arrays() if a is not None])  # JSON: [gyr acc (mag)]
+                for r, p in zip(kept, pk, strict=True)]  # fmt: skip
+        wide = [r.shape[1] == 9 for r in rows]
+        if all(wide) or not any(wide):
+            whole = np.concatenate(rows, dtype=np.float64)
+        else:  # rods 6 wide, hooks 9: each width in one concatenation, put in place by a row mask
+            whole = np.zeros((total, 9))
+            row_wide = np.repeat(wide, n)
+            whole[row_wide] = np.concatenate([r for r, w in zip(rows, wide, strict=True) if w], dtype=np.float64)
+            whole[~row_wide, :6] = np.concatenate([r for r, w in zip(rows, wide, strict=True) if not w],
+                                                  dtype=np.float64)  # fmt: skip
+        gyr, acc = np.ascontiguousarray(whole[:, 0:3]), np.ascontiguousarray(whole[:, 3:6])
+        if any(has_mag):
+            mag = np.ascontiguousarray(whole[:, 6:9])
+    else:
+        gyr, acc = _rows3((p.gyr_rad_s for p in pk), total), _rows3((p.acc_m_s2 for p in pk), total)
+        if any(has_mag):
+            taken = [p for p, m in zip(pk, np.repeat(has_mag, counts).tolist(), strict=True) if m]
+            mag = np.zeros((total, 3))
+            mag[mag_rows] = _rows3((p.mag_uT or () for p in taken), int(np.count_nonzero(mag_rows)))
 
-    def column(a: int, b: int, which: Iterable[int] | None = None) -> FloatArray:
-        """Columns a:b of the kept rows of packets `which` (all), as one contiguous float64 array."""
-        if whole is not None:
-            return np.ascontiguousarray(whole[:, a:b])
-        picked = rows if which is None else [rows[j] for j in which]
-        return np.concatenate([r[:, a:b] for r in picked], dtype=np.float64)
+    rate = np.array([p.rate_hz for p in pk], dtype=np.float64)
+    t0_us = np.array([p.t0_us for p in pk], dtype=np.int64)
+    first = np.repeat(stops - n, n)  # each row's packet's first row
+    t_s = np.repeat(t0_us * 1e-6, n) + (np.arange(total) - first) / np.repeat(rate, n)
+    # packet ends (`round` and `np.rint` both round half to even: the same t_us as the per-packet formula)
+    t_end = (t0_us + np.rint((n - 1) * 1e6 / rate).astype(np.int64)).tolist()
+    idx = (stops - 1 - np.repeat(np.array(start, dtype=np.int64), counts)).tolist()
+    rows_e = list(zip(idx, [p.seq for p in pk], t_end, strict=True))
+    ends = [rows_e[a : a + c] for a, c in zip(first_pkt.tolist(), counts, strict=True)]
+    return Gathered(gyr, acc, mag, has_mag, t_s, start, stop, ends)
 
-    gyr_all = column(0, 3) if from_rows else _rows3((p.gyr_rad_s for p in pk), total)
-    acc_all = column(3, 6) if from_rows else _rows3((p.acc_m_s2 for p in pk), total)
-    n = np.array([p.n for p in pk], dtype=np.int64)
-    first = np.repeat(np.cumsum(n) - n, n)
-    t0 = np.repeat(np.array([p.t0_us for p in pk], dtype=np.int64) * 1e-6, n)
-    rate = np.repeat(np.array([p.rate_hz for p in pk], dtype=np.float64), n)
-    t_all = t0 + (np.arange(first.shape[0]) - first) / rate
-    mags: list[FloatArray | None] = [None] * len(groups)
-    if sel:
-        if from_rows:
-            first_pkt = np.cumsum([0, *map(len, groups)]).tolist()  # each device's first packet in `pk`
-            m_all = column(6, 9, (j for i in sel for j in range(first_pkt[i], first_pkt[i + 1])))
-        else:
-            m_all = _rows3((p.mag_uT or () for i in sel for p in groups[i]), sum(sizes[i] for i in sel))
-        at = 0
-        for i in sel:
-            mags[i], at = m_all[at : at + sizes[i]], at + sizes[i]
-    return [(gyr_all[a:b], acc_all[a:b], mags[i], t_all[a:b]) for i, (a, b) in enumerate(cuts)]
+
+def gather_all(groups: list[list[schemas.ImuPacket]]) -> list[Block]:
+    """`gather` of many devices with one array conversion per sensor for all of them (the same values), as
+    blocks (`gather_batch` keeps them in shared arrays)."""
+    g = gather_batch(groups)
+    return [g.block(i) for i in range(len(groups))]
+
+
+class Shared(NamedTuple):
+    """A batch's running devices in shared arrays (`gather_batch`; None when gathering failed) and each one's
+    index in them; a device absent from `at` has a block of its own."""
+
+    gathered: Gathered | None
+    at: dict[str, int]
+
+    @property
+    def ends(self) -> list[Ends]:
+        assert self.gathered is not None
+        return self.gathered.ends
 
 
 def packet_ends(groups: list[list[schemas.ImuPacket]]) -> list[Ends]:
@@ -279,49 +328,62 @@ class FusionBank:
                 continue
             started[dev_id] = (gyr, acc, mag, t_s)
             ready.append((dev, pkts))
-        blocks = self._blocks([(d, p) for d, p in ready if d.device_id not in started], out)
+        blocks, shared = self._blocks([(d, p) for d, p in ready if d.device_id not in started], out)
         blocks.update(started)
         items: dict[str, tuple[FusedDevice, list[schemas.ImuPacket], Block]] = {}
+        ends: dict[str, Ends] = {}
         for dev, pkts in ready:
-            if dev.device_id not in blocks:
+            dev_id = dev.device_id
+            if dev_id not in blocks:
                 continue
-            gyr, acc, mag, t_s = blocks[dev.device_id]
-            if abs(1.0 / pkts[-1].rate_hz - dev.dt_s) > 1e-12:
-                dev.dt_s = 1.0 / pkts[-1].rate_hz
-                if dev.filt is None and self.batch is not None:
-                    self.batch.set_dt(dev.device_id, dev.dt_s)
+            gyr, acc, mag, t_s = blocks[dev_id]
             last = pkts[-1]
-            seqs = [dev.seq, *(p.seq for p in pkts)]
-            dev.follows = tuple(b == a + 1 for a, b in pairwise(seqs))  # for the gap checks' tolerance
-            dev.t_us, dev.seq = last.t0_us + int(round((last.n - 1) * 1e6 / last.rate_hz)), last.seq
+            if abs(1.0 / last.rate_hz - dev.dt_s) > 1e-12:
+                dev.dt_s = 1.0 / last.rate_hz
+                if dev.filt is None and self.batch is not None:
+                    self.batch.set_dt(dev_id, dev.dt_s)
+            e = ends[dev_id] = shared.ends[shared.at[dev_id]] if dev_id in shared.at else packet_ends([pkts])[0]
+            seq0 = dev.seq
+            dev.follows = ((pkts[0].seq == seq0 + 1,) if len(pkts) == 1 else  # for the gap checks' tolerance
+                           tuple(b == a + 1 for a, b in pairwise([seq0, *(p.seq for p in pkts)])))  # fmt: skip
+            dev.t_us, dev.seq = e[-1][2], last.seq
             dev.wall_from_device = last.wall_t0_us is not None
             dev.wall_offset_us = (last.wall_t0_us - last.t0_us) if last.wall_t0_us is not None else (
                 int(now_s * 1e6) - dev.t_us)  # fmt: skip
-            items[dev.device_id] = (dev, pkts, (gyr, acc, mag if dev.use_mag else None, t_s))
-        quats = self._step(items, out)
-        ids = list(quats)
-        ends = packet_ends([items[d][1] for d in ids]) if ids else []
-        return [Fused(dev, quats[d], blk[0], blk[1], blk[3], e, pkts)
-                for d, e in zip(ids, ends, strict=True) for dev, pkts, blk in (items[d],)]  # fmt: skip
+            items[dev_id] = (dev, pkts, (gyr, acc, mag if dev.use_mag else None, t_s))
+        quats = self._step(items, shared, out)
+        return [Fused(dev, q, blk[0], blk[1], blk[3], ends[d], pkts)
+                for d, q in quats.items() for dev, pkts, blk in (items[d],)]  # fmt: skip
 
-    def _blocks(self, ready: list[tuple[FusedDevice, list[schemas.ImuPacket]]], out: Output) -> dict[str, Block]:
-        """Samples of running devices, calibrated: one conversion for all; on bad data, device by device."""
-        if not ready:
-            return {}
-        try:
-            arrays = gather_all([p for _, p in ready])
-        except Exception:
-            arrays = []
+    def _blocks(self, ready: list[tuple[FusedDevice, list[schemas.ImuPacket]]], out: Output
+                ) -> tuple[dict[str, Block], Shared]:  # fmt: skip
+        """Samples of running devices, calibrated: one conversion for all, the blocks views of its shared arrays
+        (a calibration written back into them); on bad data, device by device."""
         res: dict[str, Block] = {}
+        if not ready:
+            return res, Shared(None, {})
+        try:
+            g: Gathered | None = gather_batch([p for _, p in ready])
+        except Exception:
+            g = None
+        at: dict[str, int] = {}
         for k, (dev, pkts) in enumerate(ready):
             try:
-                gyr, acc, mag, t_s = arrays[k] if arrays else gather(pkts)
+                gyr, acc, mag, t_s = g.block(k) if g is not None else gather(pkts)
                 if (cal := self.cal.get(dev.device_id)) is not None:
-                    acc, mag = cal.apply(acc, mag)
+                    acc_cal, mag_cal = cal.apply(acc, mag)
+                    if g is None:
+                        acc, mag = acc_cal, mag_cal
+                    else:  # (n, 3) float64 both: the shared rows hold the calibrated values
+                        acc[...] = acc_cal
+                        if mag is not None:
+                            mag[...] = mag_cal
                 res[dev.device_id] = (gyr, acc, mag, t_s)
+                if g is not None:
+                    at[dev.device_id] = k
             except Exception as exc:
                 self.fail(dev.kind, dev.device_id, exc, out)
-        return res
+        return res, Shared(g, at)
 
     def _start(self, p: schemas.ImuPacket, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None) -> FusedDevice:
         """Create a device after its warm-up window (see the module docstring)."""
@@ -371,15 +433,16 @@ class FusionBank:
         if seed is not None:
             seed(bias_rad_s)
 
-    def _step(self, items: dict[str, tuple[FusedDevice, list[schemas.ImuPacket], Block]], out: Output
-              ) -> dict[str, FloatArray]:  # fmt: skip
+    def _step(self, items: dict[str, tuple[FusedDevice, list[schemas.ImuPacket], Block]], shared: Shared,
+              out: Output) -> dict[str, FloatArray]:  # fmt: skip
         """One fused block per device: objects one by one, default-filter rows together per block length."""
         quats: dict[str, FloatArray] = {}
         by_len: dict[int, list[str]] = {}
         inputs: dict[str, Block] = {}  # a device's filter input when it differs from its block (lost packets)
         kept: dict[str, np.ndarray] = {}  # ... and where the block's own samples are in it
+        gapped = self._gapped(items, shared) if self.max_bridge_s > 0.0 else set()
         for dev_id, (dev, pkts, (gyr, acc, mag, t_s)) in items.items():
-            if dev.kind in self.bridge_kinds and self.max_bridge_s > 0.0:
+            if dev_id in gapped:
                 try:
                     bridged = self._bridge(dev, pkts, (gyr, acc, mag, t_s))
                 except Exception as exc:
@@ -403,9 +466,11 @@ class FusionBank:
                     quats[dev_id] = step(gyr, acc, mag, dev.dt_s)
             except Exception as exc:
                 self.fail(dev.kind, dev_id, exc, out)
+        finite: set[str] = set()  # devices whose quaternions were checked finite already
         if by_len:
             try:
-                quats.update(self._step_batch(items, by_len, inputs))
+                q_batch, finite = self._step_batch(items, by_len, inputs, shared)
+                quats.update(q_batch)
             except Exception as exc:  # the shared kernel failed: every device in it restarts
                 for ids in by_len.values():
                     for dev_id in ids:
@@ -413,10 +478,42 @@ class FusionBank:
         for dev_id, keep in kept.items():
             if dev_id in quats:
                 quats[dev_id] = quats[dev_id][keep]
-        for dev_id in [d for d, q in quats.items() if not np.isfinite(q).all()]:
+        for dev_id in [d for d, q in quats.items() if d not in finite and not np.isfinite(q).all()]:
             del quats[dev_id]
             self.fail(items[dev_id][0].kind, dev_id, None, out)
         return quats
+
+    def _gapped(self, items: dict[str, tuple[FusedDevice, list[schemas.ImuPacket], Block]], shared: Shared
+                ) -> set[str]:  # fmt: skip
+        """The devices of `bridge_kinds` whose block may miss samples (`_bridge` tells): `gaps.has_gaps` of all
+        the devices in the shared arrays at once (devices outside them are asked one by one); every other one's
+        block is remembered as the left side of its next gap, as `_bridge` does."""
+        ask: list[tuple[FusedDevice, int]] = []
+        out: set[str] = set()
+        for dev_id, (dev, _, _) in items.items():
+            if dev.kind in self.bridge_kinds:
+                if dev_id in shared.at:
+                    ask.append((dev, shared.at[dev_id]))
+                else:
+                    out.add(dev_id)
+        if not ask:
+            return out
+        g = shared.gathered
+        assert g is not None
+        at = np.array([k for _, k in ask], dtype=np.int64)
+        start, stop = np.array(g.start, dtype=np.int64)[at], np.array(g.stop, dtype=np.int64)[at]
+        dt_s = np.array([d.dt_s for d, _ in ask])
+        strict = (GAP_FACTOR - 1.0) * dt_s
+        tol = np.where([all(d.follows) for d, _ in ask], np.maximum(strict, JITTER_TOL_S), strict)
+        prev_t_s = np.array([d.last_t_s for d, _ in ask])
+        gap = has_gaps(g.t_s[start], g.t_s[stop - 1], stop - start, prev_t_s, dt_s, tol).tolist()
+        last_t_s = g.t_s[stop - 1].tolist()
+        for (dev, _), gapped, t_last in zip(ask, gap, last_t_s, strict=True):
+            if gapped:
+                out.add(dev.device_id)
+            else:
+                dev.last_t_s, dev.last_block = t_last, items[dev.device_id][2]
+        return out
 
     def _bridge(self, dev: FusedDevice, pkts: list[schemas.ImuPacket], block: Block
                 ) -> tuple[FloatArray, FloatArray, FloatArray | None, np.ndarray] | None:  # fmt: skip
@@ -437,22 +534,44 @@ class FusionBank:
                             max(1, round(self.bridge_average_s / dev.dt_s)), self.gyro_taper_s.get(dev.kind, 0.0), tol)
 
     def _step_batch(self, items: dict[str, tuple[FusedDevice, list[schemas.ImuPacket], Block]],
-                    by_len: dict[int, list[str]], inputs: dict[str, Block]) -> dict[str, FloatArray]:  # fmt: skip
+                    by_len: dict[int, list[str]], inputs: dict[str, Block], shared: Shared
+                    ) -> tuple[dict[str, FloatArray], set[str]]:  # fmt: skip
+        """The default-filter rows, one kernel call per block length: the devices whose input is their rows of the
+        shared arrays copied in with one index per sensor, the others (bridged, just started) one by one. Returns
+        the quaternions and the devices of the former whose quaternions are all finite (checked in one call)."""
         quats: dict[str, FloatArray] = {}
+        finite: set[str] = set()
         batch = self.batch
         assert batch is not None
+        g, at = shared
         for n, ids in by_len.items():
             n_dev = len(batch)
             gyr_a, acc_a, mag_a = np.zeros((n_dev, n, 3)), np.zeros((n_dev, n, 3)), np.zeros((n_dev, n, 3))
+            rows = batch.rows(ids)
             active = np.zeros(n_dev, dtype=np.bool_)
-            rows = [batch.row(d) for d in ids]
-            for d, r in zip(ids, rows, strict=True):
-                gyr, acc, mag, _ = inputs.get(d) or items[d][2]
+            active[rows] = True
+            fast: list[int] = []  # input: the device's rows of the shared arrays
+            own: list[int] = []  # input: a block of its own (bridged, just started, gathered alone)
+            for k, d in enumerate(ids):
+                (fast if g is not None and d in at and d not in inputs else own).append(k)
+            for k in own:
+                gyr, acc, mag, _ = inputs.get(ids[k]) or items[ids[k]][2]
+                r = rows[k]
                 gyr_a[r], acc_a[r] = gyr, acc
                 if mag is not None:
                     mag_a[r] = mag
-                active[r] = True
+            if fast:
+                assert g is not None
+                to = np.array([rows[k] for k in fast], dtype=np.int64)
+                src = np.array([g.start[at[ids[k]]] for k in fast], dtype=np.int64)[:, None] + np.arange(n)
+                gyr_a[to], acc_a[to] = g.gyr[src], g.acc[src]
+                on = np.array([items[ids[k]][2][2] is not None for k in fast], dtype=np.bool_)
+                if on.any():
+                    assert g.mag is not None
+                    mag_a[to[on]] = g.mag[src[on]]
             q_all = batch.step(gyr_a, acc_a, mag_a, active)
-            for d, r in zip(ids, rows, strict=True):
-                quats[d] = q_all[r]
-        return quats
+            quats.update(zip(ids, q_all[rows], strict=True))
+            if fast:
+                ok = np.isfinite(q_all[to]).all(axis=(1, 2))
+                finite.update(ids[fast[j]] for j in np.flatnonzero(ok).tolist())
+        return quats, finite

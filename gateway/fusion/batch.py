@@ -91,6 +91,10 @@ class DefaultFilterBatch:
         """Row of a device in the stacked arrays."""
         return self._row[device_id]
 
+    def rows(self, device_ids: list[str]) -> list[int]:
+        """Rows of many devices, in their order."""
+        return [self._row[d] for d in device_ids]
+
     def set_dt(self, device_id: str, dt_s: float) -> None:
         """Change one device's sample period (coefficients follow on its next step)."""
         if not dt_s > 0:

@@ -42,6 +42,14 @@ def has_gap(t_s: FloatArray, prev_t_s: float, dt_s: float, tol_s: float | None =
     return bool(t_s[0] - prev_t_s > dt_s + tol or t_s[n - 1] - t_s[0] > (n - 1) * dt_s + tol)
 
 
+def has_gaps(first_s: FloatArray, last_s: FloatArray, n: NDArray[np.int64], prev_t_s: FloatArray, dt_s: FloatArray,
+             tol_s: FloatArray) -> NDArray[np.bool_]:  # fmt: skip
+    """`has_gap` of many devices' blocks at once, from each block's first and last sample time (s), sample count
+    (>= 1), the sample before it (nan: none), period and tolerance (s): the same comparisons in float64, elementwise."""
+    out: NDArray[np.bool_] = (first_s - prev_t_s > dt_s + tol_s) | (last_s - first_s > (n - 1) * dt_s + tol_s)
+    return out
+
+
 def fill_gaps(t_s: FloatArray, rows: FloatArray, dt_s: float, prev_t_s: FloatArray | None = None,
               prev_rows: FloatArray | None = None, max_gap_s: float = MAX_BRIDGE_S, average_n: int = 1,
               tol_s: FloatArray | None = None) -> tuple[FloatArray, NDArray[np.int64]] | None:  # fmt: skip

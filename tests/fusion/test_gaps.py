@@ -11,7 +11,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bench.link_loss import broad_total_deg, fused_quats, packets, theta_rmse_deg
-from gateway.fusion.gaps import MAX_BRIDGE_S, bridge_block, coast_mask, fill_gaps, has_gap, taper_inserted
+from gateway.fusion.gaps import (
+    GAP_FACTOR,
+    JITTER_TOL_S,
+    MAX_BRIDGE_S,
+    bridge_block,
+    coast_mask,
+    fill_gaps,
+    has_gap,
+    has_gaps,
+    taper_inserted,
+)
 
 DT = 0.01
 
@@ -348,3 +358,21 @@ def test_a_real_rod_recording_with_a_jittery_t0_us_keeps_its_attitude(broad_dir:
     pkts = packets("rod-3", "rod", trial.gyr_rad_s, trial.acc_m_s2, trial.mag_uT, trial.rate_hz, 10)[:600]
     none = np.zeros(len(pkts), dtype=bool)
     np.testing.assert_array_equal(_fused_in_order(_jittered(pkts, 9, 4), none), _fused_in_order(pkts, none))
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.tuples(st.integers(1, 12), st.floats(-0.03, 0.05), st.floats(0.0, 0.05), st.booleans(),
+                          st.sampled_from([0.005, 0.01, 0.02]), st.booleans()), min_size=1, max_size=8))
+def test_has_gaps_is_has_gap_of_each_block(blocks: list[tuple[int, float, float, bool, float, bool]]) -> None:
+    """`has_gaps` of many blocks at once (the bank asks every device of a batch in one call) answers as `has_gap` of
+    each: a late first sample, a late last one, no sample before, either tolerance."""
+    rows, want = [], []
+    for n, late_s, last_late_s, first, dt, jitter in blocks:
+        t = 10.0 + np.arange(n) * dt
+        t[-1] += last_late_s
+        prev = math.nan if first else float(t[0]) - dt - late_s
+        tol = JITTER_TOL_S if jitter else (GAP_FACTOR - 1.0) * dt
+        rows.append((t[0], t[-1], n, prev, dt, tol))
+        want.append(has_gap(t, prev, dt, tol))
+    first_s, last_s, n_s, prev_s, dt_s, tol_s = (np.array(c) for c in zip(*rows, strict=True))
+    assert has_gaps(first_s, last_s, n_s.astype(np.int64), prev_s, dt_s, tol_s).tolist() == want
