@@ -11,7 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gateway.alarm.bite import BiteDetector, FloatArray, RodBlock, RodEvent
+from gateway.alarm.bite import FloatArray, RodBlock, RodEvent
+from gateway.alarm.bite_fast import FastBiteDetector
 from gateway.alarm.engine import Condition, DetailValue, Severity
 from gateway.config import RodThresholds
 
@@ -233,7 +234,7 @@ class RodAlarms:
     def __init__(self, device_id: str, thresholds: RodThresholds | None = None) -> None:
         self.device_id = device_id
         th = thresholds or RodThresholds()
-        self.detector = BiteDetector(th)
+        self.detector = FastBiteDetector(th)  # bite.BiteDetector's results, one numba call per block
         self.line = LineGuard(th)
         self.thresholds = th
 

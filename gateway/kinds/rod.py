@@ -61,7 +61,8 @@ class RodKind(KindBase):
 
     def post(self, ctx: KindContext, kb: KindBatch, now_s: float, out: Output) -> list[Timed]:
         acc_up = tip_acc_up(kb.q, kb.acc)
-        pitch, conds, max_age_s = kb.euler[:, 1], [], ctx.settings.reel_max_age_s
+        # contiguous, so each rod's slice is the block layout the bite kernel was compiled for (bite_fast.warm_up)
+        pitch, conds, max_age_s = np.ascontiguousarray(kb.euler[:, 1]), [], ctx.settings.reel_max_age_s
         reels, auto = self.reel, self.auto_reel.on
         # roll and yaw are not passed: the rules never use them (a rod turned about its axis is no bite)
         for f, a, b in zip(kb.items, kb.start.tolist(), kb.stop.tolist(), strict=True):
