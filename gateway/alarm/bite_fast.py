@@ -396,10 +396,26 @@ def _segment(s: FloatArray, p: FloatArray, frame: FloatArray, t: FloatArray, pit
 
 @njit
 def bite_block(s: FloatArray, p: FloatArray, frame: FloatArray, t: FloatArray, pitch: FloatArray,
-               acc: FloatArray, has_acc: bool, dev: FloatArray, events: FloatArray) -> tuple[int, float, int]:
-    """`BiteDetector.update` on one non-empty block: fills `dev` (n,) and `events` (rows of kind, index, deviation,
-    threshold, cue, peak); returns (events, lowest deviation, its index or -1). The frame buffer `frame` (2, m)
-    must have room for the open frame's samples plus n."""  # fmt: skip
+               acc: FloatArray, has_acc: bool, dev: FloatArray, events: FloatArray
+               ) -> tuple[int, float, float, float]:  # fmt: skip
+    """`BiteDetector.update` on one non-empty block: fills `dev` (n,) and `events` (rows of kind, sample index,
+    deviation, threshold, cue, peak); returns (events, rest baseline, lowest deviation, its time).
+
+    Events -1: nothing done, as the frame buffer (2, m) has no room for the open frame's samples plus n, or
+    `events` has fewer than 2 n rows (each latch changes at most once per sample)."""
+    n = t.size
+    if pitch.size != n or dev.size != n or (has_acc and acc.size != n):
+        raise ValueError("bite_block: the block's arrays differ in length")
+    if s[_S_FRAME_N_PITCH] + n > frame.shape[1] or events.shape[0] < 2 * n:
+        return -1, s[_S_BASELINE], math.nan, math.nan
+    n_ev, lo, i_lo = _walk_block(s, p, frame, t, pitch, acc, has_acc, dev, events)
+    return n_ev, s[_S_BASELINE], lo, t[i_lo] if i_lo >= 0 else math.nan
+
+
+@njit
+def _walk_block(s: FloatArray, p: FloatArray, frame: FloatArray, t: FloatArray, pitch: FloatArray,
+                acc: FloatArray, has_acc: bool, dev: FloatArray, events: FloatArray) -> tuple[int, float, int]:
+    """The block frame by frame, as `BiteDetector.update`: returns (events, lowest deviation, its index or -1)."""
     n = t.size
     if math.isnan(s[_S_ORIGIN]):
         s[_S_ORIGIN] = t[0]
@@ -487,21 +503,23 @@ class FastBiteDetector:
         n = t_s.size
         if n == 0:
             return RodBlock((), float(self._s[_S_BASELINE]), np.zeros(0), math.nan, math.nan)
-        if self._s[_S_FRAME_N_PITCH] + n > self._frame.shape[1]:
-            self._grow_frame(n)
-        if 2 * n > self._events.shape[0]:  # each latch changes at most once per sample
-            self._events = np.zeros((2 * n, 6))
         dev = np.empty(n)
         acc = _NO_ACC if acc_up_m_s2 is None else acc_up_m_s2
-        n_ev, lo, i_lo = bite_block(self._s, self._p, self._frame, t_s, pitch_rad, acc, acc_up_m_s2 is not None,
-                                    dev, self._events)  # fmt: skip
-        events = self._rod_events(n_ev, t_s) if n_ev else ()
-        return RodBlock(events, float(self._s[_S_BASELINE]), dev, lo, float(t_s[i_lo]) if i_lo >= 0 else math.nan)
+        has_acc = acc_up_m_s2 is not None
+        n_ev, baseline, lo, t_lo = bite_block(self._s, self._p, self._frame, t_s, pitch_rad, acc, has_acc, dev,
+                                              self._events)  # fmt: skip
+        if n_ev < 0:  # a longer block than the buffers have room for: grow them, then run it
+            self._grow(n)
+            n_ev, baseline, lo, t_lo = bite_block(self._s, self._p, self._frame, t_s, pitch_rad, acc, has_acc, dev,
+                                                  self._events)  # fmt: skip
+        return RodBlock(self._rod_events(n_ev, t_s) if n_ev else (), baseline, dev, lo, t_lo)
 
-    def _grow_frame(self, n: int) -> None:
+    def _grow(self, n: int) -> None:
+        """Room for a block of n samples: the frame buffer (keeping the open frame) and the event rows."""
         frame = np.zeros((2, 2 * (self._frame.shape[1] + n)))
         frame[:, : self._frame.shape[1]] = self._frame
         self._frame = frame
+        self._events = np.zeros((max(2 * n, self._events.shape[0]), 6))
 
     def _rod_events(self, n_ev: int, t_s: FloatArray) -> tuple[RodEvent, ...]:
         """The kernel's event rows as `RodEvent`s in time order (a stable sort, as the reference)."""

@@ -70,7 +70,7 @@ class RodKind(KindBase):
             try:
                 reel, tension = reels.get(dev.device_id), None
                 if reel is not None and reel[0].tension_n is not None and now_s - reel[1] <= max_age_s:
-                    tension = np.full(f.t_s.shape, reel[0].tension_n)
+                    tension = reel[0].tension_n  # one value for the block: the rules make an array only if needed
                 st: RodState = dev.state
                 # The rules decide sample by sample: a burst gives the same alarms in one call as packet by packet.
                 blk, new = st.rules.update(f.t_s, pitch[a:b], None, None, acc_up[a:b], tension)

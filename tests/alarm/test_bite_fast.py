@@ -121,3 +121,22 @@ def test_mean_square_is_numpys_dot(n, seed, spread):
     rng = np.random.default_rng(seed)
     x = rng.standard_normal(n) * np.exp(rng.uniform(-spread, spread, n))
     assert mean_square(x) == np.dot(x, x) / n
+
+
+def test_rod_rules_take_one_tension_value_per_block_as_the_array_of_it():
+    """The rod kind passes the reel's latest tension as one value: the same conditions as that value per sample."""
+    from gateway.alarm.rules import RodAlarms
+
+    t, pitch, acc = stream(5, 120.0)
+    rng = np.random.default_rng(6)
+    th = RodThresholds()
+    by_value, by_array = RodAlarms("rod-1", th), RodAlarms("rod-1", th)
+    conds: list[object] = []
+    for i in range(0, t.size, 10):
+        sl = slice(i, i + 10)
+        tension = float(rng.choice([np.nan, 5.0, 0.75 * th.line_breaking_n, 0.9 * th.line_breaking_n]))
+        _, a = by_value.update(t[sl], pitch[sl], None, None, acc[sl], tension)
+        _, b = by_array.update(t[sl], pitch[sl], None, None, acc[sl], np.full(t[sl].shape, tension))
+        assert a == b
+        conds += a
+    assert any(c.type == "line_tension" for c in conds)  # type: ignore[attr-defined]
