@@ -30,6 +30,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from gateway import schemas
+from gateway.alarm import bite_fast
 from gateway.alarm.engine import Alarm, AlarmEngine, Condition
 from gateway.alarm.rules import SPECS
 from gateway.config import DeviceSettings, RodThresholds, ThresholdModel, effective_settings, merge_thresholds
@@ -278,6 +279,7 @@ class Pipeline:
         Called once at start-up: a first compile can take tens of seconds on a busy machine, and done on the first
         packet it would stall ingest (and delay every alarm) for that long."""
         self.bank.warm_up({self.settings.hook_filter, self.settings.default_filter})
+        bite_fast.warm_up()  # the rods' bite detector
         if self.settings.height_interval_s > 0:
             n, acc = 5, np.array([0.0, 0.0, 9.80665])
             q, gyr, accs = np.tile([1.0, 0, 0, 0], (n, 1)), np.zeros((n, 3)), np.tile(acc, (n, 1))

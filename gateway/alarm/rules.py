@@ -11,7 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gateway.alarm.bite import BiteDetector, FloatArray, RodBlock, RodEvent
+from gateway.alarm.bite import FloatArray, RodBlock, RodEvent
+from gateway.alarm.bite_fast import FastBiteDetector
 from gateway.alarm.engine import Condition, DetailValue, Severity
 from gateway.config import RodThresholds
 
@@ -123,6 +124,11 @@ def hysteresis_levels(
     return out
 
 
+def _nan_max(x: FloatArray | float) -> float:
+    """Largest number of an array, skipping nan (nan if none), or the value itself."""
+    return float(np.fmax.reduce(x)) if isinstance(x, np.ndarray) else x
+
+
 def _deg(x_rad: float) -> str:
     return f"{math.degrees(x_rad):.1f}°"
 
@@ -166,13 +172,16 @@ class LineGuard:
         self.tension_n = th.tension_warn_fraction * th.line_breaking_n
         self.tension_hyst_n = TENSION_HYSTERESIS_FRACTION * th.line_breaking_n
 
-    def update(self, device_id: str, t_s: FloatArray, block: RodBlock, tension_n: FloatArray | None
+    def update(self, device_id: str, t_s: FloatArray, block: RodBlock, tension_n: FloatArray | float | None
                ) -> list[Condition]:  # fmt: skip
-        """Conditions for every level change in the block, at the sample that caused it."""
+        """Conditions for every level change in the block, at the sample that caused it. `tension_n` is per sample,
+        or one value for every sample (the reel's latest status: no array is made unless the guard needs it)."""
         peak_drop_deg = -math.degrees(block.min_deviation_rad)  # nan (warm-up) counts as quiet
         quiet = self.level == 0 and not peak_drop_deg >= self.angle_deg[0] - LINE_HYSTERESIS_DEG
-        if quiet and (tension_n is None or not np.fmax.reduce(tension_n) >= self.tension_n - self.tension_hyst_n):
+        if quiet and (tension_n is None or not _nan_max(tension_n) >= self.tension_n - self.tension_hyst_n):
             return []
+        if tension_n is not None and not isinstance(tension_n, np.ndarray):
+            tension_n = np.full(t_s.shape, tension_n)
         drop_deg = np.degrees(-block.deviation_rad)
         by_angle = hysteresis_levels(drop_deg, self._angle_level, self.angle_deg, LINE_HYSTERESIS_DEG)
         by_tension = (np.zeros(t_s.size, dtype=np.int64) if tension_n is None
@@ -233,7 +242,7 @@ class RodAlarms:
     def __init__(self, device_id: str, thresholds: RodThresholds | None = None) -> None:
         self.device_id = device_id
         th = thresholds or RodThresholds()
-        self.detector = BiteDetector(th)
+        self.detector = FastBiteDetector(th)  # bite.BiteDetector's results, one numba call per block
         self.line = LineGuard(th)
         self.thresholds = th
 
@@ -250,11 +259,12 @@ class RodAlarms:
         roll_rad: FloatArray | None = None,
         yaw_rad: FloatArray | None = None,
         acc_up_m_s2: FloatArray | None = None,
-        tension_n: FloatArray | None = None,
+        tension_n: FloatArray | float | None = None,
     ) -> tuple[RodBlock, list[Condition]]:
-        """One block (shapes (n,)) -> detector summary and the conditions for the engine, in time order."""
+        """One block (shapes (n,)) -> detector summary and the conditions for the engine, in time order.
+        `tension_n` may be one value for the whole block (the reel's latest status)."""
         block = self.detector.update(t_s, pitch_rad, roll_rad, yaw_rad, acc_up_m_s2)
-        out = [_event_condition(self.device_id, e) for e in block.events]
+        out = [_event_condition(self.device_id, e) for e in block.events] if block.events else []
         line = self.line.update(self.device_id, t_s, block, tension_n)
         if line:
             out = sorted(out + line, key=lambda c: c.t_s)

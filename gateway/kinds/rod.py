@@ -61,7 +61,8 @@ class RodKind(KindBase):
 
     def post(self, ctx: KindContext, kb: KindBatch, now_s: float, out: Output) -> list[Timed]:
         acc_up = tip_acc_up(kb.q, kb.acc)
-        pitch, conds, max_age_s = kb.euler[:, 1], [], ctx.settings.reel_max_age_s
+        # contiguous, so each rod's slice is the block layout the bite kernel was compiled for (bite_fast.warm_up)
+        pitch, conds, max_age_s = np.ascontiguousarray(kb.euler[:, 1]), [], ctx.settings.reel_max_age_s
         reels, auto = self.reel, self.auto_reel.on
         # roll and yaw are not passed: the rules never use them (a rod turned about its axis is no bite)
         for f, a, b in zip(kb.items, kb.start.tolist(), kb.stop.tolist(), strict=True):
@@ -69,7 +70,7 @@ class RodKind(KindBase):
             try:
                 reel, tension = reels.get(dev.device_id), None
                 if reel is not None and reel[0].tension_n is not None and now_s - reel[1] <= max_age_s:
-                    tension = np.full(f.t_s.shape, reel[0].tension_n)
+                    tension = reel[0].tension_n  # one value for the block: the rules make an array only if needed
                 st: RodState = dev.state
                 # The rules decide sample by sample: a burst gives the same alarms in one call as packet by packet.
                 blk, new = st.rules.update(f.t_s, pitch[a:b], None, None, acc_up[a:b], tension)
