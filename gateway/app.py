@@ -56,7 +56,7 @@ def compose(
     writer = writer_factory(store)  # a shard's mirrors alarm rows to the other shards (gateway/shard)
     hub = Hub(bus, writer, BlockingPublisher(bus) if blocking_thread else None)
     pipeline = build_pipeline(settings, store, pipeline_settings)
-    pipeline.takes = hub.takes  # heights nobody subscribes to are not made
+    pipeline.taker = hub.taker  # heights nobody subscribes to are not made
     return GatewayService(settings, bus, store, pipeline, hub, max_batch=max_batch, diag_period_s=diag_period_s,
                           batch_budget_s=batch_budget_s)  # fmt: skip
 

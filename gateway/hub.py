@@ -122,14 +122,23 @@ class Hub:
             key = self._keys[(topic.name, kind, device_id)] = topic.key(kind, device_id)
         return key
 
+    def taker(self, topic: schemas.Topic) -> Callable[[str, str], bool] | None:
+        """`takes` of one topic with what does not depend on the device decided once: None when every message of
+        it reaches someone (a BLOCK topic, a listener of it, a bus that cannot tell), else `(kind, device_id) ->
+        bool` asking only the key's matching status. The pipeline asks it once per batch before making the
+        messages only a subscriber reads (heights), so a gateway nobody reads them from does not make them."""
+        subscribed = self._subscribed
+        if topic.block or subscribed is None or any(wants(cb, topic.name) for cb in self.listeners):
+            return None
+        key, encoding, express = self._key, topic.encoding, topic.express
+        return lambda kind, device_id: bool(subscribed(key(topic, kind, device_id), encoding=encoding,
+                                                       express=express))  # fmt: skip
+
     def takes(self, topic: schemas.Topic, kind: str, device_id: str) -> bool:
         """Whether a message of `topic` from this device would reach anyone now: a listener of the topic, a
-        subscriber of its key, or any BLOCK topic (always put). The pipeline asks it before building the messages
-        only a subscriber reads (heights), so a gateway nobody reads them from does not make them."""
-        if topic.block or self._subscribed is None or any(wants(cb, topic.name) for cb in self.listeners):
-            return True
-        key = self._key(topic, kind, device_id)
-        return bool(self._subscribed(key, encoding=topic.encoding, express=topic.express))
+        subscriber of its key, or any BLOCK topic (always put)."""
+        taker = self.taker(topic)
+        return taker is None or taker(kind, device_id)
 
     def _put(self, topic: schemas.Topic, model: schemas.WireModel, kind: str | None = None,
              device_id: str | None = None, listeners: list[Listener] | None = None) -> None:  # fmt: skip

@@ -146,12 +146,14 @@ class Pipeline:
             if ds.calibration is not None:
                 self.bank.set_calibration(d, ds.calibration)
         self._ctx = KindContext(s, lambda kind, dev_id: self.effective(kind, dev_id)[1], self._post_failed)
-        self.takes: Callable[[schemas.Topic, str, str], bool] | None = None
-        """Whether anyone takes a device's messages of a topic now (the composition root sets `Hub.takes`): the
-        heights nobody takes are not made (their values stay on the device for REST). None: every one is made."""
+        self.taker: Callable[[schemas.Topic], Callable[[str, str], bool] | None] | None = None
+        """Per batch, whether anyone takes a device's messages of a topic now (the composition root sets
+        `Hub.taker`): the heights nobody takes are not made (their values stay on the device for REST). None, or
+        None from it: every one is made."""
 
-    def _takes_height(self, dev: FusedDevice) -> bool:
-        return self.takes is None or self.takes(schemas.T_HEIGHT, dev.kind, dev.device_id)
+    def _height_taker(self) -> Callable[[FusedDevice], bool] | None:
+        takes = None if self.taker is None else self.taker(schemas.T_HEIGHT)
+        return None if takes is None else lambda dev: takes(dev.kind, dev.device_id)
 
     # -- read views -----------------------------------------------------------------------------------------
 
@@ -354,7 +356,7 @@ class Pipeline:
         batch = None
         if rows is not None and live:
             try:
-                batch = heights_batch(kb, live, rows, s.height_interval_s, self._takes_height)
+                batch = heights_batch(kb, live, rows, s.height_interval_s, self._height_taker())
             except Exception:  # then device by device: a failure costs only its device
                 batch = None
         if batch is not None:  # every value passed the batch check: only the attitude blocks are per device

@@ -99,8 +99,8 @@ def test_zenoh_bus_says_whether_a_key_has_a_subscriber_across_a_router() -> None
 
 def test_hub_encodes_and_puts_a_drop_message_only_while_its_key_has_a_subscriber() -> None:
     """The hub skips a DROP output (height) whose key no subscriber takes: not put, counted in `unmatched`, still
-    handed to its listeners; BLOCK outputs (alarms, swing) are put regardless. `Hub.takes` (which the pipeline asks
-    before making heights) says the same, and yes once a listener takes the topic."""
+    handed to its listeners; BLOCK outputs (alarms, swing) are put regardless. `Hub.takes` and `Hub.taker` (which the
+    pipeline asks once per batch before making heights) say the same, and yes once a listener takes the topic."""
     from gateway.hub import Hub
 
     class Bus(MemoryBus):
@@ -116,6 +116,9 @@ def test_hub_encodes_and_puts_a_drop_message_only_while_its_key_has_a_subscriber
     hub = Hub(bus, Writer())  # type: ignore[arg-type]
     assert [hub.takes(schemas.T_HEIGHT, "rod", d) for d in ("r1", "r2")] == [False, True]
     assert hub.takes(schemas.T_ALARM, "rod", "r1")  # BLOCK: always put
+    height_taker = hub.taker(schemas.T_HEIGHT)
+    assert height_taker is not None and [height_taker("rod", d) for d in ("r1", "r2")] == [False, True]
+    assert hub.taker(schemas.T_ALARM) is None and hub.taker(schemas.T_SWING) is None  # BLOCK: no question asked
     heard: list[str] = []
     hub.listeners.append(lambda topic, model: heard.append(model.device_id))  # type: ignore[attr-defined]
     for dev in ("r1", "r2"):
@@ -125,3 +128,4 @@ def test_hub_encodes_and_puts_a_drop_message_only_while_its_key_has_a_subscriber
     assert [k for k, _, _ in bus.sent] == ["gw/rod/r2/height"]
     assert (hub.published, hub.unmatched, heard) == (1, 1, ["r1", "r2"])
     assert hub.takes(schemas.T_HEIGHT, "rod", "r1")  # a listener of every topic takes it now
+    assert hub.taker(schemas.T_HEIGHT) is None
