@@ -6,7 +6,9 @@ an in-memory bus and a real SQLite file). Pass: 0 responses >= 500.
 
 zenoh: a real zenoh session on loopback sends valid rod streams interleaved with hostile packets of many kinds
 (garbage bytes, oversized, bad JSON, wrong types, extreme numbers, arbitrary and invalid keys, spoofed boot ids,
-extreme timestamps, liveliness tokens with bad ids, puts on the gateway's own keys). Pass: the gateway stays up,
+extreme timestamps, liveliness tokens with bad ids, puts on the gateway's own keys; binary (protocol v2) packets with
+damaged bytes, cut short, header sizes that lie, NaN or infinite samples, a wrong key or kind, extreme times). Every
+second valid stream is sent in the binary encoding. Pass: the gateway stays up,
 every valid packet is counted, every reject is counted by reason, REST, health and the live stream still answer,
 RSS growth stays bounded.
 
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import random
 import resource
 import tempfile
@@ -126,6 +129,28 @@ class HostileSource:
     def _imu(self, **changes: Any) -> bytes:
         return json.dumps(self.template | changes).encode()
 
+    def _bin(self, **changes: Any) -> bytes:
+        """The template (or it changed) in the binary encoding (protocol v2, docs/protocol.md 3.6)."""
+        fields = {k: v for k, v in (self.template | changes).items() if k not in ("v", "gnss")}
+        return schemas.imu_binary(**fields)
+
+    def _bin_damaged(self, dev: str) -> bytes:
+        """A binary packet with 1-3 random bytes replaced (header, id or samples), or cut short, or its header's
+        sample count or id length lying about the size."""
+        r, b = self.rng, bytearray(self._bin(device_id=dev))
+        how = r.randrange(3)
+        if how == 0:
+            for _ in range(r.randrange(1, 4)):
+                b[r.randrange(len(b))] = r.randrange(256)
+        elif how == 1:
+            del b[r.randrange(1, len(b)):]
+        else:  # n (uint16 at byte 4) or the id length (byte 3) rewritten
+            if r.random() < 0.5:
+                b[4:6] = r.choice([0, 1, 2, 65535]).to_bytes(2, "little")
+            else:
+                b[3] = r.choice([0, 1, 255])
+        return bytes(b)
+
     def next(self) -> tuple[str, str, bytes]:
         """(kind, key, payload)."""
         r = self.rng
@@ -147,10 +172,21 @@ class HostileSource:
             ("env_on_rod", f"rig/rod/{dev}/env", b"{}"),
             ("gateway_key", "gw/rod/rod-1/alarm", b'{"alarm": "bite"}'),
             ("reel_cmd", "rig/rod/rod-1/reel/cmd", b'{"v":1,"cmd_id":1,"action":"out","speed_m_s":1.5}'),
+            ("bin_damaged", key, self._bin_damaged(dev)),
+            ("bin_not_finite", key, self._bin(device_id=dev, gyr_rad_s=self._rows(r.choice([math.nan, math.inf])))),
+            ("bin_key_mismatch", "rig/rod/rod-1/imu", self._bin(device_id="rod-2")),
+            ("bin_kind_mismatch", f"rig/hook/{dev}/imu", self._bin(device_id=dev)),
+            ("bin_t0_extreme", key, self._bin(device_id=dev, t0_us=r.choice([0, 2**62, 2**63 - 1]))),
         ]  # fmt: skip
         kind, k, p = r.choice(choices)
         self.kinds[kind] += 1
         return kind, k, p
+
+    def _rows(self, bad: float) -> list[list[float]]:
+        """The template's gyro rows with one value replaced by `bad`."""
+        rows = [list(row) for row in self.template["gyr_rad_s"]]
+        rows[self.rng.randrange(len(rows))][self.rng.randrange(3)] = bad
+        return rows
 
 
 def fuzz_zenoh(data_dir: Path, packets: int, seed: int = 0, valid_streams: int = 4) -> dict[str, Any]:
@@ -179,15 +215,19 @@ def fuzz_zenoh(data_dir: Path, packets: int, seed: int = 0, valid_streams: int =
         while hostile < packets:
             data, _ = fleet.tick(tick)
             tick += 1
-            for dev_msgs in data:
+            for i, dev_msgs in enumerate(data):
                 for m in dev_msgs:
                     if not m.key.endswith("/imu"):
                         continue
-                    session.put(m.key, m.payload, congestion_control=block)
-                    valid += 1
                     if template is None:
                         template = json.loads(m.payload)
                         src = HostileSource(template, rng)
+                    if i % 2:  # every second valid stream in the binary encoding, as a v2 device sends it
+                        payload = schemas.imu_to_binary(schemas.ImuPacket.model_validate_json(m.payload))
+                        session.put(m.key, payload, encoding=schemas.ENCODING_IMU_BINARY, congestion_control=block)
+                    else:
+                        session.put(m.key, m.payload, congestion_control=block)
+                    valid += 1
             assert src is not None
             for _ in range(max(1, packets // 500)):  # ~500 ticks: 25 s of data per valid stream
                 _, key, payload = src.next()

@@ -33,3 +33,5 @@ def test_hostile_zenoh_packets_cost_nothing_else(tmp_path: Path) -> None:
     assert z["rejected"].get("wall_time_ignored", 0) > 0 and z["rejected"].get("time_range", 0) > 0
     assert z["rejected"].get("device_conflict", 0) > 0  # the spoofed boots on rod-1 are reported
     assert z["raw_buffers"] <= 2 * z["devices_known"]
+    binary = ("bin_damaged", "bin_not_finite", "bin_key_mismatch", "bin_kind_mismatch", "bin_t0_extreme")
+    assert all(z["hostile_kinds"].get(k, 0) > 0 for k in binary), z["hostile_kinds"]  # protocol v2 packets too
