@@ -258,6 +258,15 @@ def _np_maximum(a: float, b: float) -> float:
 
 
 @njit
+def _since(holds: bool, since_s: float, t_s: float) -> float:
+    """When a condition that holds at `t_s` began (`since_s`, or `t_s` if it did not hold before); nan when it
+    does not hold: the run timers of both latches."""
+    if not holds:
+        return math.nan
+    return t_s if math.isnan(since_s) else since_s
+
+
+@njit
 def _event(events: FloatArray, n_ev: int, kind: float, k: int, dev: float, thr: float, cue: float,
            peak: float) -> int:  # fmt: skip
     events[n_ev, 0], events[n_ev, 1], events[n_ev, 2] = kind, k, dev
@@ -309,19 +318,10 @@ def _detect(s: FloatArray, p: FloatArray, t: FloatArray, acc: FloatArray, has_ac
                 if d <= -cue_rad and acc_mean <= -need:
                     last_cue = _np_maximum(last_cue, ti)
                 fast = d <= -bite and ti - last_cue <= CUE_HOLD_S + _EPS_S
-        by_pitch = False
-        if d <= -bite:
-            if math.isnan(run):
-                run = ti
-            by_pitch = ti - run >= p[_P_CONFIRM] - _EPS_S
-        else:
-            run = math.nan
+        run = _since(d <= -bite, run, ti)
+        by_pitch = d <= -bite and ti - run >= p[_P_CONFIRM] - _EPS_S
         near = d > near_lo
-        if near or all_near_bite:
-            if math.isnan(near_run):
-                near_run = ti
-        else:
-            near_run = math.nan
+        near_run = _since(near or all_near_bite, near_run, ti)
         if armed:
             if by_pitch or fast:
                 armed = False
@@ -339,19 +339,10 @@ def _detect(s: FloatArray, p: FloatArray, t: FloatArray, acc: FloatArray, has_ac
     armed, run, near_run = s[_S_DROP_ARMED] != 0.0, s[_S_DROP_RUN], s[_S_NEAR_DROP_RUN]
     for i in range(a, b):
         d, ti = dev[i], t[i]
-        by_pitch = False
-        if d >= drop:
-            if math.isnan(run):
-                run = ti
-            by_pitch = ti - run >= DROP_BACK_HOLD_S - _EPS_S
-        else:
-            run = math.nan
+        run = _since(d >= drop, run, ti)
+        by_pitch = d >= drop and ti - run >= DROP_BACK_HOLD_S - _EPS_S
         near = d < near_hi
-        if near or all_near_drop:
-            if math.isnan(near_run):
-                near_run = ti
-        else:
-            near_run = math.nan
+        near_run = _since(near or all_near_drop, near_run, ti)
         if armed:
             if by_pitch:
                 armed = False
