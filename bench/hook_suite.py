@@ -18,6 +18,7 @@
     python -m bench.hook_suite --settings slew              # the default before the thirteenth round (SLEW_ROUND)
     python -m bench.hook_suite --settings iron              # the default before the legacy-board round (IRON_ROUND)
     python -m bench.hook_suite --length-factor 2            # the rope length told 2x too long at t = 0
+    python -m bench.hook_suite --told-m 10                  # told 10 m whatever the rope (the gateway's default)
     python -m bench.hook_suite --sensor-draw 1              # the same cranes with another board of the preset
     python -m bench.hook_suite --suite-version 1            # the cranes before the hoist fix (earlier figures)
 
@@ -271,14 +272,16 @@ def score(q: np.ndarray, truth: HookTruth, keep: np.ndarray, absolute: bool) -> 
 def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length: bool, paper_ekf: bool = False,
              family: str = "crane", tracking: bool = False, overrides: dict[str, float] | None = None,
              rate_hz: float = RATE_HZ, length_factor: float = 1.0, suite_version: int = SUITE_VERSION,
-             sensor_draw: int = 0) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+             sensor_draw: int = 0, told_m: float | None = None) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`; the filter is told
-    `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1); `sensor_draw`: see
-    `simulate_seed`."""
+    `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1), or `told_m` whatever
+    the rope (the gateway's 10 m for a hook whose length nobody configured); `sensor_draw`: see `simulate_seed`."""
     case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz, suite_version,
                                                sensor_draw)  # fmt: skip
     out: dict[str, dict[str, dict[str, float]]] = {}
     told = case.physics.rope_length_m * length_factor if tell_length else None
+    if tell_length and told_m is not None:
+        told = told_m
     q_hook, length = hook_estimate(gyr, acc, mag, told, tracking, overrides, rate_hz)
     others = [("vqf", vqf_estimate(gyr, acc, mag, rate_hz))]
     if paper_ekf:
@@ -391,10 +394,14 @@ def main(argv: list[str] | None = None) -> int:
                    "suite's own; figures tuned on draw 0 say nothing of another draw's)")
     p.add_argument("--length-factor", type=float, default=1.0,
                    help="tell the filter this times the true rope length (a wrongly configured length; default 1)")
+    p.add_argument("--told-m", type=float, metavar="L",
+                   help="tell the filter L metres whatever the rope: e.g. 10, what the gateway tells the filter of a "
+                   "hook whose rope length nobody configured (HookThresholds.rope_length_m)")
     add_suite_version_argument(p)
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
-    told = "not told" if args.no_length else f"{args.length_factor:g}x told at t = 0"
+    told = ("not told" if args.no_length else f"{args.told_m:g} m told at t = 0" if args.told_m is not None
+            else f"{args.length_factor:g}x told at t = 0")
     board = f" (board draw {args.sensor_draw})" if args.sensor_draw else ""
     print(f"hook suite v{args.suite_version} ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}{board}, "
           f"{args.duration:g} s per seed, rope length {told}, {args.rate_hz:g} Hz; degrees; whole run after "
@@ -407,7 +414,7 @@ def main(argv: list[str] | None = None) -> int:
         case = make_case(seed, args.duration, args.family, args.rate_hz, args.suite_version)
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
                      args.tracking, parse_settings(args.settings), args.rate_hz, args.length_factor,
-                     args.suite_version, args.sensor_draw)
+                     args.suite_version, args.sensor_draw, args.told_m)
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]

@@ -155,8 +155,11 @@ class HookThresholds(_Thresholds):
     torsion_critical_deg: float = Field(default=60.0, gt=0.0, le=180.0)
     hysteresis_deg: float = Field(default=1.0, ge=0.0, le=30.0, description="An alarm clears below threshold - this.")
     # Not limits but the hook's geometry, kept here so they follow the same defaults/override/REST path.
-    rope_length_m: float = Field(default=10.0, ge=0.5, le=500.0, description="Boom tip to hook, m: the hook filter's "
-                                 "pendulum length (python -m devices.sim_hook uses 10 m). A change restarts fusion.")
+    rope_length_m: float | None = Field(default=None, ge=0.5, le=500.0, description="Boom tip to hook (and load "
+                                        "centre), m, as measured: the hook filter's pendulum length, a prior it "
+                                        "trusts to 5 %. None: not configured, the filter finds it from the "
+                                        "pendulum frequency (from 10 m, a wide prior; its estimate is in the swing "
+                                        "messages). A change restarts fusion.")
     rest_heading_deg: float | None = Field(default=None, ge=-180.0, le=180.0, description="Heading of the untwisted "
                                            "hook's body x, CCW from East, in the gateway's heading frame (9D: "
                                            "magnetic); torsion is measured from it. None: the first fused heading.")

@@ -57,19 +57,34 @@ def _packets(n: int, seed: int = 5) -> list[schemas.ImuPacket]:
 
 
 def test_rope_length_setting_reaches_the_filter_and_a_change_restarts_fusion() -> None:
+    """A configured length is told to the filter (a tight prior); none configured (the default) leaves the filter
+    to find it (wide prior from its 10 m): telling it 10 m regardless diverged on short ropes. Each change, to or
+    from none included, restarts the device's fusion; the same setting again does not."""
     pipe = Pipeline()
-    pkts = _packets(40)
+    pkts = _packets(60)
     dev_id = pkts[0].device_id
+
+    def told() -> float | None:
+        s = pipe.devices[dev_id].filt.settings  # type: ignore[union-attr]
+        return s.rope_length_m if s.rope_length_known else None
+
+    assert Pipeline().defaults["hook"].rope_length_m is None  # type: ignore[union-attr]
+    pipe.process(pkts[:15], now_wall_s=1e9)
+    assert told() is None, "no configured length: the filter is not told one"
     pipe.set_device_settings(dev_id, "hook", DeviceSettings(thresholds={"rope_length_m": 25.0}))
-    pipe.process(pkts[:20], now_wall_s=1e9)
-    filt = pipe.devices[dev_id].filt
-    assert filt is not None and filt.settings.rope_length_m == 25.0  # type: ignore[attr-defined]
+    assert dev_id not in pipe.devices, "configuring a length restarts the device's fusion"
+    pipe.process(pkts[15:30], now_wall_s=1e9)
+    assert told() == 25.0
+    pipe.set_device_settings(dev_id, "hook", DeviceSettings(thresholds={"rope_length_m": 25.0}))
+    assert dev_id in pipe.devices, "the same length again changes nothing"
     pipe.set_device_settings(dev_id, "hook", DeviceSettings(thresholds={"rope_length_m": 12.0}))
     assert dev_id not in pipe.devices, "a new rope length restarts the device's fusion"
-    pipe.process(pkts[20:], now_wall_s=1e9)
-    filt = pipe.devices[dev_id].filt
-    assert filt is not None and filt.settings.rope_length_m == 12.0  # type: ignore[attr-defined]
-    assert Pipeline().defaults["hook"].rope_length_m == 10.0, "the default agrees with devices.sim_hook (10 m)"  # type: ignore[union-attr]
+    pipe.process(pkts[30:45], now_wall_s=1e9)
+    assert told() == 12.0
+    pipe.set_device_settings(dev_id, "hook", DeviceSettings(thresholds={"rope_length_m": None}))
+    assert dev_id not in pipe.devices, "clearing the length restarts the device's fusion"
+    pipe.process(pkts[45:], now_wall_s=1e9)
+    assert told() is None
 
 
 def test_torsion_is_measured_from_the_configured_rest_heading() -> None:

@@ -87,9 +87,11 @@ class HookKind(KindBase):
     def apply(self, ctx: KindContext, dev: FusedDevice, th: Any) -> bool:
         if not isinstance(th, HookThresholds):
             return True
-        rope = getattr(getattr(dev.filt, "settings", None), "rope_length_m", None)
-        if rope is not None and rope != th.rope_length_m:  # the pendulum model changed: restart fusion
-            return False
+        fs: Any = getattr(dev.filt, "settings", None)
+        if hasattr(fs, "rope_length_known"):  # the hook filter: the length it was told (None: finds it itself)
+            told = fs.rope_length_m if fs.rope_length_known else None
+            if told != th.rope_length_m:  # the pendulum model changed: restart fusion
+                return False
         st: HookState = dev.state
         st.rules.set_thresholds(th)
         st.rest_heading_set_rad = None if th.rest_heading_deg is None else math.radians(th.rest_heading_deg)
