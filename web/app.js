@@ -633,7 +633,7 @@ const LABELS = {
   drop_back_rise_deg: "drop-back rise (°)", line_breaking_n: "line breaking strength (N)",
   line_critical_fraction: "θ3 critical at (fraction)", tension_warn_fraction: "tension warn (fraction of breaking)",
   rearm_quiet_s: "re-arm after quiet (s)", baseline_tau_s: "rest baseline time constant (s)",
-  rope_length_m: "rope length (m)", rest_heading_deg: "rest heading (°, empty = first fused)",
+  rope_length_m: "rope length (m, empty = estimated)", rest_heading_deg: "rest heading (°, empty = first fused)",
 };
 async function loadThresholds(kind) {
   const th = await getJSON(`/api/thresholds/${kind}`);
