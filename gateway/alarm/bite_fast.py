@@ -95,23 +95,25 @@ _CUE_NONE, _CUE_PITCH, _CUE_ACCEL = 0.0, 1.0, 2.0
 assert ACC_WINDOW == 3, "the kernel keeps the 2 acceleration samples before each one for the cue's mean"
 
 
+_STATE_SLOTS: dict[str, int] = {
+    "baseline_rad": _S_BASELINE, "bite_armed": _S_BITE_ARMED, "drop_armed": _S_DROP_ARMED,
+    "bite_disarmed_at_s": _S_BITE_DISARMED_AT, "drop_disarmed_at_s": _S_DROP_DISARMED_AT,
+    "bite_peak_rad": _S_BITE_PEAK, "drop_peak_rad": _S_DROP_PEAK, "bite_run_s": _S_BITE_RUN, "drop_run_s": _S_DROP_RUN,
+    "near_bite_run_s": _S_NEAR_BITE_RUN, "near_drop_run_s": _S_NEAR_DROP_RUN, "last_cue_s": _S_LAST_CUE,
+    "acc_ms": _S_ACC_MS, "acc_ms_snapshot": _S_ACC_MS_SNAPSHOT, "acc_ms_lagged": _S_ACC_MS_LAGGED,
+    "acc_checkpoint_k": _S_ACC_CHECKPOINT_K, "steady_ref_rad": _S_STEADY_REF, "steady_since_s": _S_STEADY_SINCE,
+    "warmed": _S_WARMED, "warm_sum_rad": _S_WARM_SUM, "warm_n": _S_WARM_N, "origin_s": _S_ORIGIN,
+    "frame_k": _S_FRAME_K, "closed_k": _S_CLOSED_K, "frame_t0_s": _S_FRAME_T0, "frame_lo_rad": _S_FRAME_LO,
+    "frame_hi_rad": _S_FRAME_HI,
+}  # fmt: skip
+"""`BiteState` field -> its slot (the reference's other fields, its sample lists, are the kernel's buffers)."""
+
+
 def initial_state() -> FloatArray:
     """The state of a new detector, as `BiteState()`."""
-    s = np.zeros(_N_SLOTS)
-    d = BiteState()
-    s[_S_BASELINE] = d.baseline_rad
-    s[_S_BITE_ARMED], s[_S_DROP_ARMED] = d.bite_armed, d.drop_armed
-    s[_S_BITE_DISARMED_AT], s[_S_DROP_DISARMED_AT] = d.bite_disarmed_at_s, d.drop_disarmed_at_s
-    s[_S_BITE_PEAK], s[_S_DROP_PEAK] = d.bite_peak_rad, d.drop_peak_rad
-    s[_S_BITE_RUN], s[_S_DROP_RUN] = d.bite_run_s, d.drop_run_s
-    s[_S_NEAR_BITE_RUN], s[_S_NEAR_DROP_RUN] = d.near_bite_run_s, d.near_drop_run_s
-    s[_S_LAST_CUE] = d.last_cue_s
-    s[_S_ACC_MS], s[_S_ACC_MS_SNAPSHOT], s[_S_ACC_MS_LAGGED] = d.acc_ms, d.acc_ms_snapshot, d.acc_ms_lagged
-    s[_S_ACC_CHECKPOINT_K] = d.acc_checkpoint_k
-    s[_S_STEADY_REF], s[_S_STEADY_SINCE] = d.steady_ref_rad, d.steady_since_s
-    s[_S_WARMED], s[_S_WARM_SUM], s[_S_WARM_N] = d.warmed, d.warm_sum_rad, d.warm_n
-    s[_S_ORIGIN], s[_S_FRAME_K], s[_S_CLOSED_K], s[_S_FRAME_T0] = d.origin_s, d.frame_k, d.closed_k, d.frame_t0_s
-    s[_S_FRAME_LO], s[_S_FRAME_HI] = d.frame_lo_rad, d.frame_hi_rad
+    s, d = np.zeros(_N_SLOTS), BiteState()
+    for name, k in _STATE_SLOTS.items():
+        s[k] = getattr(d, name)
     return s
 
 
@@ -465,21 +467,8 @@ class FastBiteDetector:
     @property
     def state(self) -> BiteState:
         """A snapshot of the state as the reference holds it (for tests and inspection; not the frame's samples)."""
-        s = self._s
-        return BiteState(
-            baseline_rad=float(s[_S_BASELINE]), bite_armed=bool(s[_S_BITE_ARMED]), drop_armed=bool(s[_S_DROP_ARMED]),
-            bite_disarmed_at_s=float(s[_S_BITE_DISARMED_AT]), drop_disarmed_at_s=float(s[_S_DROP_DISARMED_AT]),
-            bite_peak_rad=float(s[_S_BITE_PEAK]), drop_peak_rad=float(s[_S_DROP_PEAK]),
-            bite_run_s=float(s[_S_BITE_RUN]), drop_run_s=float(s[_S_DROP_RUN]),
-            near_bite_run_s=float(s[_S_NEAR_BITE_RUN]), near_drop_run_s=float(s[_S_NEAR_DROP_RUN]),
-            last_cue_s=float(s[_S_LAST_CUE]), acc_ms=float(s[_S_ACC_MS]),
-            acc_ms_snapshot=float(s[_S_ACC_MS_SNAPSHOT]), acc_ms_lagged=float(s[_S_ACC_MS_LAGGED]),
-            acc_checkpoint_k=int(s[_S_ACC_CHECKPOINT_K]), steady_ref_rad=float(s[_S_STEADY_REF]),
-            steady_since_s=float(s[_S_STEADY_SINCE]), warmed=bool(s[_S_WARMED]), warm_sum_rad=float(s[_S_WARM_SUM]),
-            warm_n=int(s[_S_WARM_N]), origin_s=float(s[_S_ORIGIN]), frame_k=int(s[_S_FRAME_K]),
-            closed_k=int(s[_S_CLOSED_K]), frame_t0_s=float(s[_S_FRAME_T0]), frame_lo_rad=float(s[_S_FRAME_LO]),
-            frame_hi_rad=float(s[_S_FRAME_HI]),
-        )  # fmt: skip
+        s, d = self._s, BiteState()
+        return BiteState(**{name: type(getattr(d, name))(s[k]) for name, k in _STATE_SLOTS.items()})
 
     def update(
         self,

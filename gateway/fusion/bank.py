@@ -35,11 +35,10 @@ from gateway.fusion.batch import DefaultFilterBatch
 from gateway.fusion.gaps import (
     BRIDGE_AVERAGE_S,
     COAST_MIN_S,
-    GAP_FACTOR,
-    JITTER_TOL_S,
     MAX_BRIDGE_S,
     bridge_block,
     coast_mask,
+    gap_tol_s,
     has_gap,
     has_gaps,
 )
@@ -504,8 +503,7 @@ class FusionBank:
         at = np.array([k for _, k in ask], dtype=np.int64)
         start, stop = np.array(g.start, dtype=np.int64)[at], np.array(g.stop, dtype=np.int64)[at]
         dt_s = np.array([d.dt_s for d, _ in ask])
-        strict = (GAP_FACTOR - 1.0) * dt_s
-        tol = np.where([all(d.follows) for d, _ in ask], np.maximum(strict, JITTER_TOL_S), strict)
+        tol = gap_tol_s(dt_s, [all(d.follows) for d, _ in ask])
         prev_t_s = np.array([d.last_t_s for d, _ in ask])
         gap = has_gaps(g.t_s[start], g.t_s[stop - 1], stop - start, prev_t_s, dt_s, tol).tolist()
         last_t_s = g.t_s[stop - 1].tolist()
@@ -524,13 +522,12 @@ class FusionBank:
         gyr, acc, mag, t_s = block
         prev_t_s, prev = dev.last_t_s, dev.last_block
         dev.last_t_s, dev.last_block = float(t_s[-1]), block
-        strict = (GAP_FACTOR - 1.0) * dev.dt_s
-        none_lost = all(dev.follows)
-        if not has_gap(t_s, prev_t_s, dev.dt_s, max(strict, JITTER_TOL_S) if none_lost else strict):
+        if not has_gap(t_s, prev_t_s, dev.dt_s, gap_tol_s(dev.dt_s, all(dev.follows))):
             return None
-        tol = np.full(t_s.shape[0], strict)  # within a packet the times are exact; between packets, see JITTER_TOL_S
+        # within a packet the times are exact; between packets, see JITTER_TOL_S
+        tol = np.full(t_s.shape[0], gap_tol_s(dev.dt_s, False))
         starts = np.cumsum([0, *(p.n for p in pkts[:-1])])
-        tol[starts[np.array(dev.follows, dtype=np.bool_)]] = max(strict, JITTER_TOL_S)
+        tol[starts[np.array(dev.follows, dtype=np.bool_)]] = gap_tol_s(dev.dt_s, True)
         return bridge_block(gyr, acc, mag, t_s, dev.dt_s, prev, self.max_bridge_s,
                             max(1, round(self.bridge_average_s / dev.dt_s)), self.gyro_taper_s.get(dev.kind, 0.0), tol)
 

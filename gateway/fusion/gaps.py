@@ -15,6 +15,8 @@ spring-back turns it by many degrees that never happened.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -40,6 +42,14 @@ def has_gap(t_s: FloatArray, prev_t_s: float, dt_s: float, tol_s: float | None =
         return False
     tol = (GAP_FACTOR - 1.0) * dt_s if tol_s is None else tol_s
     return bool(t_s[0] - prev_t_s > dt_s + tol or t_s[n - 1] - t_s[0] > (n - 1) * dt_s + tol)
+
+
+def gap_tol_s(dt_s: Any, none_lost: Any) -> Any:
+    """Spacing past a period that counts as a gap, s: (GAP_FACTOR - 1) periods, but at least JITTER_TOL_S after a
+    packet whose seq follows on (`none_lost`); elementwise for arrays, a float for floats."""
+    strict = (GAP_FACTOR - 1.0) * dt_s
+    tol = np.where(none_lost, np.maximum(strict, JITTER_TOL_S), strict)
+    return float(tol) if tol.ndim == 0 else tol
 
 
 def has_gaps(first_s: FloatArray, last_s: FloatArray, n: NDArray[np.int64], prev_t_s: FloatArray, dt_s: FloatArray,

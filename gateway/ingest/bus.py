@@ -191,7 +191,7 @@ class ZenohBus:
     def subscribed(self, key: str, *, encoding: str, block: bool = False, express: bool = False) -> bool:
         """zenoh's matching status of the key's publisher: True while a subscriber anywhere the routing reaches
         (this session, a client of this router, another router's) takes `key`; about a microsecond a call. A
-        subscriber declared later matches within milliseconds (tests/ingest/test_bus_matching.py)."""
+        subscriber declared later matches within milliseconds (tests/gateway/test_bus.py)."""
         status: Any = self._publisher(key, encoding, block, express).matching_status  # a MatchingStatus (stub: bool)
         return bool(status.matching)
 

@@ -525,14 +525,15 @@ def heights_batch(kb: KindBatch, live: Sequence[int], rows: FloatArray, interval
     walls = [t + d.wall_offset_us for (d, _, _, _), t in zip(picks, times, strict=True)]
     aided_ok = ((aided >= 0) & (aided < len(AIDED_NAMES)) & (aided == np.floor(aided))).all()
     devs = [d for d, _, _, _ in picks]
+    unique = {id(d): d for d in devs}
     if not (np.isfinite(vals[:, :2]).all() and aided_ok
             and headers_valid(devs, [s for _, _, s, _ in picks], times)
-            and device_fields_valid({id(d): d for d in devs}.values(), filter_name=False)):
+            and device_fields_valid(unique.values(), filter_name=False)):
         return None
     for i, t in last.items():
         kb.items[i].dev.last_height_t_s = t
     build, model, fields = schemas.prevalidated, schemas.Height, _HEIGHT_SET
-    taken = {} if takes is None else {id(d): takes(d) for d in devs}
+    taken = {} if takes is None else {k: takes(d) for k, d in unique.items()}  # once per device
     out: list[schemas.Height] = []
     for (dev, _, seq, t), wall, (h, v, rest, a) in zip(picks, walls, vals.tolist(), strict=True):
         if taken.get(id(dev), True):
