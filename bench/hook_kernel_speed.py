@@ -4,6 +4,7 @@ source tree with the same samples, runs interleaved, and whether both trees gave
     python -m bench.hook_kernel_speed                          # this tree: suite crane seed 3, 60 s, 9D and 6D
     python -m bench.hook_kernel_speed --compare <tree>         # also another tree (e.g. a worktree of main)
     python -m bench.hook_kernel_speed --packet 10 --mode 9D    # fed as the gateway feeds it: 10 samples a call
+    python -m bench.hook_kernel_speed --still --packet 10 --mode 9D --compare <tree>   # an idle crane's hook
 
 The samples are `bench.hook_suite`'s crane of `--seed` (calibrated IMU errors), simulated once here. Each tree runs
 in a child process (PYTHONPATH set to the tree, so its own `gateway` is imported) that starts the filter as the
@@ -33,15 +34,16 @@ ROOT = Path(__file__).resolve().parent.parent
 WARMUP_S = 0.5
 
 
-def make_samples(seed: int, duration_s: float, path: Path, suite_version: int | None) -> None:
-    """Simulate the suite crane of `seed` (`bench.hook_suite.make_case`'s `suite_version`, None: its default) and
-    store its IMU samples and rope length in `path` (.npz)."""
+def make_samples(seed: int, duration_s: float, path: Path, suite_version: int | None, still: bool = False) -> None:
+    """Simulate the suite crane of `seed` (`bench.hook_suite.make_case`'s `suite_version`, None: its default), or
+    with `still` that crane's hook hanging still (no swing, no event: an idle crane), and store its IMU samples and
+    rope length in `path` (.npz)."""
     from bench.hook_suite import RATE_HZ, SUITE_VERSION, make_case
     from devices.common import ImuErrorModel, SensorModel
-    from devices.hook_physics import simulate
+    from devices.hook_physics import HookScenario, simulate
 
     case = make_case(seed, duration_s, suite_version=SUITE_VERSION if suite_version is None else suite_version)
-    truth = simulate(case.physics, case.scenario)
+    truth = simulate(case.physics, HookScenario(duration_s=duration_s) if still else case.scenario)
     sensor = SensorModel(ImuErrorModel.preset("calibrated"), 1, np.random.default_rng(10_000 + seed))
     gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / RATE_HZ)
     np.savez(path, gyr=gyr, acc=acc, mag=mag, dt_s=1.0 / RATE_HZ, rope_length_m=case.physics.rope_length_m)
@@ -111,6 +113,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeat", type=int, default=2, help="child processes per tree and mode (default 2)")
     p.add_argument("--packet", type=int, default=0, help="samples per run_with_length call (default 0: all at once)")
     p.add_argument("--compare", type=Path, default=None, help="another source tree, e.g. a worktree of main")
+    p.add_argument("--still", action="store_true",
+                   help="the crane's hook hanging still for the whole run (an idle crane) instead of its events")
     p.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     p.add_argument("--out", type=Path, default=None, help=argparse.SUPPRESS)
     p.add_argument("--suite-version", type=int, default=None,  # bench.hook_suite not imported here: see --child
@@ -125,11 +129,12 @@ def main(argv: list[str] | None = None) -> int:
     modes = ["9D", "6D"] if args.mode == "both" else [args.mode]
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "samples.npz"
-        make_samples(args.seed, args.duration, data, args.suite_version)
+        make_samples(args.seed, args.duration, data, args.suite_version, args.still)
         n = int(np.load(data)["gyr"].shape[0])
         feed = f"{args.packet} samples per call" if args.packet > 0 else "one call"
-        print(f"hook EKF kernel: suite crane seed {args.seed}, {args.duration:g} s ({n} samples), {feed}; best of "
-              f"{args.runs} runs x {args.repeat} processes per tree; samples per CPU-second")
+        what = "hanging still" if args.still else "its events"
+        print(f"hook EKF kernel: suite crane seed {args.seed} ({what}), {args.duration:g} s ({n} samples), {feed}; "
+              f"best of {args.runs} runs x {args.repeat} processes per tree; samples per CPU-second")
         for mode in modes:
             best: dict[str, dict[str, Any]] = {}
             for r in range(args.repeat):

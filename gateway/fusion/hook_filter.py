@@ -339,6 +339,10 @@ class HookFilterSettings:
     # A compass that turns bad later is then not caught (`hook-6d` for that).
     compass_check_evidence_s: float = 120.0
     compass_check_swing_rad: float = 0.0087  # 0.5°
+    # ... and the twin pauses (its cost, a second filter, with it) once the hook has hung this many seconds with its
+    # swing under `compass_check_swing_rad` (a still hook is no evidence either way), then starts again from this
+    # filter's state when the hook swings (issue 16: an idle crane's hooks cost one filter, not two); 0: never pauses.
+    compass_check_still_s: float = 10.0
     start_mag_levelled: bool = True  # `start()`: the magnetometer reference and start heading from the window's field
     # turned to ENU by the start tilt and the twist (`level_mag_reference`); False: the body-frame mean (the filter
     # before the fifth round: a 5° swing put 4 µT of the vertical field into the heading, 11°, and the z gyro bias
@@ -1763,6 +1767,8 @@ class HookFilter(AttitudeFilter):
         self._twin_marks: collections.deque[tuple[float, float]] = collections.deque()  # (t s, -2 ln L difference)
         self._twin_t_s = 0.0
         self._twin_evidence_s = 0.0  # seconds of swinging the twin has been compared through
+        self._twin_still_s = 0.0  # seconds the hook has hung still since it last swang (`compass_check_still_s`)
+        self._twin_paused = False  # the twin is not stepped while the hook hangs still
         self.compass_dropped_s: float | None = None  # the magnetometer misled the swing: dropped this many seconds
         # after the start (`_check_compass`); None while it is used
         hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
@@ -1899,10 +1905,17 @@ class HookFilter(AttitudeFilter):
                 self.level_mag_reference(gyr, mag, dt_s)
         self._twin = None
         if self.use_mag and self.mag_ref_uT is not None and mag_uT is not None and s.compass_check_excess > 0.0:
-            twin = copy.deepcopy(self)  # the start heading (from the compass) kept, then the gyroscope alone
-            twin.use_mag = False
-            self._twin, self._twin_marks, self._twin_t_s = twin, collections.deque([(0.0, 0.0)]), 0.0
-            self._twin_evidence_s = 0.0
+            self._twin_t_s = self._twin_evidence_s = 0.0
+            self._start_twin()
+
+    def _start_twin(self) -> None:
+        """The twin as this filter is now, without the magnetometer (the heading from the compass kept, then the
+        gyroscope alone); the likelihood comparison starts over from here."""
+        self._twin = None
+        twin = copy.deepcopy(self)
+        twin.use_mag = False
+        self._twin, self._twin_marks = twin, collections.deque([(self._twin_t_s, 0.0)])
+        self._twin_still_s, self._twin_paused = 0.0, False
 
     @property
     def compass_trusted(self) -> bool:
@@ -1927,19 +1940,29 @@ class HookFilter(AttitudeFilter):
         `compass_check_excess`, the compass has been misleading the twist, and so the swing (an uncalibrated board's
         hard iron turns with the hook): take the twin's state and go on without the magnetometer for good
         (`compass_trusted` False). Returns this call's output (the twin's when it switched). The test runs at the
-        end of each call (`run_with_length` cuts longer calls into `COMPASS_CHECK_S` pieces while the twin runs)."""
-        twin = self._twin
+        end of each call (`run_with_length` cuts longer calls into `COMPASS_CHECK_S` pieces while the twin runs).
+        A hook that has hung still for `compass_check_still_s` pauses the twin (nothing to compare, half the cost);
+        when it swings again the twin starts over from this filter's state (`_start_twin`)."""
+        twin, s, call_s = self._twin, self.settings, gyr.shape[0] * dt_s
         assert twin is not None
+        self._twin_t_s += call_s
+        if self._monitor[13] > s.compass_check_swing_rad**2:
+            self._twin_evidence_s += call_s
+            self._twin_still_s = 0.0
+        else:
+            self._twin_still_s += call_s
+        if 0.0 < s.compass_check_still_s <= self._twin_still_s:
+            self._twin_paused = True  # hanging still: the test has nothing to compare, the twin's cost pauses
+            return out
+        if self._twin_paused:  # swinging again: the twin starts from this filter's state after this call
+            self._start_twin()
+            return out
         twin_out = twin.run_with_length(gyr, acc, None, dt_s, r_scale)
-        self._twin_t_s += gyr.shape[0] * dt_s
-        if self._monitor[13] > self.settings.compass_check_swing_rad**2:
-            self._twin_evidence_s += gyr.shape[0] * dt_s
         now, diff = self._twin_t_s, float(self._monitor[9] - twin._monitor[9])
-        marks, window = self._twin_marks, self.settings.compass_check_window_s
+        marks, window = self._twin_marks, s.compass_check_window_s
         marks.append((now, diff))
         while len(marks) > 1 and marks[1][0] <= now - window:
             marks.popleft()
-        s = self.settings
         if diff - marks[0][1] <= (s.compass_check_early_excess if now < s.compass_check_after_s
                                   else s.compass_check_excess):  # fmt: skip
             if 0.0 < s.compass_check_evidence_s <= self._twin_evidence_s:

@@ -162,3 +162,43 @@ def test_a_compass_trusted_through_two_minutes_of_swinging_is_kept_and_the_twin_
     q_old = _run(HookFilter(HookFilterSettings(**told, **COMPASS_ROUND)), gyr, acc, mag, 10)  # type: ignore[arg-type]
     assert f.compass == "trusted" and f._twin is None
     assert np.array_equal(q, q_old)
+
+
+def test_a_still_hook_pauses_its_twin_and_a_swing_restarts_it_from_the_filter() -> None:
+    """A calibrated hook hanging still (8 m, 2 t) for 25 s, then a 600 N tag-line pull for 3 s: once it has hung still
+    for `compass_check_still_s` (10 s) the twin is not stepped (its state stands); within 3 s of the true swing
+    passing `compass_check_swing_rad` (the filter's swing energy is a running mean) a new twin starts from the
+    filter's state; the output is the filter's without the twin, bit for bit (the compass is kept)."""
+    from devices.common import ImuErrorModel, SensorModel
+    from devices.hook_physics import HookPhysicsSettings, HookScenario, Pull, simulate
+
+    physics = HookPhysicsSettings(rope_length_m=8.0, hook_mass_kg=2000.0)
+    truth = simulate(physics, HookScenario(duration_s=40.0, pulls=(Pull(25.0, 3.0, (600.0, 0.0)),)))
+    sensor = SensorModel(ImuErrorModel.preset("calibrated"), 1, np.random.default_rng(5))
+    gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / RATE_HZ)
+    told = {"rope_length_m": 8.0, "rope_length_known": True}
+    f = HookFilter(HookFilterSettings(**told))  # type: ignore[arg-type]
+    assert f.settings.compass_check_still_s == 10.0
+    f.start(gyr[:50], acc[:50], mag[:50], 1.0 / RATE_HZ)
+    paused_at = resumed_at = None
+    quats = []
+    for a in range(0, gyr.shape[0], SPP):
+        twin_before = f._twin
+        assert twin_before is not None
+        x_before = twin_before.x.copy()
+        quats.append(f.run_with_length(gyr[a:a + SPP], acc[a:a + SPP], mag[a:a + SPP], 1.0 / RATE_HZ)[0])
+        t_s = (a + SPP) / RATE_HZ
+        if f._twin_paused:
+            paused_at = t_s if paused_at is None else paused_at
+            assert f._twin is twin_before and np.array_equal(twin_before.x, x_before)  # not stepped
+        elif paused_at is not None and resumed_at is None:
+            resumed_at = t_s
+            assert f._twin is not twin_before and f._twin is not None and not f._twin.use_mag
+            np.testing.assert_array_equal(f._twin.x, f.x)
+            np.testing.assert_array_equal(f._twin.P, f.P)
+    assert paused_at is not None and 10.0 < paused_at < 13.0, paused_at
+    swings_at = float(truth.t_s[np.argmax(truth.swing_rad > f.settings.compass_check_swing_rad)])
+    assert resumed_at is not None and swings_at < resumed_at < swings_at + 3.0, (swings_at, resumed_at)
+    assert f.compass_trusted
+    q_old = _run(HookFilter(HookFilterSettings(**told, **COMPASS_ROUND)), gyr, acc, mag, SPP)  # type: ignore[arg-type]
+    assert np.array_equal(np.concatenate(quats), q_old)
