@@ -116,7 +116,7 @@ N_MONITOR = 22  # `ekf_step`'s innovation statistics, move and hoist timers, the
 # the force input's means
 
 
-COMPASS_CHECK_S = 1.0  # `HookFilter.run_with_length` runs longer calls in pieces of this while the compass is tested
+COMPASS_CHECK_S = 1.0  # the compass test runs every this many seconds of samples (`HookFilter._check_compass`)
 COAST_R_SCALE = 1e8  # `run_bridged`: measurement variances × this on rows that were never measured
 
 
@@ -1769,6 +1769,7 @@ class HookFilter(AttitudeFilter):
         self._twin_evidence_s = 0.0  # seconds of swinging the twin has been compared through
         self._twin_still_s = 0.0  # seconds the hook has hung still since it last swang (`compass_check_still_s`)
         self._twin_paused = False  # the twin is not stepped while the hook hangs still
+        self._to_check = 1  # samples until the compass test runs next (`_check_compass`; set by `start()`)
         self.compass_dropped_s: float | None = None  # the magnetometer misled the swing: dropped this many seconds
         # after the start (`_check_compass`); None while it is used
         hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
@@ -1906,6 +1907,7 @@ class HookFilter(AttitudeFilter):
         self._twin = None
         if self.use_mag and self.mag_ref_uT is not None and mag_uT is not None and s.compass_check_excess > 0.0:
             self._twin_t_s = self._twin_evidence_s = 0.0
+            self._to_check = max(1, round(COMPASS_CHECK_S / dt_s))
             self._start_twin()
 
     def _start_twin(self) -> None:
@@ -1939,25 +1941,31 @@ class HookFilter(AttitudeFilter):
         (`monitor[9]`) over the last `compass_check_window_s`: when this filter's exceeds the twin's by more than
         `compass_check_excess`, the compass has been misleading the twist, and so the swing (an uncalibrated board's
         hard iron turns with the hook): take the twin's state and go on without the magnetometer for good
-        (`compass_trusted` False). Returns this call's output (the twin's when it switched). The test runs at the
-        end of each call (`run_with_length` cuts longer calls into `COMPASS_CHECK_S` pieces while the twin runs).
-        A hook that has hung still for `compass_check_still_s` pauses the twin (nothing to compare, half the cost);
-        when it swings again the twin starts over from this filter's state (`_start_twin`)."""
-        twin, s, call_s = self._twin, self.settings, gyr.shape[0] * dt_s
+        (`compass_trusted` False). Returns this call's output (the twin's when it switched). The test runs every
+        `COMPASS_CHECK_S` of samples counted from the start (`run_with_length` cuts calls where it falls), so its
+        decisions are the same whatever the packet size. A hook that has hung still for `compass_check_still_s`
+        pauses the twin (nothing to compare, half the cost); when it swings again the twin starts over from this
+        filter's state (`_start_twin`)."""
+        twin, s = self._twin, self.settings
         assert twin is not None
-        self._twin_t_s += call_s
+        twin_out = out if self._twin_paused else twin.run_with_length(gyr, acc, None, dt_s, r_scale)
+        self._to_check -= gyr.shape[0]
+        if self._to_check > 0:
+            return out
+        piece = max(1, round(COMPASS_CHECK_S / dt_s))
+        self._to_check, step_s = piece, piece * dt_s
+        self._twin_t_s += step_s
         if self._monitor[13] > s.compass_check_swing_rad**2:
-            self._twin_evidence_s += call_s
+            self._twin_evidence_s += step_s
             self._twin_still_s = 0.0
         else:
-            self._twin_still_s += call_s
+            self._twin_still_s += step_s
         if 0.0 < s.compass_check_still_s <= self._twin_still_s:
             self._twin_paused = True  # hanging still: the test has nothing to compare, the twin's cost pauses
             return out
-        if self._twin_paused:  # swinging again: the twin starts from this filter's state after this call
+        if self._twin_paused:  # swinging again: the twin starts from this filter's state now
             self._start_twin()
             return out
-        twin_out = twin.run_with_length(gyr, acc, None, dt_s, r_scale)
         now, diff = self._twin_t_s, float(self._monitor[9] - twin._monitor[9])
         marks, window = self._twin_marks, s.compass_check_window_s
         marks.append((now, diff))
@@ -2097,11 +2105,13 @@ class HookFilter(AttitudeFilter):
         if not self._initialised:
             self.initialise(acc[0], None if mag_uT is None else mag_uT[0])
         use_mag = self.use_mag and mag_uT is not None and self.mag_ref_uT is not None
-        piece = max(1, round(COMPASS_CHECK_S / dt_s))
-        if self._twin is not None and use_mag and gyr.shape[0] > piece:  # the compass test at most a second apart
+        if self._twin is not None and use_mag and gyr.shape[0] > self._to_check:  # cut where the compass test runs
             assert mag_uT is not None
-            parts = [self.run_with_length(gyr[a:a + piece], acc[a:a + piece], mag_uT[a:a + piece], dt_s, r_scale)
-                     for a in range(0, gyr.shape[0], piece)]  # fmt: skip
+            parts, a, n = [], 0, gyr.shape[0]
+            while a < n:
+                k = max(1, self._to_check) if self._twin is not None and self.use_mag else n - a
+                parts.append(self.run_with_length(gyr[a:a + k], acc[a:a + k], mag_uT[a:a + k], dt_s, r_scale))
+                a += k
             return np.concatenate([q for q, _ in parts]), np.concatenate([ln for _, ln in parts])
         z, u = _packet_rows(gyr, acc, np.asarray(mag_uT, dtype=np.float64) if use_mag else gyr, 7 if use_mag else 4,
                             self.acc_z_offset_m_s2, self._gyr_before(gyr), dt_s)  # fmt: skip

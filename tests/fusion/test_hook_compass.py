@@ -112,27 +112,25 @@ def _run(f: HookFilter, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, calls
 
 
 def test_the_compass_test_does_not_hang_on_the_call_size(raw_board: tuple) -> None:
-    """One call for the whole run (as `bench.hook_suite`), 1-s calls and 10-sample packets: the compass is dropped
-    within one second of the same time (the test runs at least once a second) and Θ after the last of the drops
-    agrees within 0.01° RMSE. (Before a drop the outputs differ by call size: the call that drops the compass
-    returns the twin's output for all its samples.)"""
+    """One call for the whole run (as `bench.hook_suite`), 1-s calls, 10- and 7-sample packets: the compass test runs
+    every second of samples counted from the start whatever the call size, so the compass is dropped at the same
+    time and the quaternions are the same bit for bit, but for the second before the drop (the call that drops
+    the compass returns the twin's output for all its samples: a whole second in one, the last packet in another).
+    Before the test ran at call ends: within a packet of the same time, not the same state."""
     case, truth, gyr, acc, mag = raw_board
     settings = HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True)
     quats, drops = {}, {}
-    for calls in (gyr.shape[0], 100, 10):
+    for calls in (gyr.shape[0], 100, 10, 7):
         f = HookFilter(settings)
         quats[calls] = _run(f, gyr, acc, mag, calls)
         drops[calls] = f.compass_dropped_s
-    dropped = list(drops.values())
-    assert all(d is not None for d in dropped), drops
-    assert max(dropped) - min(dropped) <= 1.0 + 1e-9, drops  # type: ignore[operator]
-    after = round((WARM_S + max(dropped)) * RATE_HZ) + 1  # type: ignore[operator]
-    runs = {}
+    assert drops[gyr.shape[0]] is not None and len(set(drops.values())) == 1, drops
+    # `_run` feeds the warm-up window again from sample 0; the test counts from `start()`, so the drop's second
+    # ends `drop` s of samples after sample 0
+    end = round(drops[gyr.shape[0]] * RATE_HZ)
     for calls, q in quats.items():
-        err = np.degrees(hook_geo.swing_angle(q) - truth.swing_rad)[after:]
-        runs[calls] = float(np.sqrt(np.mean(err**2)))
-    rmses = list(runs.values())
-    assert max(rmses) - min(rmses) < 0.01, runs
+        assert np.array_equal(q[:end - round(RATE_HZ)], quats[gyr.shape[0]][:end - round(RATE_HZ)]), calls
+        assert np.array_equal(q[end:], quats[gyr.shape[0]][end:]), calls
 
 
 @pytest.mark.parametrize("seed", [30, 1])
@@ -185,18 +183,19 @@ def test_a_still_hook_pauses_its_twin_and_a_swing_restarts_it_from_the_filter() 
     for a in range(0, gyr.shape[0], SPP):
         twin_before = f._twin
         assert twin_before is not None
-        x_before = twin_before.x.copy()
+        x_before, was_paused = twin_before.x.copy(), f._twin_paused
         quats.append(f.run_with_length(gyr[a:a + SPP], acc[a:a + SPP], mag[a:a + SPP], 1.0 / RATE_HZ)[0])
         t_s = (a + SPP) / RATE_HZ
         if f._twin_paused:
             paused_at = t_s if paused_at is None else paused_at
-            assert f._twin is twin_before and np.array_equal(twin_before.x, x_before)  # not stepped
+            if was_paused:
+                assert f._twin is twin_before and np.array_equal(twin_before.x, x_before)  # not stepped
         elif paused_at is not None and resumed_at is None:
             resumed_at = t_s
             assert f._twin is not twin_before and f._twin is not None and not f._twin.use_mag
             np.testing.assert_array_equal(f._twin.x, f.x)
             np.testing.assert_array_equal(f._twin.P, f.P)
-    assert paused_at is not None and 10.0 < paused_at < 13.0, paused_at
+    assert paused_at is not None and 10.0 <= paused_at < 13.0, paused_at
     swings_at = float(truth.t_s[np.argmax(truth.swing_rad > f.settings.compass_check_swing_rad)])
     assert resumed_at is not None and swings_at < resumed_at < swings_at + 3.0, (swings_at, resumed_at)
     assert f.compass_trusted
