@@ -21,6 +21,7 @@ from gateway.fusion.hook_filter import (
     FOURTH_ROUND,
     HOIST_ROUND,
     PREVIOUS_DEFAULT,
+    PRIOR_ROUND,
     ROPE_ROUND,
     SLEW_ROUND,
     TIP_ROUND,
@@ -625,12 +626,14 @@ def test_a_stops_re_run_from_a_zero_tip_estimate_helps_after_a_trolley_stop():
     tip estimate. After a 0.25 m/s² trolley acceleration stops on a 3 m rope, Θ RMSE from 0.5 s after the stop, mean
     over four draws, is more than 5 % lower with it at 0.2 m/s² (measured 0.152° vs 0.165°: 0.170 vs 0.201° and
     0.180 vs 0.200° on two draws, the same on the other two), on the filter of its round (`ROPE_ROUND`, the rope
-    settings before the hoist round; with the hoist round's defaults 0.182° vs 0.187°, 2.7 % lower)."""
+    settings before the hoist round, and `PRIOR_ROUND`, the rope prior before the prior round; with the hoist round's
+    defaults 0.182° vs 0.187°, 2.7 % lower)."""
     on, off = [], []
     for seed in (41, 42, 43, 44):
         truth, gyr, acc = trolley_stop_data(seed)
-        on.append(swing_rmse_from(truth, gyr, acc, 3.0, ROPE_ROUND | HOIST_ROUND | {"jump_stop_std_m_s2": 0.2}, 21.0))
-        off.append(swing_rmse_from(truth, gyr, acc, 3.0, ROPE_ROUND | HOIST_ROUND, 21.0))
+        its_round = ROPE_ROUND | HOIST_ROUND | PRIOR_ROUND
+        on.append(swing_rmse_from(truth, gyr, acc, 3.0, its_round | {"jump_stop_std_m_s2": 0.2}, 21.0))
+        off.append(swing_rmse_from(truth, gyr, acc, 3.0, its_round, 21.0))
     assert np.mean(off) > 1.05 * np.mean(on), (on, off)
 
 
