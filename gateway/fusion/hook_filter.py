@@ -88,7 +88,7 @@ from __future__ import annotations
 import collections
 import copy
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -120,6 +120,22 @@ COMPASS_CHECK_S = 1.0  # the compass test runs every this many seconds of sample
 COAST_R_SCALE = 1e8  # `run_bridged`: measurement variances × this on rows that were never measured
 
 
+class _Replay:
+    """`HookFilter.start()`'s arguments and the samples run since, for `HookFilter._replay_start`."""
+
+    def __init__(self, window: tuple[FloatArray, FloatArray, FloatArray, float, bool]) -> None:
+        self.window = window
+        self.chunks: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+        self.samples = 0
+
+    def add(self, gyr: FloatArray, acc: FloatArray, mag: FloatArray) -> None:
+        self.chunks.append((gyr.copy(), acc.copy(), np.array(mag, dtype=np.float64)))
+        self.samples += gyr.shape[0]
+
+    def samples_since(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        return tuple(np.concatenate([c[k] for c in self.chunks]) for k in range(3))  # type: ignore[return-value]
+
+
 @dataclass(frozen=True)
 class HookFilterSettings:
     """Rope and noise model. Noise figures are per-sample standard deviations unless named a PSD."""
@@ -131,6 +147,15 @@ class HookFilterSettings:
     # `PRIOR_ROUND`; the right length 0.136° either way)
     rope_unknown_rel_std: float = 0.3  # no configured length: ln-length 1σ (wider lets a trolley jerk at rest
     # read as a rope length: 10 m -> 180 m in bench.hook_accuracy's 1.6 m/s² kick with 0.7)
+    # Not told a length, a hook already swinging at start is started at plumb and its compass reference levelled as
+    # if plumb: up to the swing (5-7°) of dip and twice that of heading go into the hard iron and the twist (fresh
+    # seeds 1691-1700 not told: torsion 17.6°, direction 16°). So the start is redone once the pendulum has given the
+    # length: when its ln-length 1σ is under `restart_told_std` (after `restart_told_min_s`, at the latest at
+    # `restart_told_max_s` of samples) the filter starts again from its warm-up window told that length (as a
+    # prior, `rope_known_rel_std`) and runs the samples since again (`_replay_start`). 0: never.
+    restart_told_std: float = 0.05
+    restart_told_min_s: float = 2.0
+    restart_told_max_s: float = 15.0
     min_rope_length_m: float = 0.5
     max_rope_length_m: float = 200.0
     gravity_m_s2: float = 9.80665
@@ -368,6 +393,8 @@ IRON_ROUND: dict[str, float] = {"mag_reference_hard_iron": False}
 
 # A configured rope length's prior std before issue 11's prior round (5 %): `HookFilterSettings(**PRIOR_ROUND)`.
 PRIOR_ROUND: dict[str, float] = {"rope_known_rel_std": 0.05}
+# No re-start told the learnt length (`restart_told_std`), the filter before issue 11's start round.
+RESTART_ROUND: dict[str, float] = {"restart_told_max_s": 0.0}
 
 # The defaults before issue 11's compass round (no twin without the magnetometer): `HookFilterSettings(**COMPASS_ROUND)`
 COMPASS_ROUND: dict[str, float] = {"compass_check_excess": 0.0}
@@ -1775,6 +1802,9 @@ class HookFilter(AttitudeFilter):
         self._twin_still_s = 0.0  # seconds the hook has hung still since it last swang (`compass_check_still_s`)
         self._twin_paused = False  # the twin is not stepped while the hook hangs still
         self._to_check = 1  # samples until the compass test runs next (`_check_compass`; set by `start()`)
+        self._replay: _Replay | None = None  # `start()`'s window and the samples since, while a re-start may come
+        self.start_redone_s: float | None = None  # seconds of samples after `start()` at which it was redone told the
+        # rope length found (`_replay_start`); None if it was not
         self.compass_dropped_s: float | None = None  # the magnetometer misled the swing: dropped this many seconds
         # after the start (`_check_compass`); None while it is used
         hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
@@ -1909,11 +1939,14 @@ class HookFilter(AttitudeFilter):
             # the swing's bearing was read with the unlevelled heading (tuning seed 7: 18° off, p 1.8° off): again
             if swinging and self._set_start_swing(self.swing_from_window(gyr, dt_s)):
                 self.level_mag_reference(gyr, mag, dt_s)
-        self._twin = None
+        self._twin = self._replay = None
         if self.use_mag and self.mag_ref_uT is not None and mag_uT is not None and s.compass_check_excess > 0.0:
             self._twin_t_s = self._twin_evidence_s = 0.0
             self._to_check = max(1, round(COMPASS_CHECK_S / dt_s))
             self._start_twin()
+        if (swing is not None and not s.rope_length_known and s.restart_told_max_s > 0.0 and self.use_mag
+                and mag_uT is not None):  # fmt: skip
+            self._replay = _Replay((gyr.copy(), acc.copy(), np.array(mag_uT, dtype=np.float64), dt_s, seed_bias))
 
     def _start_twin(self) -> None:
         """The twin as this filter is now, without the magnetometer (the heading from the compass kept, then the
@@ -2088,6 +2121,7 @@ class HookFilter(AttitudeFilter):
         returns q (4,)."""
         if not self._initialised:
             self.initialise(acc_m_s2, mag_uT)
+        self._replay = None  # the per-sample path keeps no samples for a re-start (`_replay_start`)
         gyr, acc = np.asarray(gyr_rad_s, dtype=np.float64), np.asarray(acc_m_s2, dtype=np.float64)
         use_mag = self.use_mag and mag_uT is not None and self.mag_ref_uT is not None
         u = self._inputs(gyr[None, :], acc[None, :], dt_s)[0]
@@ -2125,9 +2159,43 @@ class HookFilter(AttitudeFilter):
             r_diag = r_diag * r_scale
         quats, lengths, self.x, self.P = ekf_run(self.x, self.P, z, u, dt_s, params, self._q_psd, r_diag,
                                                  self._monitor, *self._rings(dt_s))  # fmt: skip
+        if self._replay is not None and self._replay_start(gyr, acc, mag_uT if use_mag else None, dt_s, r_scale):
+            return quats, lengths  # started again: the re-started filter ran these samples, its compass test too
         if self._twin is not None and use_mag:
             return self._check_compass(gyr, acc, dt_s, r_scale, (quats, lengths))
         return quats, lengths
+
+    def _replay_start(self, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, dt_s: float,
+                      r_scale: float) -> bool:  # fmt: skip
+        """Keep this call's samples while a re-start may come (see `restart_told_std`); once the rope length is
+        known well enough, start again from `start()`'s window told that length and run the kept samples again, then
+        go on from there with this filter's own settings (the call's output stays what it was; True: started
+        again). Decided where the compass test runs, every `COMPASS_CHECK_S` of samples, before it (a compass the
+        wrong start misled would be dropped there). Given up for good when the compass was dropped, a call was
+        bridged (`r_scale`), the rate changed, the magnetometer went or `update()` took a sample."""
+        replay, s = self._replay, self.settings
+        assert replay is not None
+        if mag is None or r_scale != 1.0 or dt_s != replay.window[3] or not self.compass_trusted:
+            self._replay = None
+            return False
+        replay.add(gyr, acc, mag)
+        if self._twin is not None and self._to_check > gyr.shape[0]:
+            return False  # decided where the compass test runs (calls are cut there): the same whatever the packets
+        seen_s = replay.samples * dt_s
+        if seen_s < s.restart_told_min_s or (math.sqrt(self.P[_LOG_L, _LOG_L]) >= s.restart_told_std
+                                             and seen_s < s.restart_told_max_s):  # fmt: skip
+            return False
+        self._replay = None
+        told_s = replace(s, rope_length_m=math.exp(float(self.x[_LOG_L])), rope_length_known=True)
+        told = HookFilter(told_s, use_mag=self.use_mag)
+        told.start(*replay.window)
+        told.run_with_length(*replay.samples_since(), dt_s)
+        told.settings = s  # told only for the start: `rope_length_known` and `rope_length_m` act nowhere else
+        if told._twin is not None:
+            told._twin.settings = s
+        self.__dict__.update(told.__dict__)
+        self._constants, self.start_redone_s = None, seen_s
+        return True
 
     _constants: tuple[HookFilterSettings, bool, int, bytes, FloatArray, FloatArray] | None = None
 
