@@ -16,7 +16,8 @@ Scenarios (the hook hangs still for `--still` s first; the gateway warms up on t
   twists by ±100° at up to 100 °/s). The boom tip's acceleration is unobservable from the hook (see
   gateway.fusion.hook_filter), so Θ during the move is not scored in the free-swing window.
 - `suite:SEED`: bench.hook_suite's randomised crane of that seed (its physics and the calibrated IMU preset; the
-  rope length is set with `PUT /api/thresholds/hook` first, as a user would); `--still` does not apply.
+  rope length is set with `PUT /api/thresholds/hook` first, as a user would, unless `--no-length`); `--still`
+  does not apply.
   `suite:SEED:1`: the same from the suite's generator version 1 (before its hoist fix; default: its default, 2).
 
 Windows, in scenario time (device time since its first sample): *free swing* from the end of the excitation plus
@@ -271,8 +272,9 @@ def device_args(case_name: str, duration_s: float, still_s: float, seed: int, tw
 
 def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenario: str = "free",
                 twist_torque_n_m: float | None = None, record_imu: bool = False,
-                link: common.LinkModel | None = None) -> tuple[Recorder, int]:  # fmt: skip
-    """Gateway + hook processes with an observer session; returns what it saw and the device's exit code."""
+                link: common.LinkModel | None = None, tell_length: bool = True) -> tuple[Recorder, int]:  # fmt: skip
+    """Gateway + hook processes with an observer session; returns what it saw and the device's exit code
+    (`tell_length` False: a suite crane's rope length is not set, the gateway's default)."""
     import subprocess
 
     zport, hport = free_port(), free_port()
@@ -283,7 +285,7 @@ def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenar
     try:
         wait_http(hport)
         case = make_case(scenario, duration_s, still_s, seed, twist_torque_n_m)
-        if case.physics is not None:  # a suite crane: tell the gateway its rope length, as a user would over REST
+        if case.physics is not None and tell_length:  # a suite crane: its rope length, as a user would set it
             set_rope_length(hport, work / "data", case.physics.rope_length_m)
         with zenoh.open(observer_config(zport)) as session:
             subs = [session.declare_subscriber(sel, rec) for sel in selectors]
@@ -313,7 +315,7 @@ def set_rope_length(http_port: int, data_dir: Path, rope_length_m: float) -> Non
     r.raise_for_status()
 
 
-def run_in_process(case: Case, duration_s: float, seed: int) -> tuple[Recorder, float, int]:
+def run_in_process(case: Case, duration_s: float, seed: int, tell_length: bool = True) -> tuple[Recorder, float, int]:
     """The same packets straight into a `Pipeline` (no zenoh, no processes): recorder, pipeline CPU seconds, packets."""
     from gateway.config import HookThresholds
     from gateway.pipeline import Pipeline
@@ -321,7 +323,7 @@ def run_in_process(case: Case, duration_s: float, seed: int) -> tuple[Recorder, 
     fleet = fleet_settings(duration_s, seed)
     hooks = HookFleet(fleet, case, seed)
     pipe = Pipeline()
-    if case.physics is not None:
+    if case.physics is not None and tell_length:
         pipe.set_defaults("hook", HookThresholds(rope_length_m=case.physics.rope_length_m))
     pipe.warm_up()
     rec = Recorder()
@@ -371,6 +373,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--loss", type=float, default=0.0, help="packets the device's link loses (Gilbert-Elliott, "
                    "devices.common.LinkSim), long-run share (default 0; zenoh runs only)")  # fmt: skip
     p.add_argument("--burst", type=float, default=2.0, help="with --loss: mean burst length, packets (default 2)")
+    p.add_argument("--no-length", action="store_true",
+                   help="suite:SEED: do not set the rope length (the gateway's default: the filter finds it)")
     p.add_argument("--device", action="store_true", help="(internal) run the hook device process")
     p.add_argument("--port", type=int, default=7447, help="(with --device) gateway zenoh port")
     args = p.parse_args(argv)
@@ -382,7 +386,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.in_process and link is not None:
         p.error("--loss needs the zenoh run (the device process's link drops the packets)")
     if args.in_process:
-        rec, busy_s, n_packets = run_in_process(case, args.duration, args.seed)
+        rec, busy_s, n_packets = run_in_process(case, args.duration, args.seed, not args.no_length)
         code = 0
         print(f"pipeline cost: {busy_s / n_packets * 1e3:.3f} CPU ms per hook packet of {SAMPLES_PER_PACKET} samples "
               f"({n_packets * SAMPLES_PER_PACKET / busy_s:,.0f} samples per CPU-second, one hook, after warm_up())")
@@ -390,7 +394,8 @@ def main(argv: list[str] | None = None) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             print(f"running {args.duration:g} s of hook data through zenoh and the gateway ...", file=sys.stderr)
             rec, code = run_session(args.duration, args.still, args.seed, Path(tmp), args.scenario,
-                                    args.twist_torque, record_imu=args.compare, link=link)  # fmt: skip
+                                    args.twist_torque, record_imu=args.compare, link=link,
+                                    tell_length=not args.no_length)  # fmt: skip
     if not args.compare:
         rec.samples = [s for s in rec.samples if not s[1].endswith("/imu")]
     r = analyse(rec, case.excitation_end_s, args.settle)
