@@ -1805,6 +1805,7 @@ class HookFilter(AttitudeFilter):
         self._replay: _Replay | None = None  # `start()`'s window and the samples since, while a re-start may come
         self.start_redone_s: float | None = None  # seconds of samples after `start()` at which it was redone told the
         # rope length found (`_replay_start`); None if it was not
+        self.start_redone_q0: FloatArray | None = None  # then: the redone estimate of the first sample after `start()`
         self.compass_dropped_s: float | None = None  # the magnetometer misled the swing: dropped this many seconds
         # after the start (`_check_compass`); None while it is used
         hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
@@ -2159,43 +2160,47 @@ class HookFilter(AttitudeFilter):
             r_diag = r_diag * r_scale
         quats, lengths, self.x, self.P = ekf_run(self.x, self.P, z, u, dt_s, params, self._q_psd, r_diag,
                                                  self._monitor, *self._rings(dt_s))  # fmt: skip
-        if self._replay is not None and self._replay_start(gyr, acc, mag_uT if use_mag else None, dt_s, r_scale):
-            return quats, lengths  # started again: the re-started filter ran these samples, its compass test too
+        if self._replay is not None:
+            redone = self._replay_start(gyr, acc, mag_uT if use_mag else None, dt_s, r_scale)
+            if redone is not None:  # started again: the re-started filter ran these samples, its compass test too
+                return redone
         if self._twin is not None and use_mag:
             return self._check_compass(gyr, acc, dt_s, r_scale, (quats, lengths))
         return quats, lengths
 
     def _replay_start(self, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, dt_s: float,
-                      r_scale: float) -> bool:  # fmt: skip
+                      r_scale: float) -> tuple[FloatArray, FloatArray] | None:  # fmt: skip
         """Keep this call's samples while a re-start may come (see `restart_told_std`); once the rope length is
         known well enough, start again from `start()`'s window told that length and run the kept samples again, then
-        go on from there with this filter's own settings (the call's output stays what it was; True: started
-        again). Decided where the compass test runs, every `COMPASS_CHECK_S` of samples, before it (a compass the
-        wrong start misled would be dropped there). Given up for good when the compass was dropped, a call was
-        bridged (`r_scale`), the rate changed, the magnetometer went or `update()` took a sample."""
+        go on from there with this filter's own settings. Returns the re-started filter's output for this call's
+        samples when it started again (`start_redone_q0`: its estimate of the first sample, the hook kind's torsion
+        reference), else None. Decided where the compass test runs, every `COMPASS_CHECK_S` of samples, before it
+        (a compass the wrong start misled would be dropped there). Given up for good when the compass was dropped, a
+        call was bridged (`r_scale`), the rate changed, the magnetometer went or `update()` took a sample."""
         replay, s = self._replay, self.settings
         assert replay is not None
         if mag is None or r_scale != 1.0 or dt_s != replay.window[3] or not self.compass_trusted:
             self._replay = None
-            return False
+            return None
         replay.add(gyr, acc, mag)
         if self._twin is not None and self._to_check > gyr.shape[0]:
-            return False  # decided where the compass test runs (calls are cut there): the same whatever the packets
+            return None  # decided where the compass test runs (calls are cut there): the same whatever the packets
         seen_s = replay.samples * dt_s
         if seen_s < s.restart_told_min_s or (math.sqrt(self.P[_LOG_L, _LOG_L]) >= s.restart_told_std
                                              and seen_s < s.restart_told_max_s):  # fmt: skip
-            return False
+            return None
         self._replay = None
         told_s = replace(s, rope_length_m=math.exp(float(self.x[_LOG_L])), rope_length_known=True)
         told = HookFilter(told_s, use_mag=self.use_mag)
         told.start(*replay.window)
-        told.run_with_length(*replay.samples_since(), dt_s)
+        quats, lengths = told.run_with_length(*replay.samples_since(), dt_s)
         told.settings = s  # told only for the start: `rope_length_known` and `rope_length_m` act nowhere else
         if told._twin is not None:
             told._twin.settings = s
         self.__dict__.update(told.__dict__)
-        self._constants, self.start_redone_s = None, seen_s
-        return True
+        self._constants, self.start_redone_s, self.start_redone_q0 = None, seen_s, quats[0].copy()
+        n = gyr.shape[0]
+        return quats[-n:], lengths[-n:]
 
     _constants: tuple[HookFilterSettings, bool, int, bytes, FloatArray, FloatArray] | None = None
 

@@ -57,6 +57,7 @@ class HookState:
 
     rules: HookAlarms
     rest_heading_rad: float | None = None  # heading at the first fused sample (torsion reference)
+    rest_heading_redone: bool = False  # the reference retaken from the filter's redone start (`start_redone_q0`)
     rest_heading_set_rad: float | None = None  # configured rest heading (HookThresholds), wins when set
     last_swing_t_s: float = -math.inf  # device time of the last Swing published
     swing: schemas.Swing | None = None
@@ -103,6 +104,9 @@ class HookKind(KindBase):
             st: HookState = f.dev.state
             if st.rest_heading_rad is None:
                 st.rest_heading_rad = float(hook_geo.twist_heading(f.q[0]))
+            if not st.rest_heading_redone and (q0 := getattr(f.dev.filt, "start_redone_q0", None)) is not None:
+                # the filter started again told the rope length it found: its better estimate of the same sample
+                st.rest_heading_rad, st.rest_heading_redone = float(hook_geo.twist_heading(q0)), True
             refs[i] = st.rest_heading_rad if st.rest_heading_set_rad is None else st.rest_heading_set_rad
         swing = hook_geo.swing_angle(kb.q)
         tors = hook_geo.torsion(kb.q, np.repeat(refs, kb.stop - kb.start))
