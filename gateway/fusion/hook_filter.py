@@ -2241,6 +2241,19 @@ class HookFilter(AttitudeFilter):
         return np.array(_output_quaternion(self.x, self._kernel_constants(use_mag, 7 if use_mag else 4)[0]))
 
     @property
+    def north_turn_rad(self) -> float:
+        """β: the turn about the vertical from the filter's own frame to its output's North (`_output_quaternion`),
+        0 at the start and growing as the hard iron is learnt; 0 without the magnetometer or the hard-iron
+        reference. A heading read from the output at one time and compared with one read later carries its change,
+        which is no twist (`gateway.kinds.hook`: the torsion reference follows it)."""
+        use_mag = self.use_mag and self.mag_ref_uT is not None
+        params = self._kernel_constants(use_mag, 7 if use_mag else 4)[0]
+        if params[_USE_MAG] > 0.0 and params[_MAG_FRAME] > 0.0:
+            east, north, _ = _field_held(self.x, params)
+            return math.atan2(east, north)
+        return 0.0
+
+    @property
     def rope_length_m(self) -> float:
         """Current estimate of the pendulum length (boom tip to the hook and load's centre), m."""
         return math.exp(float(self.x[_LOG_L]))

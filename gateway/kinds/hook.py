@@ -107,7 +107,10 @@ class HookKind(KindBase):
             if not st.rest_heading_redone and (q0 := getattr(f.dev.filt, "start_redone_q0", None)) is not None:
                 # the filter started again told the rope length it found: its better estimate of the same sample
                 st.rest_heading_rad, st.rest_heading_redone = float(hook_geo.twist_heading(q0)), True
-            refs[i] = st.rest_heading_rad if st.rest_heading_set_rad is None else st.rest_heading_set_rad
+            if st.rest_heading_set_rad is None:  # read at the start (β = 0 then): it follows the output's North
+                refs[i] = st.rest_heading_rad + float(getattr(f.dev.filt, "north_turn_rad", 0.0))
+            else:
+                refs[i] = st.rest_heading_set_rad
         swing = hook_geo.swing_angle(kb.q)
         tors = hook_geo.torsion(kb.q, np.repeat(refs, kb.stop - kb.start))
         interval_s = ctx.settings.swing_interval_s
