@@ -157,7 +157,7 @@ class HookThresholds(_Thresholds):
     # Not limits but the hook's geometry, kept here so they follow the same defaults/override/REST path.
     rope_length_m: float | None = Field(default=None, ge=0.5, le=500.0, description="Boom tip to hook (and load "
                                         "centre), m, as measured: the hook filter's pendulum length, a prior it "
-                                        "trusts to 5 %. None: not configured, the filter finds it from the "
+                                        "trusts to 15 %. None: not configured, the filter finds it from the "
                                         "pendulum frequency (from 10 m, a wide prior; its estimate is in the swing "
                                         "messages). A change restarts fusion.")
     rest_heading_deg: float | None = Field(default=None, ge=-180.0, le=180.0, description="Heading of the untwisted "

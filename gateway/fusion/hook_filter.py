@@ -2234,11 +2234,15 @@ class HookFilter(AttitudeFilter):
             out[a:b] = self.run_with_length(gyr_rad_s[a:b], acc_m_s2[a:b], mag, dt_s, scale)[0]
         return out
 
+    def _output_params(self) -> FloatArray:
+        """The kernel parameters the output is made with (`_output_quaternion`), for the current state."""
+        use_mag = self.use_mag and self.mag_ref_uT is not None
+        return self._kernel_constants(use_mag, 7 if use_mag else 4)[0]
+
     @property
     def quaternion(self) -> FloatArray:
         """The attitude (wxyz), North from the earth's field the filter holds (`_output_quaternion`)."""
-        use_mag = self.use_mag and self.mag_ref_uT is not None
-        return np.array(_output_quaternion(self.x, self._kernel_constants(use_mag, 7 if use_mag else 4)[0]))
+        return np.array(_output_quaternion(self.x, self._output_params()))
 
     @property
     def north_turn_rad(self) -> float:
@@ -2246,8 +2250,7 @@ class HookFilter(AttitudeFilter):
         0 at the start and growing as the hard iron is learnt; 0 without the magnetometer or the hard-iron
         reference. A heading read from the output at one time and compared with one read later carries its change,
         which is no twist (`gateway.kinds.hook`: the torsion reference follows it)."""
-        use_mag = self.use_mag and self.mag_ref_uT is not None
-        params = self._kernel_constants(use_mag, 7 if use_mag else 4)[0]
+        params = self._output_params()
         if params[_USE_MAG] > 0.0 and params[_MAG_FRAME] > 0.0:
             east, north, _ = _field_held(self.x, params)
             return math.atan2(east, north)
