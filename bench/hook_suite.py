@@ -19,6 +19,7 @@
     python -m bench.hook_suite --settings iron              # the default before the legacy-board round (IRON_ROUND)
     python -m bench.hook_suite --settings prior5            # a configured length's prior 5 %, not 15 % (PRIOR_ROUND)
     python -m bench.hook_suite --settings norestart         # not told: no start again told its length (RESTART_ROUND)
+    python -m bench.hook_suite --settings start1            # the start swing read with the start heading (START_ROUND)
     python -m bench.hook_suite --length-factor 2            # the rope length told 2x too long at t = 0
     python -m bench.hook_suite --told-m 10                  # told 10 m whatever the rope (the gateway's default)
     python -m bench.hook_suite --sensor-draw 1              # the same cranes with another board of the preset
@@ -88,6 +89,7 @@ from gateway.fusion.hook_filter import (
     RESTART_ROUND,
     ROPE_ROUND,
     SLEW_ROUND,
+    START_ROUND,
     TIP_ROUND,
     TRACKING,
     TRIAL_JUMP,
@@ -332,7 +334,7 @@ PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JU
            "held": HELD_TRACKING, "rope": ROPE_ROUND,
            "hoist": HOIST_ROUND, "tip03": TIP_ROUND, "compass": COMPASS_ROUND, "slew": SLEW_ROUND,
            "hardiron": HARD_IRON_REFERENCE, "iron": IRON_ROUND, "prior5": PRIOR_ROUND,
-           "norestart": RESTART_ROUND}
+           "norestart": RESTART_ROUND, "start1": START_ROUND}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -393,7 +395,9 @@ def main(argv: list[str] | None = None) -> int:
                    "twists: the default since), iron (IRON_ROUND, the default before it), prior5 (PRIOR_ROUND: a "
                    "configured rope length's prior 5 %%, the default before the prior round's 15 %%), norestart "
                    "(RESTART_ROUND: a hook not told its length and swinging at start is not started again told the "
-                   "length it found, the filter before the start round)")
+                   "length it found, the filter before the start round), start1 (START_ROUND: the start swing read "
+                   "with the start heading held over the warm-up and carried back to first order, the filter before "
+                   "the start-swing round)")
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     p.add_argument("--rate-hz", type=float, default=RATE_HZ,
                    help="IMU sampling rate (default 100; the suite was tuned at 100 only)")

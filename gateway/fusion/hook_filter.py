@@ -370,6 +370,10 @@ class HookFilterSettings:
     # swing under `compass_check_swing_rad` (a still hook is no evidence either way), then starts again from this
     # filter's state when the hook swings (issue 16: an idle crane's hooks cost one filter, not two); 0: never pauses.
     compass_check_still_s: float = 10.0
+    # `swing_from_window`: the warm-up's gyroscope x/y turned by the heading at each sample (the start heading carried
+    # along by the z rate) and the swing carried back to the window's start to second order; False: the start heading
+    # held and first order, the filter before issue 11's start-swing round (a hook twisting 34°/s read 0.3-0.5° short)
+    start_swing_turns: bool = True
     start_mag_levelled: bool = True  # `start()`: the magnetometer reference and start heading from the window's field
     # turned to ENU by the start tilt and the twist (`level_mag_reference`); False: the body-frame mean (the filter
     # before the fifth round: a 5° swing put 4 µT of the vertical field into the heading, 11°, and the z gyro bias
@@ -395,6 +399,9 @@ IRON_ROUND: dict[str, float] = {"mag_reference_hard_iron": False}
 PRIOR_ROUND: dict[str, float] = {"rope_known_rel_std": 0.05}
 # No re-start told the learnt length (`restart_told_std`), the filter before issue 11's start round.
 RESTART_ROUND: dict[str, float] = {"restart_told_max_s": 0.0}
+
+# The start swing before issue 11's start-swing round (`start_swing_turns`): the warm-up read with the start heading.
+START_ROUND: dict[str, float] = {"start_swing_turns": False}
 
 # The defaults before issue 11's compass round (no twin without the magnetometer): `HookFilterSettings(**COMPASS_ROUND)`
 COMPASS_ROUND: dict[str, float] = {"compass_check_excess": 0.0}
@@ -2068,15 +2075,22 @@ class HookFilter(AttitudeFilter):
         first sample (the gateway then runs the filter over the window) and the std of `p`; None if the window shows
         no swing above 3σ (or is shorter than 0.2 s).
 
-        Pendulum law `p = -(l/g) p''` (small angles, no force), with `p'` the gyroscope's x/y turned by the start
-        heading and `p''` the slope of a line fitted to it (bias-free: a constant bias has no slope), at the window's
-        middle and carried back to its start. A long rope's slow swing looks "quiet" over 0.5 s: started at plumb
-        with the swing rate taken for gyro bias, a 7° swing on 20 m read 4.4° off at first (bench.hook_suite 108)."""
+        Pendulum law `p = -(l/g) p''` (small angles, no force), with `p'` the gyroscope's x/y turned by the heading
+        at each sample (the start heading carried along by the z rate: `settings.start_swing_turns`) and `p''` the
+        slope of a line fitted to it (bias-free: a constant bias has no slope), at the window's middle and carried
+        back to its start to second order (`p' t + p'' t²/2`; on a 3 m rope the second term is 8 % of `p`). A long
+        rope's slow swing looks "quiet" over 0.5 s: started at plumb with the swing rate taken for gyro bias, a 7° swing
+        on 20 m read 4.4° off at first (bench.hook_suite 108)."""
         gyr = np.asarray(gyr_rad_s, dtype=np.float64)
         n = gyr.shape[0]
         if n * dt_s < 0.2:
             return None
-        ca, sa = math.cos(self.x[_ALPHA]), math.sin(self.x[_ALPHA])
+        # the heading at each sample: the start heading carried along by the gyroscope's z (a hook twisting 34°/s
+        # at start turns 17° over the window: fresh seed 1720)
+        turns = self.settings.start_swing_turns
+        alpha = self.x[_ALPHA] + (np.concatenate([[0.0], np.cumsum(gyr[:-1, 2] - self.x[_BIAS][2]) * dt_s]) if turns
+                                  else 0.0)  # fmt: skip
+        ca, sa = np.cos(alpha), np.sin(alpha)
         rate = np.stack([sa * gyr[:, 0] + ca * gyr[:, 1], -(ca * gyr[:, 0] - sa * gyr[:, 1])], axis=1)  # ≈ p'
         t = (np.arange(n) - 0.5 * (n - 1)) * dt_s  # 0 at the window's middle
         slope = t @ (rate - rate.mean(axis=0)) / float(t @ t)
@@ -2088,7 +2102,7 @@ class HookFilter(AttitudeFilter):
         norm = float(np.hypot(*p_mid))
         if norm < max(3.0 * sigma, 0.005) or norm > 0.5:  # no swing to see, or not a pendulum's (a knock, a jerk)
             return None
-        p_start = p_mid + rate.mean(axis=0) * t[0]
+        p_start = p_mid + rate.mean(axis=0) * t[0] + (0.5 * slope * t[0] ** 2 if turns else 0.0)  # to second order
         return p_start, rate[:5].mean(axis=0), math.hypot(2.0 * sigma, 0.1 * norm)
 
     def _rings(self, dt_s: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
