@@ -66,7 +66,7 @@ def make_filter(name: str, use_mag: bool, rope_length_m: float | None = None) ->
     if name in (HOOK_FILTER, HOOK_FILTER_6D):
         from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
 
-        # A configured length is a tight prior (5 %): a measured rope must not let a trolley jerk read as another
+        # A configured length is a prior (15 %): a measured rope must not let a trolley jerk read as another
         # length. None (nobody configured one): the filter's wide prior from 10 m, found from the pendulum frequency;
         # telling it 10 m instead diverged on short ropes (fresh crane 1692, 2.3 m: Θ RMSE 68.7° against 1.24°).
         settings = HookFilterSettings() if rope_length_m is None else HookFilterSettings(
