@@ -55,6 +55,7 @@ def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dic
             out["compass"] = compass
             out["compass_dropped_s"] = getattr(filt, "compass_dropped_s", None)
             out["start_redone_s"] = getattr(filt, "start_redone_s", None)  # not told its rope: started again told it
+            out["start_pending"] = bool(getattr(filt, "start_pending", False))  # ... still may: its alarms wait
         if stream is not None:
             t = stream.main()
             out["stream"] = {"ok": t.ok, "lost": t.lost, "duplicates": t.duplicates, "reordered": t.reordered,

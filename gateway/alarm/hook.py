@@ -149,11 +149,13 @@ def swing_deg(swing_rad: FloatArray) -> FloatArray:
 
 
 def hook_rules(rules: Sequence[HookAlarms], t_s: FloatArray, swing_rad: FloatArray, torsion_rad: FloatArray,
-               start: NDArray[np.int64], stop: NDArray[np.int64]) -> list[list[Condition] | Exception]:  # fmt: skip
+               start: NDArray[np.int64], stop: NDArray[np.int64], held: Sequence[bool] | None = None
+               ) -> list[list[Condition] | Exception]:  # fmt: skip
     """`HookAlarms.update` of many hooks over their concatenated blocks (rows start[i]:stop[i] are hook i's): the
     degrees and each block's max and min are computed once for all (element-wise and exact, so every hook gets
     what it gets alone); the guards then run per hook. A hook whose rules raise gets its exception (it alone
-    restarts)."""
+    restarts). `held[i]`: hook i is not judged on this block (its filter's start may still be redone, see
+    `HookFilter.start_pending`): no conditions, its guards unchanged."""
     s_deg, t_deg = swing_deg(swing_rad), wrap_abs_deg(torsion_rad)
     if len(rules) and bool((stop > start).all()):
         ext = zip(*(f.reduceat(x, start).tolist() for x in (s_deg, t_deg) for f in (np.maximum, np.minimum)),
@@ -162,7 +164,10 @@ def hook_rules(rules: Sequence[HookAlarms], t_s: FloatArray, swing_rad: FloatArr
     else:
         extremes = [None] * len(rules)
     out: list[list[Condition] | Exception] = []
-    for r, a, b, e in zip(rules, start.tolist(), stop.tolist(), extremes, strict=True):
+    for k, (r, a, b, e) in enumerate(zip(rules, start.tolist(), stop.tolist(), extremes, strict=True)):
+        if held is not None and held[k]:  # not judged yet: its rules see none of these samples
+            out.append([])
+            continue
         try:
             out.append(r.update_deg(t_s[a:b], s_deg[a:b], t_deg[a:b], e))
         except Exception as exc:

@@ -2008,6 +2008,13 @@ class HookFilter(AttitudeFilter):
         self._twin_still_s, self._twin_paused = 0.0, False
 
     @property
+    def start_pending(self) -> bool:
+        """True while the start may still be redone told the rope length the filter finds (not told its length and
+        swinging at start, `restart_told_std`): until then the swing can read several degrees off (the start at
+        plumb on a length it does not know), so the hook's alarms wait for it (2-15 s of samples)."""
+        return self._replay is not None
+
+    @property
     def compass_trusted(self) -> bool:
         """False once the magnetometer misled the swing and the filter runs without it (`compass_dropped_s`)."""
         return self.compass_dropped_s is None

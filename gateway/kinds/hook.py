@@ -116,7 +116,10 @@ class HookKind(KindBase):
         interval_s = ctx.settings.swing_interval_s
         ran: list[tuple[int, list[Condition], int, int]] = []  # (device index, its new conditions, its picks [a, b))
         picks: list[tuple[int, int, int, int]] = []  # (device index, row in kb, seq, t_us) of each Swing to send
-        rules = hook_rules([f.dev.state.rules for f in kb.items], kb.t_s, swing, tors, kb.start, kb.stop)
+        # a hook whose start may still be redone (not told its rope, swinging at start) is not judged until it is:
+        # its first seconds can read several degrees off (issue 11: false swing warnings on 5 of 33 such hooks)
+        held = [bool(getattr(f.dev.filt, "start_pending", False)) for f in kb.items]
+        rules = hook_rules([f.dev.state.rules for f in kb.items], kb.t_s, swing, tors, kb.start, kb.stop, held)
         for i, (f, new) in enumerate(zip(kb.items, rules, strict=True)):
             dev, rows, st = f.dev, kb.rows(i), f.dev.state
             if isinstance(new, Exception):  # only this hook restarts

@@ -251,15 +251,22 @@ def test_a_hooks_dropped_compass_shows_in_its_device_detail(running: Callable[[]
 
 
 def test_a_hook_not_told_its_rope_says_when_it_started_again(running: Callable[[], Running]) -> None:
-    """Crane seed 1696 (15 m, swinging at start), no rope length configured: `GET /api/devices/{id}` says when the
-    filter started again told the length it found (docs/fusion.md, "Fifteenth round")."""
+    """Crane seed 1696 (15 m, swinging at start), no rope length configured: `GET /api/devices/{id}` says that the
+    start may still be redone (`start_pending`, its alarms wait) and then when the filter started again told the
+    length it found (docs/fusion.md, "Fifteenth round")."""
     from bench.hook_suite import simulate_seed
     from tests.fusion.test_hook_compass import _packets
 
     _, _, gyr, acc, mag = simulate_seed(1696, 20.0, "calibrated", True)
     assert mag is not None
     app = running()
-    app.feed([("rig/hook/hook-1/imu", p.to_json()) for p in _packets(gyr, acc, mag)])
+    packets = [("rig/hook/hook-1/imu", p.to_json()) for p in _packets(gyr, acc, mag)]
+    early = next(k for k, (_, payload) in enumerate(packets) if json.loads(payload)["t0_us"] >= 1_500_000)
+    app.feed(packets[:early])
+    dev = app.client.get("/api/devices/hook-1").json()
+    assert dev["start_pending"] is True and dev["start_redone_s"] is None, dev  # its alarms wait (docs/alarms.md)
+    app.feed(packets[early:])
     dev = app.client.get("/api/devices/hook-1").json()
     assert dev["compass"] == "tested", dev
     assert 2.0 <= dev["start_redone_s"] <= 15.0, dev
+    assert dev["start_pending"] is False
