@@ -252,6 +252,9 @@ MODEL_FIELD_NOTES: Final[dict[tuple[str, str], str]] = {
                                    "frame (configured `rest_heading_deg`, else the first fused heading)",
     ("Swing", "rope_length_m"): "the hook filter's estimate of the pendulum length (boom tip to the hook and load's "
                                 "centre), m; absent with other filters",
+    ("Swing", "provisional"): "true while the hook filter may still start again told the rope length it finds (a "
+                              "hook not told its rope, swinging at start: its first 2-15 s, section 3.5): the angles "
+                              "can be several degrees off and the hook's alarms wait; absent otherwise",
     ("HookTruth", "swing_direction_rad"): "bearing of the hook's horizontal displacement, CCW from East (ENU)",
 }
 

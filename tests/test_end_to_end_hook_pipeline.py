@@ -163,18 +163,19 @@ def test_a_told_hooks_torsion_reference_follows_the_filters_north() -> None:
     assert r["torsion_rmse_deg"] < 1.5, r
 
 
-def _swing_alarm_times(seed: int, duration_s: float) -> list[float]:
+def _swing_alarm_times(seed: int, duration_s: float) -> tuple[list[float], list[float]]:
     """Device seconds of the `hook_swing` alarms raised for suite crane `seed` through the pipeline, not told its
-    rope length (the default), as bench.hook_e2e's device sends it."""
+    rope length (the default), as bench.hook_e2e's device sends it; and of its Swing messages marked provisional."""
     case = make_case(f"suite:{seed}", duration_s, 3.0, 1, None)
     hooks = HookFleet(fleet_settings(duration_s, 1), case, 1)
     pipe = Pipeline()
-    times = []
+    times, provisional = [], []
     for k in range(int(duration_s * 20)):
         data, _ = hooks.tick(k)
         out = pipe.process([schemas.decode(data[0][0].key, data[0][0].payload)], now_wall_s=1e9)
         times += [k * 0.05 for a in out.alarms if a.change.alarm.type == "hook_swing"]
-    return times
+        provisional += [k * 0.05 for sw in out.swings if sw.provisional]
+    return times, provisional
 
 
 def test_a_hook_not_told_its_rope_and_swinging_at_start_raises_no_alarm_before_its_start_is_redone(
@@ -182,11 +183,16 @@ def test_a_hook_not_told_its_rope_and_swinging_at_start_raises_no_alarm_before_i
     """Tuning crane 29 (2.3 m, swinging 3.6° at start, at most 4.1° over these 12 s): not told its rope length, the
     filter starts at plumb on a length it does not know and read up to 12° until it started again told the length it
     found (at 3 s), and the swing warning (5°) rose at the first fused sample. A hook whose start may still be redone
-    (`HookFilter.start_pending`) is not judged until it is: no swing alarm; with the hold off, the warning at 0.45 s.
-    (5 of 33 tuning cranes swinging at start raised such a warning.)"""
+    (`HookFilter.start_pending`) is not judged until it is: no swing alarm, and its Swing messages are marked
+    `provisional` meanwhile; with the hold off, the warning at 0.45 s. (5 of 33 tuning cranes swinging at start
+    raised such a warning.)"""
     from gateway.fusion.hook_filter import HookFilter
 
-    assert _swing_alarm_times(29, 12.0) == []
+    alarms, provisional = _swing_alarm_times(29, 12.0)
+    assert alarms == []
+    # its Swing messages said so until the start was redone (measured: the last at 2.9 s)
+    assert provisional and provisional[0] < 1.0 and 2.5 < provisional[-1] < 4.0, provisional
     monkeypatch.setattr(HookFilter, "start_pending", property(lambda self: False))
-    early = _swing_alarm_times(29, 12.0)
+    early, provisional = _swing_alarm_times(29, 12.0)
     assert early and early[0] < 1.0, early
+    assert provisional == []

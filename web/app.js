@@ -388,7 +388,7 @@ function updateDevice(d, c) {
   if (c.attitude) facts.push(["pitch / roll", `${fmt(c.attitude.pitch_rad * DEG)}° / ${fmt(c.attitude.roll_rad * DEG)}°`], ["yaw", `${fmt(c.attitude.yaw_unwrapped_rad * DEG)}°`]);
   if (c.swing) { // angles as docs/protocol.md section 3.5 defines them
     const sw = c.swing;
-    facts.push(["swing Θ", `${fmt(sw.swing_angle_rad * DEG)}°`],
+    facts.push(["swing Θ", `${fmt(sw.swing_angle_rad * DEG)}°${sw.provisional ? " (provisional: rope length not known yet, alarms wait)" : ""}`],
       ["displacement bearing", `${fmt(sw.swing_direction_rad * DEG)}° CCW from E`],
       ["torsion φ", `${fmt(sw.torsion_rad * DEG)}° CCW from above`]);
     if (sw.swing_phi_rad != null) facts.push(["Φ (paper 001 eq. 7)", `${fmt(sw.swing_phi_rad * DEG)}° from ψ`]);

@@ -155,7 +155,8 @@ class HookKind(KindBase):
                     fields = {"device_id": dev.device_id, "seq": seq, "t_us": t_us,
                               "wall_t_us": t_us + dev.wall_offset_us, "swing_angle_rad": angle[m],
                               "swing_direction_rad": bearing[m], "torsion_rad": twist[m], "swing_phi_rad": phi[m],
-                              "rest_heading_rad": heading, "rope_length_m": rope}  # fmt: skip
+                              "rest_heading_rad": heading, "rope_length_m": rope,
+                              "provisional": True if held[i] else None}  # fmt: skip
                     st.swing = (schemas.prevalidated(schemas.Swing, {"v": 1, **fields}, _SWING_SET) if fast
                                 else schemas.Swing(**fields))  # fmt: skip
                     out.swings.append(st.swing)
