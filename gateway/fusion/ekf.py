@@ -234,10 +234,11 @@ def measurement(
     hjac = np.zeros((nz, N_STATE))
     rmat = np.zeros((nz, nz))
     acc_norm = np.sqrt(acc_m_s2[0] ** 2 + acc_m_s2[1] ** 2 + acc_m_s2[2] ** 2)
-    a_hat = acc_m_s2 / acc_norm
     up = np.array([0.0, 0.0, 1.0])
-    z[:3] = a_hat
     hx[:3] = rotate_to_body(q, up)
+    # a zero specific force (free fall, a device sending zeros) has no direction: no innovation (it was NaN)
+    a_hat = acc_m_s2 / acc_norm if acc_norm > 0.0 else hx[:3].copy()
+    z[:3] = a_hat
     hjac[:3, :4] = observation_jacobian(q, up)
     sig_a = params[1]
     if params[4] > 0.0:
@@ -248,10 +249,10 @@ def measurement(
     k = 3
     if use_mag:
         mag_norm = np.sqrt(mag_uT[0] ** 2 + mag_uT[1] ** 2 + mag_uT[2] ** 2)
-        m_hat = mag_uT / mag_norm
         m_ref = ref[3:6]
-        z[3:6] = m_hat
         hx[3:6] = rotate_to_body(q, m_ref)
+        m_hat = mag_uT / mag_norm if mag_norm > 0.0 else hx[3:6].copy()  # no field (zeros): no innovation
+        z[3:6] = m_hat
         hjac[3:6, :4] = observation_jacobian(q, m_ref)
         sig_m = params[2]
         if params[5] > 0.0:

@@ -260,7 +260,9 @@ def prepare(
         r_diag[1] *= infl
     if use_mag and (params[5] > 0.0 or params[6] > 0.0):
         mag_norm = np.sqrt(mag_uT[0] ** 2 + mag_uT[1] ** 2 + mag_uT[2] ** 2)
-        dot = (acc_m_s2[0] * mag_uT[0] + acc_m_s2[1] * mag_uT[1] + acc_m_s2[2] * mag_uT[2]) / (acc_norm * mag_norm)
+        norms = acc_norm * mag_norm  # 0 in free fall or for a zero field: no dip to read (taken as 0, far from dip₀)
+        dot = acc_m_s2[0] * mag_uT[0] + acc_m_s2[1] * mag_uT[1] + acc_m_s2[2] * mag_uT[2]
+        dot = dot / norms if norms > 0.0 else 0.0
         dip = np.arcsin(min(1.0, max(-1.0, dot)))
         sig = 1.0
         if params[5] > 0.0:

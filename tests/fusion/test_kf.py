@@ -221,3 +221,15 @@ def test_fig4_integral_learns_minus_the_gyro_bias_on_the_tilt_axes():
     np.testing.assert_allclose(on.fig4_integral_rad_s[:2], -bias[:2], atol=0.002)
     assert abs(on.fig4_integral_rad_s[2]) < 1e-6
     np.testing.assert_array_equal(off.fig4_integral_rad_s, 0.0)
+
+
+@pytest.mark.parametrize("paper", [False, True])
+def test_a_free_fall_sample_is_taken_without_an_error(paper):
+    """A zero accelerometer vector (free fall, or a device that sends zeros) with the magnetometer gates on: the
+    acc-mag dip has no angle, and dividing by |acc| |mag| raised ZeroDivisionError (hypothesis found it in
+    `test_update_keeps_unit_norm`); the sample is taken, the quaternion stays a unit one."""
+    kf = KalmanAngleFilter(KfSettings(paper=paper))
+    kf.initialise(np.array([0.0, 0.0, 9.81]), np.asarray(FIELD_ENU_UT))
+    for _ in range(3):
+        q = kf.update(np.zeros(3), np.zeros(3), np.array([0.0, 1.0, 0.0]), 0.01)
+        assert abs(np.linalg.norm(q) - 1.0) < 1e-12
