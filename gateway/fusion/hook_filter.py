@@ -2101,7 +2101,7 @@ class HookFilter(AttitudeFilter):
         gyr = np.asarray(gyr_rad_s, dtype=np.float64)
         n = min(gyr.shape[0], mag_uT.shape[0])
         rate = gyr[:n] - self.x[_BIAS]
-        turn = np.concatenate([[0.0], np.cumsum(rate[:-1, 2]) * dt_s])  # heading change since the window's start
+        turn = self._heading_turn(gyr[:n], dt_s)
         alpha0 = float(self.x[_ALPHA])
         for _ in range(iterations):
             alpha = alpha0 + turn
@@ -2118,6 +2118,11 @@ class HookFilter(AttitudeFilter):
         self.mag_ref_uT = np.array([0.0, math.hypot(m[0], m[1]), m[2]])
         north = _attitude_rate(0.0, 0.0, 0.0, 0.0, turn_north, 0.0)[:4]  # the turn that took `m` North
         self.mag_ref_frame = to_matrix(np.array(north)) @ to_matrix(q).mean(axis=0)  # the hard iron's way in
+
+    def _heading_turn(self, gyr_rad_s: FloatArray, dt_s: float) -> FloatArray:
+        """The heading's change since a window's first sample (N,), rad: the gyroscope's z less its bias estimate,
+        integrated."""
+        return np.concatenate([[0.0], np.cumsum(gyr_rad_s[:-1, 2] - self.x[_BIAS][2]) * dt_s])
 
     def swing_from_window(self, gyr_rad_s: FloatArray, dt_s: float) -> tuple[FloatArray, FloatArray, float] | None:
         """A hook already swinging at start: the rope's horizontal direction `p` and rate `p'` at the window's
@@ -2137,8 +2142,7 @@ class HookFilter(AttitudeFilter):
         # the heading at each sample: the start heading carried along by the gyroscope's z (a hook twisting 34°/s
         # at start turns 17° over the window: fresh seed 1720)
         turns = self.settings.start_swing_turns
-        alpha = self.x[_ALPHA] + (np.concatenate([[0.0], np.cumsum(gyr[:-1, 2] - self.x[_BIAS][2]) * dt_s]) if turns
-                                  else 0.0)  # fmt: skip
+        alpha = self.x[_ALPHA] + (self._heading_turn(gyr, dt_s) if turns else 0.0)
         ca, sa = np.cos(alpha), np.sin(alpha)
         rate = np.stack([sa * gyr[:, 0] + ca * gyr[:, 1], -(ca * gyr[:, 0] - sa * gyr[:, 1])], axis=1)  # ≈ p'
         t = (np.arange(n) - 0.5 * (n - 1)) * dt_s  # 0 at the window's middle
