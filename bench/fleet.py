@@ -17,7 +17,8 @@ one row:
   the shards' `gw/diag/ingest` messages (REST answers seconds late under overload, which made the window wrong);
   `--threads` splits it by process and thread, `--profile` profiles the parent's main thread;
 - latency p50/p99 (ms): observer receipt time minus the device wall time of the packet's last sample, over every
-  `gw/*/*/attitude` message; alarms the same over `gw/*/*/alarm`;
+  `gw/*/*/attitude` message (with `--observe batch`: over every entry of the batched `gw/attitudes`, one message
+  per shard batch, docs/protocol.md); alarms the same over `gw/*/*/alarm`;
 - attitudes received vs expected (one per packet end at the default attitude interval); fewer is not loss when the
   gateway runs behind: the hub publishes each device's newest attitude once per batch, so a batch holding several
   packets of a device sends one (docs/gateway.md);
@@ -62,6 +63,7 @@ KIND_CODES = {kind: code for code, kind in enumerate(schemas.IMU_KINDS)}
 BIN_IDS, BIN_SEQ, BIN_WALL = struct.Struct("<BB"), struct.Struct("<IIq"), struct.Struct("<q")  # header offsets 2, 8, 32
 HEADER_KEYS = ("v", "device_id", "kind", "boot_id", "seq", "t0_us", "wall_t0_us")
 WALL_RE = re.compile(rb'"wall_t_us":\s*(\d+)')
+ENTRY_RE = re.compile(rb'"device_id":"([^"]+)",[^{}]*?"t_us":\d+,"wall_t_us":(\d+)')  # an AttitudeBatch entry
 
 
 # -- the pool of pre-built streams ----------------------------------------------------------------------------
@@ -186,6 +188,7 @@ class Observer:
     lock: threading.Lock = field(default_factory=threading.Lock)
     measuring: bool = False
 
+    batch_devices: set[bytes] = field(default_factory=set)  # device ids seen in gw/attitudes (`--observe batch`)
     ok_by_shard: dict[str, int] = field(default_factory=dict)
     diag_at: dict[str, float] = field(default_factory=dict)
 
@@ -220,6 +223,17 @@ class Observer:
         lat = (t_us - int(m.group(1))) / 1e3
         with self.lock:
             (self.alarm_ms if key.endswith("/alarm") else self.attitude_ms).append(lat)
+
+
+    def on_batch(self, _key: str, payload: bytes) -> None:
+        """gw/attitudes (`--observe batch`): one latency per entry, each from its own device wall time."""
+        t_us = time.time() * 1e6
+        if not self.measuring:
+            return
+        entries = ENTRY_RE.findall(payload)
+        with self.lock:
+            self.attitude_ms += [(t_us - int(wall)) / 1e3 for _, wall in entries]
+            self.batch_devices.update(d for d, _ in entries)
 
 
 class RestProbe(threading.Thread):
@@ -405,14 +419,17 @@ class Row:
     devices_seen: int
     rest_p50_s: float = float("nan")
     rest_max_s: float = float("nan")
+    observe: str = "devices"
+    batch_devices: int = 0  # devices seen in gw/attitudes in the window (`observe="batch"`)
 
 
 def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_path: Path, spp: int, procs: int,
             duration_s: float, warmup_s: float, work: Path, encoding: str = "json", shards: int = 1,
-            threads: bool = False, profile: bool = False, count_imu: bool = False) -> Row:
+            threads: bool = False, profile: bool = False, count_imu: bool = False, observe: str = "devices") -> Row:
     """Start a gateway, run n devices for warmup + duration seconds, measure the last `duration_s`; with
     `count_imu` the observer also counts every IMU packet zenoh delivers (to tell zenoh's loss from the gateway's,
-    at ~0.1 core more on the machine at 1000 devices)."""
+    at ~0.1 core more on the machine at 1000 devices). `observe`: the observer takes every device's attitude key
+    (`gw/*/*/attitude`, "devices") or the batched `gw/attitudes` ("batch")."""
     zport, hport = free_port(), free_port()
     n_hook = round(n * hook_share)
     devices = [("hook", f"fleet-hook-{i + 1:04d}", i % len(pools["hook"])) for i in range(n_hook)]
@@ -429,7 +446,10 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
             # subscribed as the gateway subscribes (its bus declares the received keys, `RouteKeys`: without that
             # this session's zenoh receive took ~0.8 core)
             bus = ZenohBus(session)
-            bus.subscribe("gw/*/*/attitude", obs.on_sample)
+            if observe == "batch":
+                bus.subscribe(schemas.T_ATTITUDES.key(), obs.on_batch)
+            else:
+                bus.subscribe("gw/*/*/attitude", obs.on_sample)
             bus.subscribe("gw/*/*/alarm", obs.on_sample)
             bus.subscribe(schemas.DIAG_INGEST_KEY, obs.on_diag)
             imu_seen = [0]
@@ -486,6 +506,8 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
     else:
         done = processed(s1) - processed(s0)
         print("  CPU per packet from the REST counters (no fresh gw/diag/ingest): unreliable under overload")
+    if observe == "batch":
+        print(f"  gw/attitudes: entries of {len(obs.batch_devices)} of {n} devices in the window")
     if threads:
         print_threads(th0, th1, gw.pid, done)
     cpu_ms = 1e3 * (cpu1 - cpu0) / max(1, done)
@@ -500,6 +522,7 @@ def run_one(n: int, hook_share: float, pools: dict[str, list[list[Body]]], pool_
         rss_end_mib=rss[-1] if rss else float("nan"), rss_max_mib=max(rss) if rss else float("nan"),
         generator_core_share=gen_share, observer_core_share=own_share, devices_seen=len(s1.get("devices", [])),
         rest_p50_s=pct(probe.latency_s, 0.5), rest_max_s=max(probe.latency_s, default=float("nan")),
+        observe=observe, batch_devices=len(obs.batch_devices),
     )  # fmt: skip
 
 
@@ -547,6 +570,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="also print the gateway's CPU by process and thread (zenoh callback threads vs ingest)")
     p.add_argument("--profile", action="store_true",
                    help="run the gateway's parent process under cProfile and print its top functions per row")
+    p.add_argument("--observe", choices=("devices", "batch"), default="devices",
+                   help="the observer subscribes to every device's attitude key (gw/*/*/attitude, default) or to the "
+                        "batched gw/attitudes (one message per shard batch)")
     p.add_argument("--json", type=Path, help="also write the rows as JSON to this file")
     p.add_argument("--encoding", choices=tuple(ENCODINGS), default="json",
                    help="IMU packets as JSON or protocol v2 binary (default json)")
@@ -566,7 +592,7 @@ def main(argv: list[str] | None = None) -> int:
                       flush=True)  # fmt: skip
                 rows.append(run_one(n, args.hook_share, pools, pool_path, spp, args.procs, args.duration,
                                     args.warmup, work, args.encoding, sh, args.threads, args.profile,
-                                    args.count_imu))  # fmt: skip
+                                    args.count_imu, args.observe))  # fmt: skip
                 print_table(rows[-1:])
                 if args.profile:
                     print_profile(work / f"gw-{n}-{sh}.prof")
@@ -576,7 +602,7 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"  gateway log: {len(errors)} error lines, first: {errors[0][:160]}")
     print(f"\nfleet at {RATE_HZ:g} Hz, {spp} samples/packet, {args.encoding} IMU packets, {args.hook_share:.0%} hooks, "
           f"{args.procs} generator process(es), {os.cpu_count()} cores; gateway = `python -m gateway --shards S` "
-          "(all its processes)")
+          f"(all its processes); observer on {'gw/attitudes' if args.observe == 'batch' else 'gw/*/*/attitude'}")
     print_table(rows)
     if args.json:
         args.json.write_text(json.dumps([r.__dict__ for r in rows], indent=1))

@@ -165,6 +165,13 @@ class _AttitudeReaderBus(_CountingBus):
         return key.endswith("/attitude")
 
 
+class _BatchReaderBus(_CountingBus):
+    """A counting bus whose only subscriber takes the batched attitudes (`gw/attitudes`)."""
+
+    def subscribed(self, key: str, *, encoding: str, block: bool = False, express: bool = False) -> bool:
+        return key == "gw/attitudes"
+
+
 def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 10, hook_share: float = 0.2,
                    profile: Path | None = None, encoding: str = "json", gil_threads: int = 0,
                    subscribed: str = "all") -> dict[str, Any]:  # fmt: skip
@@ -174,7 +181,8 @@ def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 
     `gil_threads`: that many threads each take the GIL 1000 times a second for a moment (ten deque appends), as
     zenoh's receive threads do when they call a subscriber callback per packet: what that costs the ingest thread.
     `subscribed="attitude"`: only attitude keys have a subscriber (as `bench.fleet`'s observer), so a gateway that
-    asks its bus (`Bus.subscribed`) neither makes nor puts the heights; "all": every key has one."""
+    asks its bus (`Bus.subscribed`) neither makes nor puts the heights; "batch": only `gw/attitudes` has one (as
+    `bench.fleet --observe batch`); "all": every key has one."""
     import asyncio
     import tempfile
 
@@ -210,7 +218,7 @@ def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 
         threading.Thread(target=take_the_gil, args=(collections.deque(maxlen=100),), daemon=True).start()
 
     async def run() -> dict[str, Any]:
-        bus = _CountingBus() if subscribed == "all" else _AttitudeReaderBus()
+        bus = {"all": _CountingBus, "attitude": _AttitudeReaderBus, "batch": _BatchReaderBus}[subscribed]()
         with tempfile.TemporaryDirectory() as tmp:
             store = Store(Path(tmp) / "gw.db")
             service = compose(Settings(data_dir=Path(tmp), zenoh_listen=[]), bus, store)  # type: ignore[arg-type]
@@ -308,8 +316,9 @@ def main(argv: list[str] | None = None) -> int:
                    "per packet is shown (the one least disturbed by other load; default: 3)")
     p.add_argument("--gil-threads", type=int, default=0, help="with --stage ingest: threads that each take the GIL "
                    "1000 times a second, as zenoh's receive threads calling a callback per packet (default 0)")
-    p.add_argument("--subscribed", choices=("all", "attitude"), default="all", help="with --stage ingest: which "
-                   "output keys have a subscriber: all (default), or only the attitudes, as bench.fleet's observer")
+    p.add_argument("--subscribed", choices=("all", "attitude", "batch"), default="all",
+                   help="with --stage ingest: which output keys have a subscriber: all (default), only the per-device "
+                        "attitudes (bench.fleet's observer), or only gw/attitudes (bench.fleet --observe batch)")
     p.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
 

@@ -166,6 +166,20 @@ class Hub:
             kind = "hook" if topic is schemas.T_SWING else m.kind  # type: ignore[union-attr]  # only hooks swing
             self._put(topic, m, kind, m.device_id, listeners)
 
+    def _put_attitude_batch(self, newest: Sequence[schemas.Attitude], now_us: int) -> None:
+        """The batch's attitudes on `gw/attitudes` too, at most `ATTITUDES_PER_MESSAGE` a message, while anyone
+        subscribes: one put where the per-device keys take one per device."""
+        topic = schemas.T_ATTITUDES
+        if not newest or self._subscribed is None:
+            return
+        key = topic.key()
+        if not self._subscribed(key, encoding=topic.encoding, block=topic.block, express=topic.express):
+            return
+        step = schemas.ATTITUDES_PER_MESSAGE
+        for i in range(0, len(newest), step):
+            self._send(key, schemas.attitude_batch_json(now_us, newest[i:i + step]), topic)
+            self.published += 1
+
     def emit(self, out: Output) -> None:
         """Alarms first (they matter most and are rare), then reel commands, attitude, attitude blocks (BLOCK: a
         scoring run or a full-rate recording must not lose samples), swing, height, spots. Attitude and height (DROP,
@@ -184,6 +198,7 @@ class Hub:
             self.send_reel(device_id, sender="auto", **fields)
         newest = _newest_per_device(out.attitudes)
         self._put_devices(schemas.T_ATTITUDE, newest)
+        self._put_attitude_batch(newest, now_us)
         self._put_devices(schemas.T_ATTITUDE_BLOCK, out.attitude_blocks)
         self._put_devices(schemas.T_SWING, out.swings)  # BLOCK (its row): a crane app must not lose any
         if self.plot_listeners and (newest or out.swings):

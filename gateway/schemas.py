@@ -498,6 +498,28 @@ class Attitude(WireModel):
     filter: Name | None = None
 
 
+ATTITUDES_PER_MESSAGE: Final = 250  # at most this many devices' attitudes in one AttitudeBatch (~75 kB)
+
+
+class AttitudeBatch(WireModel):
+    """The newest Attitude of every device one gateway shard fused in one ingest batch, in one message (at most 250
+    devices; more are split over several messages): for an app that follows many devices (a fleet view, a
+    historian), one subscriber and one message per batch instead of one per device. Each entry is what
+    `gw/{kind}/{id}/attitude` carries for that device in the same batch; `wall_t_us` is the gateway's wall clock at
+    publishing. Published only while someone subscribes (zenoh's matching status), with CongestionControl.BLOCK."""
+
+    v: Version = 1
+    wall_t_us: TimeUs
+    attitudes: list[Attitude] = Field(min_length=1, max_length=ATTITUDES_PER_MESSAGE)
+
+
+def attitude_batch_json(wall_t_us: int, attitudes: Sequence[Attitude]) -> bytes:
+    """`AttitudeBatch(wall_t_us=..., attitudes=...).to_json()` without building the batch model: the entries' own
+    `to_json` bytes joined (the same JSON; tests/gateway/test_hub_attitude_batch.py checks it against pydantic)."""
+    parts = b",".join(a.to_json() for a in attitudes)
+    return b'{"v":1,"wall_t_us":%d,"attitudes":[%b]}' % (wall_t_us, parts)
+
+
 class AttitudeBlock(WireModel):
     """Fused attitude of every sample of one IMU packet (`boot_id`, `seq`, `t0_us`, `rate_hz` as in that packet;
     sample i at `t0_us + i * 1e6 / rate_hz`). Published only when the gateway runs with `--attitude-blocks`,
@@ -736,6 +758,8 @@ T_REEL_CMD: Final = Topic("reel_cmd", "rig/{kind}/{id}/reel/cmd", _kinds("rod"),
 T_BALL_CMD: Final = Topic("ball_cmd", "rig/{kind}/{id}/cmd", _kinds("ball"), BallCommand, ENCODING_BALL_CMD,
                           "command", block=True, express=True)
 T_ATTITUDE: Final = Topic("attitude", "gw/{kind}/{id}/attitude", IMU_KINDS, Attitude, ENCODING_GW, "output")
+T_ATTITUDES: Final = Topic("attitudes", "gw/attitudes", (), AttitudeBatch, ENCODING_GW, "output", block=True,
+                          note="every device's newest attitude per ingest batch, while subscribed")
 T_ATTITUDE_BLOCK: Final = Topic("attitude_block", "gw/{kind}/{id}/attitude/block", IMU_KINDS, AttitudeBlock,
                                 ENCODING_GW, "output", block=True, express=True,
                                 note="opt-in `--attitude-blocks`: every sample, one message per IMU packet")
@@ -756,8 +780,8 @@ T_GW_ALIVE: Final = Topic("gw_alive", "gw/alive", (), None, "", "token", note="l
 
 TOPICS: Final[tuple[Topic, ...]] = (
     T_IMU, T_ENV, T_REEL, T_ROD_TRUTH, T_HOOK_TRUTH, T_BALL_TRUTH, T_DEVICE_TOKEN, T_REEL_CMD, T_BALL_CMD,
-    T_ATTITUDE, T_ATTITUDE_BLOCK, T_SWING, T_HEIGHT, T_ALARM, T_SPOTS, T_DIAG_INGEST, T_DIAG_REJECTED, T_CONFIG,
-    T_GW_ALIVE,
+    T_ATTITUDE, T_ATTITUDES, T_ATTITUDE_BLOCK, T_SWING, T_HEIGHT, T_ALARM, T_SPOTS, T_DIAG_INGEST, T_DIAG_REJECTED,
+    T_CONFIG, T_GW_ALIVE,
 )
 TOPIC_BY_NAME: Final[dict[str, Topic]] = {t.name: t for t in TOPICS}
 

@@ -231,7 +231,7 @@ def test_protocol_doc_examples_validate() -> None:
     assert len(pairs) >= len(protocol_doc.examples())
     models = {
         "attitude": schemas.Attitude, "swing": schemas.Swing, "alarm": schemas.AlarmEvent, "height": schemas.Height,
-        "attitude/block": schemas.AttitudeBlock,
+        "attitude/block": schemas.AttitudeBlock, "gw/attitudes": schemas.AttitudeBatch,
         "gw/spots": schemas.SpotRanking, "gw/diag/ingest": schemas.IngestStats,
         "gw/diag/rejected": schemas.RejectedPacket, "gw/config": schemas.DeviceConfig,
     }

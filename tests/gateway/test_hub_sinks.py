@@ -64,7 +64,8 @@ def test_a_listener_marked_for_some_topics_gets_only_those_and_unmarked_ones_get
     assert every == [("attitude", out.attitudes[0]), ("attitude", out.attitudes[1]), ("swing", swing),
                      ("height", height), ("reel_cmd", cmd)]  # fmt: skip
     assert swings == [("swing", swing), ("reel_cmd", cmd)]
-    assert hub.published == 4 and [wants(cb, "height") for cb in hub.listeners] == [True, False]
+    # two attitudes, their gw/attitudes batch (not a listener's model), the swing and the height
+    assert hub.published == 5 and [wants(cb, "height") for cb in hub.listeners] == [True, False]
 
 
 def live_stream() -> LiveStream:
