@@ -174,9 +174,11 @@ class _BatchReaderBus(_CountingBus):
 
 def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 10, hook_share: float = 0.2,
                    profile: Path | None = None, encoding: str = "json", gil_threads: int = 0,
-                   subscribed: str = "all") -> dict[str, Any]:  # fmt: skip
+                   subscribed: str = "all", batch_size: int = 0) -> dict[str, Any]:  # fmt: skip
     """CPU seconds per packet of `GatewayService.handle` at `n` devices, with the sinks `create_app` wires (dashboard
     history, live stream without clients, metrics) and the blocking-put thread; the bus only digests the puts.
+    `batch_size`: each packet period's packets handed over in batches of at most this many (0: one batch), as a
+    gateway that keeps up takes what arrived since its last batch.
     `encoding="binary"`: the packets in the binary IMU encoding (protocol v2, as `bench.fleet --encoding binary`).
     `gil_threads`: that many threads each take the GIL 1000 times a second for a moment (ten deque appends), as
     zenoh's receive threads do when they call a subscriber callback per packet: what that costs the ingest thread.
@@ -246,8 +248,10 @@ def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 
                         prof = cProfile.Profile()
                         prof.enable()
                 t0 = time.thread_time()
-                service.handle(items, now)
-                between()
+                step = batch_size if batch_size > 0 else len(items)
+                for i in range(0, len(items), step):
+                    service.handle(items[i:i + step], now)
+                    between()
                 if k >= skip:
                     handle_s += time.thread_time() - t0
                     packets += len(batch)
@@ -290,7 +294,8 @@ def _child(tree: Path, rods: int, args: argparse.Namespace) -> dict[str, Any]:
     `gateway` is that tree's (the bench module is this one)."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", str(rods), "--seconds", str(args.seconds),
            "--skip-s", str(args.skip_s), "--seed", str(args.seed), "--stage", args.stage, "--spp", str(args.spp),
-           "--encoding", args.encoding, "--gil-threads", str(args.gil_threads), "--subscribed", args.subscribed]
+           "--encoding", args.encoding, "--gil-threads", str(args.gil_threads), "--subscribed", args.subscribed,
+           "--batch-size", str(args.batch_size)]
     here = Path(__file__).resolve().parents[1]
     env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{here}" if args.stage == "ingest" else str(tree))
     res = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True)
@@ -319,13 +324,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--subscribed", choices=("all", "attitude", "batch"), default="all",
                    help="with --stage ingest: which output keys have a subscriber: all (default), only the per-device "
                         "attitudes (bench.fleet's observer), or only gw/attitudes (bench.fleet --observe batch)")
+    p.add_argument("--batch-size", type=int, default=0, help="with --stage ingest: hand each packet period's packets "
+                   "over in batches of at most this many (default 0: one batch per period)")
     p.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
 
     def run(n: int) -> dict[str, Any]:
         if args.stage == "ingest":
             return measure_ingest(n, args.seconds, args.skip_s, args.seed, args.spp, profile=args.profile,
-                                  encoding=args.encoding, gil_threads=args.gil_threads, subscribed=args.subscribed)
+                                  encoding=args.encoding, gil_threads=args.gil_threads, subscribed=args.subscribed,
+                                  batch_size=args.batch_size)
         return measure(n, args.seconds, args.skip_s, args.seed)
 
     if args.child is not None:
