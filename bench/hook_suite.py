@@ -21,6 +21,7 @@
     python -m bench.hook_suite --settings norestart         # not told: no start again told its length (RESTART_ROUND)
     python -m bench.hook_suite --settings start1            # the start swing read with the start heading (START_ROUND)
     python -m bench.hook_suite --settings windstart         # a steady wind at start split from bias (WINDY_START)
+    python -m bench.hook_suite --settings drop1             # a dropped compass: the twin's own heading (DROP_ROUND)
     python -m bench.hook_suite --length-factor 2            # the rope length told 2x too long at t = 0
     python -m bench.hook_suite --told-m 10                  # told 10 m whatever the rope (the gateway's default)
     python -m bench.hook_suite --sensor-draw 1              # the same cranes with another board of the preset
@@ -80,6 +81,7 @@ from devices.hook_physics import (
 from gateway.fusion import hook
 from gateway.fusion.hook_filter import (
     COMPASS_ROUND,
+    DROP_ROUND,
     FOURTH_ROUND,
     HARD_IRON_REFERENCE,
     HELD_TRACKING,
@@ -337,7 +339,7 @@ PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JU
            "hoist": HOIST_ROUND, "tip03": TIP_ROUND, "compass": COMPASS_ROUND, "slew": SLEW_ROUND,
            "hardiron": HARD_IRON_REFERENCE, "iron": IRON_ROUND, "prior5": PRIOR_ROUND,
            "norestart": RESTART_ROUND, "start1": START_ROUND,
-           "windstart": WINDY_START}
+           "windstart": WINDY_START, "drop1": DROP_ROUND}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -401,7 +403,8 @@ def main(argv: list[str] | None = None) -> int:
                    "length it found, the filter before the start round), start1 (START_ROUND: the start swing read "
                    "with the start heading held over the warm-up and carried back to first order, the filter before "
                    "the start-swing round), windstart (WINDY_START, off by default: the warm-up's mean x/y force "
-                   "split into accelerometer bias and a steady wind by their priors)")
+                   "split into accelerometer bias and a steady wind by their priors), drop1 (DROP_ROUND: a dropped "
+                   "compass leaves the filter on its twin's own heading, the filter before the drop-heading round)")
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     p.add_argument("--rate-hz", type=float, default=RATE_HZ,
                    help="IMU sampling rate (default 100; the suite was tuned at 100 only)")

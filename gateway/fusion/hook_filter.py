@@ -374,6 +374,11 @@ class HookFilterSettings:
     # swing under `compass_check_swing_rad` (a still hook is no evidence either way), then starts again from this
     # filter's state when the hook swings (issue 16: an idle crane's hooks cost one filter, not two); 0: never pauses.
     compass_check_still_s: float = 10.0
+    # When the compass is dropped the filter goes on as the twin, turned about the vertical so that its heading is
+    # the one the filter had published (the compass's, hard iron as learnt): the twin's own is the start heading
+    # carried by the gyroscope alone, off by its z bias times the time since the start (legacy board 1740: 60° after
+    # 23 s). False: the twin's heading, the filter before issue 11's drop-heading round.
+    compass_drop_keeps_heading: bool = True
     # `swing_from_window`: the warm-up's gyroscope x/y turned by the heading at each sample (the start heading carried
     # along by the z rate) and the swing carried back to the window's start to second order; False: the start heading
     # held and first order, the filter before issue 11's start-swing round (a hook twisting 34°/s read 0.3-0.5° short)
@@ -411,6 +416,9 @@ WINDY_START: dict[str, float] = {"start_wind_std_m_s2": 0.03}
 
 # The start swing before issue 11's start-swing round (`start_swing_turns`): the warm-up read with the start heading.
 START_ROUND: dict[str, float] = {"start_swing_turns": False}
+
+# A dropped compass before issue 11's drop-heading round (`compass_drop_keeps_heading`): the twin's own heading.
+DROP_ROUND: dict[str, float] = {"compass_drop_keeps_heading": False}
 
 # The defaults before issue 11's compass round (no twin without the magnetometer): `HookFilterSettings(**COMPASS_ROUND)`
 COMPASS_ROUND: dict[str, float] = {"compass_check_excess": 0.0}
@@ -1792,6 +1800,22 @@ def _packet_rows(gyr: FloatArray, acc: FloatArray, mag: FloatArray, m: int, acc_
     return z, process_inputs(gyr, acc, gyr_prev, dt_s)
 
 
+def twist_heading_rad(q: FloatArray) -> float:
+    """α of the swing-twist split of one attitude (wxyz): its heading about the vertical, in (-π, π]."""
+    return 2.0 * math.atan2(float(q[3]), float(q[0]))
+
+
+def _wrap_rad(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _turned(quats: FloatArray, turn_rad: float) -> FloatArray:
+    """`q_z(turn) ⊗ q` of each attitude (N, 4): the same attitudes in a frame turned about the vertical."""
+    c, sn = math.cos(0.5 * turn_rad), math.sin(0.5 * turn_rad)
+    w, x, y, z = quats[:, 0], quats[:, 1], quats[:, 2], quats[:, 3]
+    return np.stack([c * w - sn * z, c * x - sn * y, c * y + sn * x, c * z + sn * w], axis=1)
+
+
 class HookFilter(AttitudeFilter):
     """Pendulum-aware EKF for the crane hook (see the module docstring). `update()` runs one `ekf_step`, `run()`
     the batch `ekf_run` (the same step in a numba loop). State: `self.x` (N_STATE,) = (24,), `self.P` (24, 24)."""
@@ -1824,6 +1848,7 @@ class HookFilter(AttitudeFilter):
         self.start_redone_q0: FloatArray | None = None  # then: the redone estimate of the first sample after `start()`
         self.compass_dropped_s: float | None = None  # the magnetometer misled the swing: dropped this many seconds
         # after the start (`_check_compass`); None while it is used
+        self._north_kept_rad: float | None = None  # β at a drop that kept the heading (`north_turn_rad`)
         hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
         self._q_psd = np.array(
             [0.0, 0.0, 0.0, 0.0, 0.0, s.torsion_accel_psd]
@@ -2071,10 +2096,31 @@ class HookFilter(AttitudeFilter):
             if 0.0 < s.compass_check_evidence_s <= self._twin_evidence_s:
                 self._twin = None  # trusted through enough swinging: the compass is kept, the twin's cost ends
             return out
+        turn_rad = 0.0
+        if s.compass_drop_keeps_heading:  # the twin's heading less the one published (both about the vertical)
+            turn_rad = _wrap_rad(twist_heading_rad(twin.quaternion) - twist_heading_rad(self.quaternion))
+            self._north_kept_rad = self.north_turn_rad  # the output's North stays where it was
         self.x, self.P, self._monitor, self._history = twin.x, twin.P, twin._monitor, twin._history
         self._gyr_prev, self.use_mag, self._twin, self.compass_dropped_s = twin._gyr_prev, False, None, now
         self._constants = None
+        if turn_rad != 0.0:
+            self._turn_state(turn_rad)
+            return _turned(twin_out[0], -turn_rad), twin_out[1]
         return twin_out
+
+    def _turn_state(self, turn_rad: float) -> None:
+        """Turn the filter's frame about the vertical by -`turn_rad`: the rope direction, its rate and the boom tip's
+        acceleration (ENU) and α (`q_z(-ε) ⊗ q_swing(n) ⊗ q_z(α) = q_swing(R n) ⊗ q_z(α - ε)`), the covariance with
+        them; the jump rollback's history is cleared (it holds the unturned states)."""
+        c, sn = math.cos(-turn_rad), math.sin(-turn_rad)
+        turn = np.eye(N_STATE)
+        for i in (0, 2, 17):
+            turn[i, i], turn[i, i + 1], turn[i + 1, i], turn[i + 1, i + 1] = c, -sn, sn, c
+        self.x = turn @ self.x
+        self.x[_ALPHA] -= turn_rad
+        self.P = turn @ self.P @ turn.T
+        if self._history is not None:
+            self._history[5][0] = 0
 
     def _set_start_swing(self, swing: tuple[FloatArray, FloatArray, float] | None) -> bool:
         """Start from `swing_from_window`'s swing (True), unless there is none or the rope length is unknown (p
@@ -2316,7 +2362,10 @@ class HookFilter(AttitudeFilter):
         """β: the turn about the vertical from the filter's own frame to its output's North (`_output_quaternion`),
         0 at the start and growing as the hard iron is learnt; 0 without the magnetometer or the hard-iron
         reference. A heading read from the output at one time and compared with one read later carries its change,
-        which is no twist (`gateway.kinds.hook`: the torsion reference follows it)."""
+        which is no twist (`gateway.kinds.hook`: the torsion reference follows it). After a drop that kept the heading
+        (`compass_drop_keeps_heading`) the filter's frame is the output's of that moment: β as it was then."""
+        if self._north_kept_rad is not None and not self.use_mag:
+            return self._north_kept_rad
         params = self._output_params()
         if params[_USE_MAG] > 0.0 and params[_MAG_FRAME] > 0.0:
             east, north, _ = _field_held(self.x, params)
