@@ -168,7 +168,7 @@ class Hub:
 
     def _put_attitude_batch(self, newest: Sequence[schemas.Attitude], now_us: int) -> None:
         """The batch's attitudes on `gw/attitudes` too, at most `ATTITUDES_PER_MESSAGE` a message, while anyone
-        subscribes: one put where the per-device keys take one per device."""
+        subscribes: one put where the per-device keys take one per device (DROP, as they are)."""
         topic = schemas.T_ATTITUDES
         if not newest or self._subscribed is None:
             return

@@ -506,7 +506,9 @@ class AttitudeBatch(WireModel):
     devices; more are split over several messages): for an app that follows many devices (a fleet view, a
     historian), one subscriber and one message per batch instead of one per device. Each entry is what
     `gw/{kind}/{id}/attitude` carries for that device in the same batch; `wall_t_us` is the gateway's wall clock at
-    publishing. Published only while someone subscribes (zenoh's matching status), with CongestionControl.BLOCK."""
+    publishing. Published only while someone subscribes (zenoh's matching status), with CongestionControl.DROP as
+    the per-device attitude ("the latest": a congested link loses a batch, the next one follows), so a slow fleet
+    app cannot hold up the gateway's BLOCK puts (alarms, swing) behind it."""
 
     v: Version = 1
     wall_t_us: TimeUs
@@ -758,7 +760,7 @@ T_REEL_CMD: Final = Topic("reel_cmd", "rig/{kind}/{id}/reel/cmd", _kinds("rod"),
 T_BALL_CMD: Final = Topic("ball_cmd", "rig/{kind}/{id}/cmd", _kinds("ball"), BallCommand, ENCODING_BALL_CMD,
                           "command", block=True, express=True)
 T_ATTITUDE: Final = Topic("attitude", "gw/{kind}/{id}/attitude", IMU_KINDS, Attitude, ENCODING_GW, "output")
-T_ATTITUDES: Final = Topic("attitudes", "gw/attitudes", (), AttitudeBatch, ENCODING_GW, "output", block=True,
+T_ATTITUDES: Final = Topic("attitudes", "gw/attitudes", (), AttitudeBatch, ENCODING_GW, "output",
                           note="every device's newest attitude per ingest batch, while subscribed")
 T_ATTITUDE_BLOCK: Final = Topic("attitude_block", "gw/{kind}/{id}/attitude/block", IMU_KINDS, AttitudeBlock,
                                 ENCODING_GW, "output", block=True, express=True,

@@ -62,7 +62,7 @@ def test_each_kind_has_a_token_alarm_and_config_row_and_imu_kinds_get_imu_output
         assert t.kinds == schemas.KINDS
     for t in (schemas.T_IMU, schemas.T_ATTITUDE, schemas.T_HEIGHT):
         assert t.kinds == schemas.IMU_KINDS
-    blocking = ["reel_cmd", "ball_cmd", "attitudes", "attitude_block", "swing", "alarm", "diag_rejected"]
+    blocking = ["reel_cmd", "ball_cmd", "attitude_block", "swing", "alarm", "diag_rejected"]
     assert [t.name for t in schemas.TOPICS if t.block] == blocking
     assert len({t.name for t in schemas.TOPICS}) == len(schemas.TOPICS)
 
