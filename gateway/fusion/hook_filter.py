@@ -93,8 +93,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from gateway.fusion import hook as hook_geo
 from gateway.fusion.base import AttitudeFilter, FloatArray
-from gateway.fusion.quaternion import njit, rotate, to_matrix
+from gateway.fusion.quaternion import from_axis_angle, multiply, njit, rotate, to_matrix
 
 N_STATE = 24
 _P, _V, _ALPHA, _ALPHA_RATE, _BIAS, _ACC_BIAS = slice(0, 2), slice(2, 4), 4, 5, slice(6, 9), 9
@@ -1800,22 +1801,6 @@ def _packet_rows(gyr: FloatArray, acc: FloatArray, mag: FloatArray, m: int, acc_
     return z, process_inputs(gyr, acc, gyr_prev, dt_s)
 
 
-def twist_heading_rad(q: FloatArray) -> float:
-    """α of the swing-twist split of one attitude (wxyz): its heading about the vertical, in (-π, π]."""
-    return 2.0 * math.atan2(float(q[3]), float(q[0]))
-
-
-def _wrap_rad(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def _turned(quats: FloatArray, turn_rad: float) -> FloatArray:
-    """`q_z(turn) ⊗ q` of each attitude (N, 4): the same attitudes in a frame turned about the vertical."""
-    c, sn = math.cos(0.5 * turn_rad), math.sin(0.5 * turn_rad)
-    w, x, y, z = quats[:, 0], quats[:, 1], quats[:, 2], quats[:, 3]
-    return np.stack([c * w - sn * z, c * x - sn * y, c * y + sn * x, c * z + sn * w], axis=1)
-
-
 class HookFilter(AttitudeFilter):
     """Pendulum-aware EKF for the crane hook (see the module docstring). `update()` runs one `ekf_step`, `run()`
     the batch `ekf_run` (the same step in a numba loop). State: `self.x` (N_STATE,) = (24,), `self.P` (24, 24)."""
@@ -2098,14 +2083,14 @@ class HookFilter(AttitudeFilter):
             return out
         turn_rad = 0.0
         if s.compass_drop_keeps_heading:  # the twin's heading less the one published (both about the vertical)
-            turn_rad = _wrap_rad(twist_heading_rad(twin.quaternion) - twist_heading_rad(self.quaternion))
+            turn_rad = float(hook_geo.torsion(twin.quaternion, hook_geo.twist_heading(self.quaternion)))
             self._north_kept_rad = self.north_turn_rad  # the output's North stays where it was
         self.x, self.P, self._monitor, self._history = twin.x, twin.P, twin._monitor, twin._history
         self._gyr_prev, self.use_mag, self._twin, self.compass_dropped_s = twin._gyr_prev, False, None, now
         self._constants = None
         if turn_rad != 0.0:
             self._turn_state(turn_rad)
-            return _turned(twin_out[0], -turn_rad), twin_out[1]
+            return multiply(from_axis_angle([0.0, 0.0, 1.0], -turn_rad), twin_out[0]), twin_out[1]
         return twin_out
 
     def _turn_state(self, turn_rad: float) -> None:
