@@ -6,6 +6,7 @@
     python -m bench.hook_suite --paper-ekf                  # also paper 001's EKF as published
     python -m bench.hook_suite --family windy --seeds 1-12  # light loads in a steady wind from the start
     python -m bench.hook_suite --family short --seeds 1-12  # short ropes (2-4 m) that are hoisted
+    python -m bench.hook_suite --worst                      # where each seed's worst Θ error is (start, which move)
     python -m bench.hook_suite --tracking                   # the second round's boom-tip tracking (and slow test)
     python -m bench.hook_suite --settings previous          # the defaults before issue 11's third round
     python -m bench.hook_suite --settings trial             # the fourth round's trial jumps (TRIAL_JUMP)
@@ -105,6 +106,8 @@ RATE_HZ = 100.0  # the IMU's sampling rate unless `rate_hz` / `--rate-hz` says o
 WARMUP_S = 0.5
 SENSOR_DRAW_STRIDE = 1_000_003  # `sensor_draw` k uses rng seed 10_000 + seed + k x this: no draw meets another seed's
 AFTER_EVENT_S = 5.0
+START_S = 3.0  # `SuiteCase.cause_at`: a worst error this soon after the start is the start's (the warm-up's swing)
+WORST_LIMIT_DEG = 0.6  # issue 11's whole-run Θ max target: `--worst` counts the samples above it
 PHASES = ("free", "pull", "move")
 SUITE_VERSIONS = (1, 2)  # 1: the hoist generator before issue 11's fix (figures documented before it); 2: fixed
 SUITE_VERSION = 2
@@ -125,6 +128,18 @@ class SuiteCase:
             on = (t_s >= a) & (t_s < b + AFTER_EVENT_S)
             out[on] = np.maximum(out[on], 1 if kind == "pull" else 2)
         return out
+
+    def cause_at(self, t_s: float) -> str:
+        """What the crane was doing at `t_s`, for the worst error's attribution (`worst_error`): "start" within
+        `START_S` of the gateway's start, "{kind}" during an event or the `AFTER_EVENT_S` after it (the last to
+        begin), "after {kind}" later, "free" before any event."""
+        if t_s < START_S:
+            return "start"
+        begun = [(kind, b) for kind, a, b in self.events if a <= t_s]
+        if not begun:
+            return "free"
+        kind, end_s = begun[-1]
+        return kind if t_s < end_s + AFTER_EVENT_S else f"after {kind}"
 
     def describe(self) -> str:
         kinds = [k for k, _, _ in self.events]
@@ -299,6 +314,7 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
     for name, q in [("hook", q_hook), *others]:
         out[name] = score_phases(q, truth, case, use_mag)
     out["hook"]["all"].update(rope_errors(length, truth))
+    out["hook"]["all"].update(worst_error(q_hook, truth))
     return out
 
 
@@ -314,6 +330,16 @@ def simulate_seed(seed: int, duration_s: float, imu: str, use_mag: bool, family:
     sensor = SensorModel(ImuErrorModel.preset(imu), 1, rng)
     gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / rate_hz)
     return case, truth, gyr, acc, mag if use_mag else None
+
+
+def worst_error(q: np.ndarray, truth: HookTruth, limit_deg: float = WORST_LIMIT_DEG) -> dict[str, float]:
+    """Where the whole run's worst Θ error is (after the warm-up): its time `worst_t_s` (what the crane was doing
+    then: `SuiteCase.cause_at`), and the share `over_share` of samples whose error exceeds `limit_deg` (a brief start
+    transient and a move's seconds-long offset can have the same max)."""
+    scored = truth.t_s >= WARMUP_S
+    err = np.abs(np.degrees(hook.swing_angle(q) - truth.swing_rad))[scored]
+    i = int(np.argmax(err))
+    return {"worst_t_s": float(truth.t_s[scored][i]), "over_share": float(np.mean(err > limit_deg))}
 
 
 def score_phases(q: np.ndarray, truth: HookTruth, case: SuiteCase, absolute: bool) -> dict[str, dict[str, float]]:
@@ -405,6 +431,10 @@ def main(argv: list[str] | None = None) -> int:
                    "the start-swing round), windstart (WINDY_START, off by default: the warm-up's mean x/y force "
                    "split into accelerometer bias and a steady wind by their priors), drop1 (DROP_ROUND: a dropped "
                    "compass leaves the filter on its twin's own heading, the filter before the drop-heading round)")
+    p.add_argument("--worst", action="store_true",
+                   help=f"also say where each seed's worst Θ error is (start, during or after which event, free "
+                   f"swing) and the share of its samples above {WORST_LIMIT_DEG:g}°, and count the seeds over it by "
+                   "cause")
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     p.add_argument("--rate-hz", type=float, default=RATE_HZ,
                    help="IMU sampling rate (default 100; the suite was tuned at 100 only)")
@@ -429,6 +459,7 @@ def main(argv: list[str] | None = None) -> int:
     names = ["hook", "vqf"] + (["ekf001"] if args.paper_ekf else [])
     rows: dict[str, list[dict[str, dict[str, float]]]] = {n: [] for n in names}
     t0 = time.perf_counter()
+    causes: dict[str, list[str]] = {}  # cause of the worst error -> seeds whose max exceeds WORST_LIMIT_DEG
     for seed in seeds:
         case = make_case(seed, args.duration, args.family, args.rate_hz, args.suite_version)
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
@@ -441,6 +472,12 @@ def main(argv: list[str] | None = None) -> int:
             label = case.describe() if name == "hook" else ""
             print(f"{seed if name == 'hook' else '':>4} {label:<44}{name:>6}{a['swing_rmse']:8.3f}{a['swing_max']:7.2f}"
                   f"{a['dir_rmse']:7.2f}{a['torsion_rmse']:7.2f}{rope}")
+            if args.worst and name == "hook":
+                cause = case.cause_at(a["worst_t_s"])
+                print(f"{'':>4} {'':<44}{'worst':>6} at {a['worst_t_s']:.1f} s ({cause}); "
+                      f"{100 * a['over_share']:.2f} % of samples above {WORST_LIMIT_DEG:g}°")
+                if a["swing_max"] > WORST_LIMIT_DEG:
+                    causes.setdefault(cause.removeprefix("after "), []).append(str(seed))
             if args.phases:
                 for ph in PHASES:
                     f = r[name][ph]
@@ -463,6 +500,11 @@ def main(argv: list[str] | None = None) -> int:
     rope_rel = [r["all"]["rope_rel"] for r in rows["hook"]]
     print(f"  hook below VQF (whole-run Θ RMSE) on {beaten}/{len(seeds)} seeds; rope length RMS error "
           f"{100 * float(np.mean(rope_rel)):.1f} % of the true length (mean over seeds)")
+    if args.worst:
+        over = sum(len(v) for v in causes.values())
+        print(f"  hook Θ max above {WORST_LIMIT_DEG:g}° on {over}/{len(seeds)} seeds; its worst error by what the "
+              "crane was doing (an event, or after it): "
+              + ("; ".join(f"{k} {len(v)} ({', '.join(v)})" for k, v in sorted(causes.items())) or "none"))
     print(f"  ({time.perf_counter() - t0:.0f} s)")
     return 0
 

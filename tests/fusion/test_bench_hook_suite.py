@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.hook_suite import main, make_case
+from bench.hook_suite import AFTER_EVENT_S, START_S, main, make_case, worst_error
 from devices.hook_physics import rope_length, simulate
 
 # sha256 of repr((physics, scenario, events)) of `make_case(seed, duration_s, family)` at commit fe88dbb, before the
@@ -112,3 +112,34 @@ def test_another_board_draw_keeps_the_crane_and_redraws_only_the_sensor() -> Non
     np.testing.assert_array_equal(truth1.gyr_rad_s, truth0.gyr_rad_s)
     assert not np.array_equal(gyr1, gyr0)
     assert np.abs(gyr1 - gyr0).max() < 0.2  # the same motion read by another board (biases ~1 deg/s)
+
+
+def test_cause_at_names_the_start_the_event_going_on_or_just_ended_and_free_swing() -> None:
+    """`SuiteCase.cause_at` (`--worst`): the first `START_S` are the start's, an event owns its span and the
+    `AFTER_EVENT_S` after it (the last event to begin wins), later it is "after" that event, before any "free"."""
+    case = dataclasses.replace(make_case(1, 60.0), events=(("slew", 10.0, 20.0), ("pull", 22.0, 24.0)))
+    assert START_S == 3.0 and AFTER_EVENT_S == 5.0
+    expected = {0.6: "start", 2.99: "start", 3.0: "free", 9.99: "free", 10.0: "slew", 21.9: "slew",
+                22.0: "pull", 28.9: "pull", 29.0: "after pull", 59.0: "after pull"}  # fmt: skip
+    assert {t: case.cause_at(t) for t in expected} == expected
+    assert dataclasses.replace(case, events=(("trolley", 5.0, 6.0),)).cause_at(11.5) == "after trolley"
+
+
+def test_worst_error_finds_the_time_of_the_max_and_the_share_above_the_limit() -> None:
+    """A hook estimate 0.7° high over 0.2 s (20 samples) with its 1.0° peak at 7.05 s, exact elsewhere: the worst
+    error is at 7.05 s and 20 of the 950 samples after the 0.5 s warm-up are above 0.6°."""
+    case = make_case(3, 10.0)
+    truth = simulate(case.physics, case.scenario)
+    n = truth.t_s.shape[0]
+    assert n == 1000 and truth.t_s[1] - truth.t_s[0] == pytest.approx(0.01)
+    swing = truth.swing_rad.copy()
+    above = (truth.t_s >= 6.95) & (truth.t_s < 7.15)
+    swing[above] += np.radians(0.7)
+    peak = int(np.argmin(np.abs(truth.t_s - 7.05)))
+    swing[peak] = truth.swing_rad[peak] + np.radians(1.0)
+    q = np.stack([np.cos(swing / 2), np.sin(swing / 2), np.zeros(n), np.zeros(n)], axis=1)  # about x by Θ
+    w = worst_error(q, truth)
+    assert w["worst_t_s"] == pytest.approx(7.05, abs=1e-9)
+    assert w["over_share"] == pytest.approx(int(above.sum()) / 950, abs=1e-12)
+    assert int(above.sum()) == 20
+    assert worst_error(q, truth, limit_deg=0.8)["over_share"] == pytest.approx(1 / 950)
