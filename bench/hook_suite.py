@@ -276,9 +276,15 @@ def _wrap_deg(a: np.ndarray) -> np.ndarray:
     return np.degrees(np.remainder(a + np.pi, 2 * np.pi) - np.pi)
 
 
+def swing_error_deg(q: np.ndarray, truth: HookTruth) -> np.ndarray:
+    """Θ estimated minus Θ true at every sample, degrees (what `score` and `worst_error` read)."""
+    out: np.ndarray = np.degrees(hook.swing_angle(q) - truth.swing_rad)
+    return out
+
+
 def score(q: np.ndarray, truth: HookTruth, keep: np.ndarray, absolute: bool) -> dict[str, float]:
     """Θ RMSE / max, direction RMSE (Θ_true > 1°) and torsion RMSE in degrees over the samples `keep`."""
-    swing_err = np.degrees(hook.swing_angle(q) - truth.swing_rad)[keep]
+    swing_err = swing_error_deg(q, truth)[keep]
     i0 = int(np.argmax(keep))
     off = 0.0 if absolute else float(hook.twist_heading(q[i0]) - (truth.torsion_rad[i0]))
     bearing_err = _wrap_deg(hook.displacement_bearing(q) - truth.swing_bearing_rad - off)
@@ -337,7 +343,7 @@ def worst_error(q: np.ndarray, truth: HookTruth, limit_deg: float = WORST_LIMIT_
     then: `SuiteCase.cause_at`), and the share `over_share` of samples whose error exceeds `limit_deg` (a brief start
     transient and a move's seconds-long offset can have the same max)."""
     scored = truth.t_s >= WARMUP_S
-    err = np.abs(np.degrees(hook.swing_angle(q) - truth.swing_rad))[scored]
+    err = np.abs(swing_error_deg(q, truth))[scored]
     i = int(np.argmax(err))
     return {"worst_t_s": float(truth.t_s[scored][i]), "over_share": float(np.mean(err > limit_deg))}
 
