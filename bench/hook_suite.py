@@ -25,6 +25,8 @@
     python -m bench.hook_suite --settings drop1             # a dropped compass: the twin's own heading (DROP_ROUND)
     python -m bench.hook_suite --length-factor 2            # the rope length told 2x too long at t = 0
     python -m bench.hook_suite --told-m 10                  # told 10 m whatever the rope (the gateway's default)
+    python -m bench.hook_suite --offset-told 0.005          # the IMU's offset from the rope told, measured to 5 mm
+    python -m bench.hook_suite --lever-x 0.3                # the IMU 0.3 m off the rope axis, a mount not assumed
     python -m bench.hook_suite --sensor-draw 1              # the same cranes with another board of the preset
     python -m bench.hook_suite --suite-version 1            # the cranes before the hoist fix (earlier figures)
 
@@ -151,7 +153,7 @@ FAMILIES = ("crane", "windy", "short")
 
 
 def make_case(seed: int, duration_s: float = 180.0, family: str = "crane", rate_hz: float = RATE_HZ,
-              suite_version: int = SUITE_VERSION) -> SuiteCase:
+              suite_version: int = SUITE_VERSION, lever_x_m: float | None = None) -> SuiteCase:
     """The randomised crane and timeline of `seed` (see the module docstring). `family="windy"`: the same draws on a
     light load (0.5-1.5 t) on a short rope (2-6 m) in a steady wind of 30-60 N present from the start, which a
     filter that takes the warm-up's mean force for accelerometer bias reads as a steady tilt error.
@@ -159,7 +161,9 @@ def make_case(seed: int, duration_s: float = 180.0, family: str = "crane", rate_
     `suite_version` 1: the generator before the hoist fix, whose hoist lasts at least two ramps at its drawn speed
     and so overshoots a nearer target (some seeds' ropes went below 2 m); 2: such a hoist is slowed to end on its
     target, and a hoist after it (the rope is elsewhere than in version 1) keeps version 1's duration at the speed
-    that ends on its target, capped at the drawn speed. The timeline and every draw are the same in both."""
+    that ends on its target, capped at the drawn speed. The timeline and every draw are the same in both.
+    `lever_x_m`: the IMU that far off the rope axis on its x (the drawn y/z offsets kept) instead of 0.1 ± 0.02 m, a
+    mount the filter does not assume (every other draw the same)."""
     if family not in FAMILIES:
         raise ValueError(f"unknown scenario family {family!r}; known: {', '.join(FAMILIES)}")
     if suite_version not in SUITE_VERSIONS:
@@ -172,6 +176,8 @@ def make_case(seed: int, duration_s: float = 180.0, family: str = "crane", rate_
     inertia = 20.0 * mass / 500.0
     stiffness = inertia * (2.0 * math.pi / twist_period_s) ** 2
     lever = (0.1 + float(rng.uniform(-0.02, 0.02)), float(rng.uniform(-0.02, 0.02)), float(rng.uniform(-0.02, 0.02)))
+    if lever_x_m is not None:
+        lever = (lever_x_m, lever[1], lever[2])
     physics = HookPhysicsSettings(
         rope_length_m=l0, gravity_m_s2=G_M_S2, earth_field_uT=EARTH_FIELD_ENU_UT, swing_damping_1_s=0.002,
         hook_mass_kg=mass, torsion_inertia_kg_m2=inertia, torsion_stiffness_n_m_rad=stiffness,
@@ -239,14 +245,15 @@ def make_case(seed: int, duration_s: float = 180.0, family: str = "crane", rate_
 
 
 def hook_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rope_length_m: float | None,
-                  tracking: bool = False, overrides: dict[str, float] | None = None, rate_hz: float = RATE_HZ
-                  ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+                  tracking: bool = False, overrides: dict[str, float] | None = None, rate_hz: float = RATE_HZ,
+                  imu_offset_m: tuple[float, float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Hook filter quaternions (N, 4) and rope-length estimates (N,), started as the gateway starts it (`tracking`:
-    with the optional boom-tip tracking, `hook_filter.TRACKING`; `overrides`: further settings on top)."""
+    with the optional boom-tip tracking, `hook_filter.TRACKING`; `overrides`: further settings on top;
+    `imu_offset_m`: the IMU's offset from the rope axis configured, as `HookThresholds.imu_offset_m`)."""
     extra: dict[str, float] = (TRACKING if tracking else {}) | (overrides or {})
     settings = (HookFilterSettings(**extra) if rope_length_m is None
                 else HookFilterSettings(rope_length_m=rope_length_m, rope_length_known=True, **extra))  # fmt: skip
-    f = HookFilter(settings, use_mag=mag is not None)
+    f = HookFilter(settings.with_imu_offset(imu_offset_m), use_mag=mag is not None)
     n = int(WARMUP_S * rate_hz)
     f.start(gyr[:n], acc[:n], None if mag is None else mag[:n], 1.0 / rate_hz)
     q, length = f.run_with_length(gyr, acc, mag, 1.0 / rate_hz)
@@ -303,17 +310,21 @@ def score(q: np.ndarray, truth: HookTruth, keep: np.ndarray, absolute: bool) -> 
 def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length: bool, paper_ekf: bool = False,
              family: str = "crane", tracking: bool = False, overrides: dict[str, float] | None = None,
              rate_hz: float = RATE_HZ, length_factor: float = 1.0, suite_version: int = SUITE_VERSION,
-             sensor_draw: int = 0, told_m: float | None = None) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+             sensor_draw: int = 0, told_m: float | None = None, lever_x_m: float | None = None,
+             offset_told_std_m: float | None = None) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`; the filter is told
     `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1), or `told_m` whatever
-    the rope (the gateway's 10 m for a hook whose length nobody configured); `sensor_draw`: see `simulate_seed`."""
+    the rope (the gateway's 10 m for a hook whose length nobody configured); `sensor_draw`, `lever_x_m`: see
+    `simulate_seed`; `offset_told_std_m`: the IMU's offset from the rope axis told as measured with this error (m,
+    std per axis, drawn per seed; None: not told)."""
     case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz, suite_version,
-                                               sensor_draw)  # fmt: skip
+                                               sensor_draw, lever_x_m)  # fmt: skip
     out: dict[str, dict[str, dict[str, float]]] = {}
     told = case.physics.rope_length_m * length_factor if tell_length else None
     if tell_length and told_m is not None:
         told = told_m
-    q_hook, length = hook_estimate(gyr, acc, mag, told, tracking, overrides, rate_hz)
+    offset = None if offset_told_std_m is None else measured_offset(case, offset_told_std_m)
+    q_hook, length = hook_estimate(gyr, acc, mag, told, tracking, overrides, rate_hz, offset)
     others = [("vqf", vqf_estimate(gyr, acc, mag, rate_hz))]
     if paper_ekf:
         others.append(("ekf001", paper_ekf_estimate(gyr, acc, mag, rate_hz)))
@@ -324,13 +335,23 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
     return out
 
 
+def measured_offset(case: SuiteCase, std_m: float) -> tuple[float, float, float]:
+    """The IMU's offset from the rope axis as a user measures it: the true one plus `std_m` of error per axis (m),
+    drawn from the seed alone (the same whatever else the run does)."""
+    err = np.random.default_rng(20_000 + case.seed).standard_normal(3) * std_m
+    x, y, z = (float(v + e) for v, e in zip(case.physics.lever_arm_m, err, strict=True))
+    return x, y, z
+
+
 def simulate_seed(seed: int, duration_s: float, imu: str, use_mag: bool, family: str = "crane",
-                  rate_hz: float = RATE_HZ, suite_version: int = SUITE_VERSION, sensor_draw: int = 0
+                  rate_hz: float = RATE_HZ, suite_version: int = SUITE_VERSION, sensor_draw: int = 0,
+                  lever_x_m: float | None = None
                   ) -> tuple[SuiteCase, HookTruth, np.ndarray, np.ndarray, np.ndarray | None]:  # fmt: skip
     """The crane of `seed`, its ground truth and the IMU's samples (gyr, acc, mag or None, at `rate_hz`) as the suite
     (`suite_version`, see `make_case`) draws them. `sensor_draw` > 0: the same crane and motion with another board
-    of the same preset (its biases, scales and noise drawn afresh; 0: the suite's own board for the seed)."""
-    case = make_case(seed, duration_s, family, rate_hz, suite_version)
+    of the same preset (its biases, scales and noise drawn afresh; 0: the suite's own board for the seed);
+    `lever_x_m`: see `make_case`."""
+    case = make_case(seed, duration_s, family, rate_hz, suite_version, lever_x_m)
     truth = simulate(case.physics, case.scenario)
     rng = np.random.default_rng(10_000 + seed + SENSOR_DRAW_STRIDE * sensor_draw)
     sensor = SensorModel(ImuErrorModel.preset(imu), 1, rng)
@@ -452,12 +473,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--told-m", type=float, metavar="L",
                    help="tell the filter L metres whatever the rope: e.g. 10, what the gateway tells the filter of a "
                    "hook whose rope length nobody configured (HookThresholds.rope_length_m)")
+    p.add_argument("--lever-x", type=float, metavar="M",
+                   help="mount the IMU M metres off the rope axis on its x (default: 0.1 ± 0.02 m drawn per seed, "
+                   "what the filter assumes): a mount the filter is not told of unless --offset-told")
+    p.add_argument("--offset-told", type=float, metavar="STD_M",
+                   help="tell the filter the IMU's offset from the rope axis as measured with STD_M metres of error "
+                   "per axis (HookThresholds.imu_offset_m; default: not told)")
     add_suite_version_argument(p)
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
     told = ("not told" if args.no_length else f"{args.told_m:g} m told at t = 0" if args.told_m is not None
             else f"{args.length_factor:g}x told at t = 0")
     board = f" (board draw {args.sensor_draw})" if args.sensor_draw else ""
+    board += "" if args.lever_x is None else f", IMU {args.lever_x:g} m off the rope axis"
+    board += "" if args.offset_told is None else f", its offset told ± {1000 * args.offset_told:g} mm"
     print(f"hook suite v{args.suite_version} ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}{board}, "
           f"{args.duration:g} s per seed, rope length {told}, {args.rate_hz:g} Hz; degrees; whole run after "
           f"{WARMUP_S:g} s")
@@ -467,10 +496,10 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     causes: dict[str, list[str]] = {}  # cause of the worst error -> seeds whose max exceeds WORST_LIMIT_DEG
     for seed in seeds:
-        case = make_case(seed, args.duration, args.family, args.rate_hz, args.suite_version)
+        case = make_case(seed, args.duration, args.family, args.rate_hz, args.suite_version, args.lever_x)
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
                      args.tracking, parse_settings(args.settings), args.rate_hz, args.length_factor,
-                     args.suite_version, args.sensor_draw, args.told_m)
+                     args.suite_version, args.sensor_draw, args.told_m, args.lever_x, args.offset_told)
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]

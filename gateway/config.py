@@ -146,6 +146,10 @@ class RodThresholds(_Thresholds):
         return self
 
 
+OffsetM = Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)]
+"""One coordinate of a mounting offset, m: a hook's IMU sits within a metre of its rope axis."""
+
+
 class HookThresholds(_Thresholds):
     """Crane-hook swing angle (Theta, seed 001 eq. 6) and torsion (phi) limits, with clearing hysteresis."""
 
@@ -160,6 +164,12 @@ class HookThresholds(_Thresholds):
                                         "trusts to 15 %. None: not configured, the filter finds it from the "
                                         "pendulum frequency (from 10 m, a wide prior; its estimate is in the swing "
                                         "messages). A change restarts fusion.")
+    imu_offset_m: tuple[OffsetM, OffsetM, OffsetM] | None = Field(default=None, description="Where the IMU sits "
+                                                                  "from the rope axis, m, in its own axes (x, y, z; "
+                                                                  "z up the rope), as measured on the hook: the hook "
+                                                                  "filter's lever arm, a prior it trusts to 1 cm. "
+                                                                  "None: 0.1 m on x, learnt from the data (less "
+                                                                  "well). A change restarts fusion.")
     rest_heading_deg: float | None = Field(default=None, ge=-180.0, le=180.0, description="Heading of the untwisted "
                                            "hook's body x, CCW from East, in the gateway's heading frame (9D: "
                                            "magnetic); torsion is measured from it. None: the first fused heading.")

@@ -87,6 +87,32 @@ def test_rope_length_setting_reaches_the_filter_and_a_change_restarts_fusion() -
     assert told() is None
 
 
+def test_imu_offset_setting_reaches_the_filter_and_a_change_restarts_fusion() -> None:
+    """`imu_offset_m` (the IMU's measured offset from the rope axis) becomes the hook filter's lever arm with the
+    told prior; each change (to or from none) restarts the device's fusion, the same offset again does not."""
+    pipe = Pipeline()
+    pkts = _packets(60)
+    dev_id = pkts[0].device_id
+
+    def lever() -> tuple[float, float, float] | None:
+        return pipe.devices[dev_id].filt.settings.imu_offset_told  # type: ignore[union-attr]
+
+    pipe.process(pkts[:15], now_wall_s=1e9)
+    assert lever() is None, "none configured: the filter's own mount (0.1 m on x, learnt)"
+    pipe.set_device_settings(dev_id, "hook", DeviceSettings(thresholds={"imu_offset_m": [0.25, -0.01, 0.0]}))
+    assert dev_id not in pipe.devices, "configuring the mount restarts the device's fusion"
+    pipe.process(pkts[15:30], now_wall_s=1e9)
+    assert lever() == (0.25, -0.01, 0.0)
+    filt = pipe.devices[dev_id].filt
+    assert filt.settings.lever_arm_m == (0.25, -0.01, 0.0)  # type: ignore[union-attr]
+    pipe.set_device_settings(dev_id, "hook", DeviceSettings(thresholds={"imu_offset_m": [0.25, -0.01, 0.0]}))
+    assert dev_id in pipe.devices, "the same offset again changes nothing"
+    pipe.set_device_settings(dev_id, "hook", DeviceSettings(thresholds={"imu_offset_m": None}))
+    assert dev_id not in pipe.devices, "clearing it restarts the device's fusion"
+    pipe.process(pkts[30:45], now_wall_s=1e9)
+    assert lever() is None
+
+
 def test_torsion_is_measured_from_the_configured_rest_heading() -> None:
     """Hanging still (no torque): torsion ≈ 0 (< 2°) from the first fused heading; with rest_heading_deg set,
     torsion is the twist heading minus that setting."""
@@ -118,10 +144,13 @@ def test_rope_length_and_rest_heading_over_rest(tmp_path: Path) -> None:
         auth = {"Authorization": f"Bearer {(settings.data_dir / 'api_token').read_text().strip()}"}
         bad = client.put("/api/thresholds/hook", json={"rope_length_m": 0.1}, headers=auth)
         assert bad.status_code == 422 and "rope_length_m" in str(bad.json()["detail"])
+        bad = client.put("/api/thresholds/hook", json={"imu_offset_m": [0.1, 0.0, 2.0]}, headers=auth)
+        assert bad.status_code == 422 and "imu_offset_m" in str(bad.json()["detail"])
         pkts = _packets(20)
         dev_id = pkts[0].device_id
         r = client.put(f"/api/devices/{dev_id}/settings", headers=auth,
-                       json={"kind": "hook", "thresholds": {"rope_length_m": 18.0, "rest_heading_deg": -30.0}})
+                       json={"kind": "hook", "thresholds": {"rope_length_m": 18.0, "rest_heading_deg": -30.0,
+                                                            "imu_offset_m": [0.2, 0.0, 0.05]}})
         assert r.status_code == 200, r.text
         assert r.json()["effective"]["thresholds"]["rope_length_m"] == 18.0
         assert r.json()["effective"]["thresholds"]["rest_heading_deg"] == -30.0
@@ -134,6 +163,7 @@ def test_rope_length_and_rest_heading_over_rest(tmp_path: Path) -> None:
             time.sleep(0.05)
         filt = service.pipeline.devices[dev_id].filt
         assert filt.settings.rope_length_m == 18.0
+        assert filt.settings.lever_arm_m == (0.2, 0.0, 0.05)
         assert service.pipeline.devices[dev_id].rest_heading_set_rad == math.radians(-30.0)
 
 

@@ -634,20 +634,31 @@ const LABELS = {
   line_critical_fraction: "θ3 critical at (fraction)", tension_warn_fraction: "tension warn (fraction of breaking)",
   rearm_quiet_s: "re-arm after quiet (s)", baseline_tau_s: "rest baseline time constant (s)",
   rope_length_m: "rope length (m, empty = estimated)", rest_heading_deg: "rest heading (°, empty = first fused)",
+  imu_offset_m: "IMU offset from the rope axis (m: x, y, z; empty = assumed 0.1, 0, 0)",
 };
+const VECTOR_FIELDS = new Set(["imu_offset_m"]); // lists of numbers: a text field "x, y, z"
+function vectorValue(text) { // "0.3, 0, 0.05" -> [0.3, 0, 0.05]; empty -> null; a bad entry goes to the API as is (its 422 says why)
+  const t = text.trim();
+  if (t === "") return null;
+  return t.split(/[\s,;]+/).filter(Boolean).map((x) => (Number.isFinite(Number(x)) ? Number(x) : x));
+}
 async function loadThresholds(kind) {
   const th = await getJSON(`/api/thresholds/${kind}`);
   if (!th) return;
   Thresholds[kind] = th;
   $(`#th-${kind}`).querySelector(".fields").replaceChildren(...Object.entries(th).flatMap(([k, v]) => [
     el("label", { for: `f-${kind}-${k}` }, LABELS[k] || k.replace(/_/g, " "), el("small", {}, k)),
-    el("input", { id: `f-${kind}-${k}`, name: k, type: "number", step: "any", value: v == null ? "" : String(v), "data-testid": `th-${kind}-${k}` }),
+    VECTOR_FIELDS.has(k)
+      ? el("input", { id: `f-${kind}-${k}`, name: k, type: "text", "data-vector": "1", value: v == null ? "" : v.join(", "), "data-testid": `th-${kind}-${k}` })
+      : el("input", { id: `f-${kind}-${k}`, name: k, type: "number", step: "any", value: v == null ? "" : String(v), "data-testid": `th-${kind}-${k}` }),
   ]));
 }
 async function saveThresholds(ev) {
   ev.preventDefault();
   const form = ev.target, kind = form.dataset.kind, body = {};
-  for (const inp of form.querySelectorAll("input")) body[inp.name] = inp.value === "" ? null : Number(inp.value);
+  for (const inp of form.querySelectorAll("input")) {
+    body[inp.name] = inp.dataset.vector ? vectorValue(inp.value) : inp.value === "" ? null : Number(inp.value);
+  }
   const r = await api("PUT", `/api/thresholds/${kind}`, body);
   const errs = form.querySelector("ul.errors"), ok = form.querySelector("p.ok");
   if (r.ok) {

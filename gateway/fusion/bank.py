@@ -58,9 +58,10 @@ COMPASS_FREE = frozenset({HOOK_FILTER_6D})  # filters that never get the magneto
 Block = tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]  # gyr, acc, mag (None: 6D), t_s
 
 
-def make_filter(name: str, use_mag: bool, rope_length_m: float | None = None) -> AttitudeFilter:
-    """A filter by name: the hook EKF (on a rope of `rope_length_m`, else its default), else the registry
-    (KeyError when unknown)."""
+def make_filter(name: str, use_mag: bool, rope_length_m: float | None = None,
+                imu_offset_m: tuple[float, float, float] | None = None) -> AttitudeFilter:
+    """A filter by name: the hook EKF (on a rope of `rope_length_m`, else its default; its IMU at `imu_offset_m`
+    from the rope axis, else its default), else the registry (KeyError when unknown)."""
     from gateway.fusion import registry
 
     if name in (HOOK_FILTER, HOOK_FILTER_6D):
@@ -71,7 +72,7 @@ def make_filter(name: str, use_mag: bool, rope_length_m: float | None = None) ->
         # telling it 10 m instead diverged on short ropes (fresh crane 1692, 2.3 m: Θ RMSE 68.7° against 1.24°).
         settings = HookFilterSettings() if rope_length_m is None else HookFilterSettings(
             rope_length_m=rope_length_m, rope_length_known=True)
-        return HookFilter(settings, use_mag=use_mag and name not in COMPASS_FREE)
+        return HookFilter(settings.with_imu_offset(imu_offset_m), use_mag=use_mag and name not in COMPASS_FREE)
     if name in registry.FILTERS:
         return registry.make_filter(name, use_mag=use_mag)
     raise KeyError(name)

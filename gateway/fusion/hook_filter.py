@@ -178,6 +178,12 @@ class HookFilterSettings:
     # jump test: it let the swing rate follow any push, so the innovation never showed a move)
     use_force_input: bool = True  # False: the accelerometer's x/y are ignored (the filter before issue 11)
     lever_std_m: float = 0.03  # prior std of the IMU's x/y offset from the rope axis around `lever_arm_m`
+    # A mount measured and configured (`HookThresholds.imu_offset_m`; None: not told, the default above is assumed):
+    # the lever arm told and its prior std. Told within 5 mm, tuning cranes 1-30 read Θ 0.128 -> 0.104° (std 0.005 /
+    # 0.01 / 0.02: 0.103 / 0.104 / 0.106°); fresh 2026-2065 with the IMU 0.3 m off the axis 0.565 -> 0.145°
+    # (docs/fusion.md, "The IMU's mount").
+    imu_offset_told: tuple[float, float, float] | None = None
+    lever_told_std_m: float = 0.01
     torsion_accel_psd: float = 1.0  # (rad/s²)²/Hz: the hook's twist is driven by the rope's torsion spring
     gyro_bias_psd: float = 4e-10  # (rad/s)²/s: bias random walk, the MPU-6050's (devices.common.ImuErrorModel: 2e-5
     # rad/s/√s). 1e-8 before (third round): the bias then took a slowly changing boom-tip acceleration (a slew), and
@@ -388,6 +394,14 @@ class HookFilterSettings:
     # turned to ENU by the start tilt and the twist (`level_mag_reference`); False: the body-frame mean (the filter
     # before the fifth round: a 5° swing put 4 µT of the vertical field into the heading, 11°, and the z gyro bias
     # went wrong with it for 10 s, tuning seed 17)
+
+    def with_imu_offset(self, imu_offset_m: tuple[float, float, float] | None) -> HookFilterSettings:
+        """These settings told the IMU's measured offset from the rope axis (m, body x/y/z): the lever arm's prior
+        centred on it with `lever_told_std_m`; None: unchanged (the default mount, learnt)."""
+        if imu_offset_m is None:
+            return self
+        told = (float(imu_offset_m[0]), float(imu_offset_m[1]), float(imu_offset_m[2]))
+        return replace(self, lever_arm_m=told, imu_offset_told=told, lever_std_m=self.lever_told_std_m)
 
 
 

@@ -77,7 +77,9 @@ class HookKind(KindBase):
         return settings.hook_filter  # the rope-aware EKF unless configured otherwise
 
     def filter_options(self, th: Any) -> dict[str, Any]:
-        return {"rope_length_m": th.rope_length_m} if isinstance(th, HookThresholds) else {}
+        if not isinstance(th, HookThresholds):
+            return {}
+        return {"rope_length_m": th.rope_length_m, "imu_offset_m": th.imu_offset_m}
 
     def new_state(self, ctx: KindContext, dev: FusedDevice, th: Any) -> HookState:
         st = HookState(HookAlarms(dev.device_id, th if isinstance(th, HookThresholds) else None))
@@ -92,6 +94,8 @@ class HookKind(KindBase):
         if hasattr(fs, "rope_length_known"):  # the hook filter: the length it was told (None: finds it itself)
             told = fs.rope_length_m if fs.rope_length_known else None
             if told != th.rope_length_m:  # the pendulum model changed: restart fusion
+                return False
+            if getattr(fs, "imu_offset_told", None) != th.imu_offset_m:  # ... or the IMU's lever arm
                 return False
         st: HookState = dev.state
         st.rules.set_thresholds(th)

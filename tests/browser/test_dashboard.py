@@ -142,6 +142,36 @@ def test_threshold_form_shows_validation_message_then_saves(system: System, brow
     browser.console.clear()
 
 
+def test_hook_form_sets_the_imu_offset_as_three_numbers(system: System, browser: Browser) -> None:
+    """The hook's `imu_offset_m` (a list of three metres) is a text field "x, y, z": saved as a list, shown back the
+    same way; a value out of a metre gets the API's 422 message; emptied, it is cleared (null)."""
+    page = browser.page
+    if not page.url.startswith(system.base):  # run alone: load the dashboard with the operator token
+        page.goto(system.base + "/")
+        page.evaluate("(t) => sessionStorage.setItem('rig_token', t)", system.token)
+    summary = page.locator("#thresholds-section")
+    if summary.get_attribute("open") is None:
+        page.locator("#thresholds-section > summary").click()
+    field = page.get_by_test_id("th-hook-imu_offset_m")
+    field.fill("0.3, 0, 2")
+    page.get_by_test_id("th-hook").get_by_role("button").click()
+    errors = page.get_by_test_id("th-hook-errors")
+    errors.locator("li").first.wait_for(timeout=5_000)
+    assert "imu_offset_m" in errors.inner_text(), errors.inner_text()
+    field.fill("0.3, -0.02, 0.05")
+    page.get_by_test_id("th-hook").get_by_role("button").click()
+    page.get_by_test_id("th-hook").locator("p.ok").filter(has_text="saved").wait_for(timeout=5_000)
+    assert get_json(system.base + "/api/thresholds/hook")["imu_offset_m"] == [0.3, -0.02, 0.05]
+    wait_js(page, "document.querySelector('[data-testid=th-hook-imu_offset_m]').value === '0.3, -0.02, 0.05'",
+            timeout=5_000)
+    field.fill("")
+    page.get_by_test_id("th-hook").get_by_role("button").click()
+    page.get_by_test_id("th-hook").locator("p.ok").filter(has_text="saved").wait_for(timeout=5_000)
+    assert get_json(system.base + "/api/thresholds/hook")["imu_offset_m"] is None
+    assert [e for e in browser.errors() if "status of 422" not in e] == [], browser.errors()
+    browser.console.clear()
+
+
 def test_scripted_bite_raises_loud_alarm_and_ack_clears_banner(system: System, browser: Browser) -> None:
     page = browser.page
     if not page.url.startswith(system.base):  # run alone (`-k`): no earlier test of this module loaded the dashboard
