@@ -26,6 +26,7 @@
     python -m bench.hook_suite --length-factor 2            # the rope length told 2x too long at t = 0
     python -m bench.hook_suite --told-m 10                  # told 10 m whatever the rope (the gateway's default)
     python -m bench.hook_suite --offset-told 0.005          # the IMU's offset from the rope told, measured to 5 mm
+    python -m bench.hook_suite --offset-told twist          # ... as a twist of the hook by hand fits it
     python -m bench.hook_suite --lever-x 0.3                # the IMU 0.3 m off the rope axis, a mount not assumed
     python -m bench.hook_suite --sensor-draw 1              # the same cranes with another board of the preset
     python -m bench.hook_suite --suite-version 1            # the cranes before the hoist fix (earlier figures)
@@ -63,6 +64,7 @@ hoisting and the 5 s after):
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -103,6 +105,7 @@ from gateway.fusion.hook_filter import (
     HookFilter,
     HookFilterSettings,
 )
+from gateway.fusion.hook_mount import fit_hook_mount
 
 RATE_HZ = 100.0  # the IMU's sampling rate unless `rate_hz` / `--rate-hz` says otherwise (the filters take dt from it)
 WARMUP_S = 0.5
@@ -311,19 +314,21 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
              family: str = "crane", tracking: bool = False, overrides: dict[str, float] | None = None,
              rate_hz: float = RATE_HZ, length_factor: float = 1.0, suite_version: int = SUITE_VERSION,
              sensor_draw: int = 0, told_m: float | None = None, lever_x_m: float | None = None,
-             offset_told_std_m: float | None = None) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+             offset_told: float | str | None = None) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`; the filter is told
     `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1), or `told_m` whatever
     the rope (the gateway's 10 m for a hook whose length nobody configured); `sensor_draw`, `lever_x_m`: see
-    `simulate_seed`; `offset_told_std_m`: the IMU's offset from the rope axis told as measured with this error (m,
-    std per axis, drawn per seed; None: not told)."""
+    `simulate_seed`; `offset_told`: the IMU's offset from the rope axis told as measured with this error (m, std
+    per axis, drawn per seed), or "twist": as `gateway.calibrate --hook-mount` fits it (`twist_offset`; not told
+    when the fit refuses); None: not told."""
     case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz, suite_version,
                                                sensor_draw, lever_x_m)  # fmt: skip
     out: dict[str, dict[str, dict[str, float]]] = {}
     told = case.physics.rope_length_m * length_factor if tell_length else None
     if tell_length and told_m is not None:
         told = told_m
-    offset = None if offset_told_std_m is None else measured_offset(case, offset_told_std_m)
+    offset = (twist_offset(case, imu, rate_hz, sensor_draw) if offset_told == "twist" else None
+              if offset_told is None else measured_offset(case, float(offset_told)))  # fmt: skip
     q_hook, length = hook_estimate(gyr, acc, mag, told, tracking, overrides, rate_hz, offset)
     others = [("vqf", vqf_estimate(gyr, acc, mag, rate_hz))]
     if paper_ekf:
@@ -341,6 +346,42 @@ def measured_offset(case: SuiteCase, std_m: float) -> tuple[float, float, float]
     err = np.random.default_rng(20_000 + case.seed).standard_normal(3) * std_m
     x, y, z = (float(v + e) for v, e in zip(case.physics.lever_arm_m, err, strict=True))
     return x, y, z
+
+
+TWIST_SESSION_S = 40.0
+
+
+def twist_session(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw: int = 0
+                  ) -> tuple[HookTruth, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """What `python -m gateway.calibrate --hook-mount` is given for the seed's hook (its rope and IMU mount, the
+    suite's board for the seed): the hook unloaded, hanging still for `TWIST_SESSION_S` and twisted by hand (turned
+    45-90° at the start and by random torques after: a couple, no sideways force) in calm air. Truth, gyr, acc, mag."""
+    rng = np.random.default_rng(30_000 + case.seed)
+    inertia = 20.0  # the hook unloaded, as it hangs between lifts (`make_case`: 20 kg m² per 500 kg)
+    stiffness = case.physics.torsion_stiffness_n_m_rad
+    ph = dataclasses.replace(case.physics, hook_mass_kg=500.0, torsion_inertia_kg_m2=inertia,
+                             torsion_damping_n_m_s_rad=0.04 * 2.0 * math.sqrt(stiffness * inertia))  # fmt: skip
+    sc = HookScenario(duration_s=TWIST_SESSION_S, output_rate_hz=rate_hz,
+                      initial_torsion_rad=math.radians(rng.uniform(45.0, 90.0)) * float(rng.choice([-1.0, 1.0])),
+                      wind_torque_std_n_m=0.5 * stiffness, wind_tau_s=2.0, seed=30_000 + case.seed)  # fmt: skip
+    truth = simulate(ph, sc)
+    sensor = SensorModel(ImuErrorModel.preset(imu), 1, np.random.default_rng(10_000 + case.seed
+                                                                             + SENSOR_DRAW_STRIDE * sensor_draw))
+    gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / rate_hz)
+    return truth, gyr, acc, mag
+
+
+def twist_offset(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw: int = 0
+                 ) -> tuple[float, float, float] | None:  # fmt: skip
+    """The offset the `twist_session` of the seed's hook fits (`gateway.fusion.hook_mount`; z not fitted: 0), or None
+    when the fit refuses."""
+    _, gyr, acc, mag = twist_session(case, imu, rate_hz, sensor_draw)
+    try:
+        fit = fit_hook_mount(gyr, acc, 1.0 / rate_hz, mag)
+    except ValueError:
+        return None
+    x, y, _ = fit.setting()
+    return x, y, 0.0
 
 
 def simulate_seed(seed: int, duration_s: float, imu: str, use_mag: bool, family: str = "crane",
@@ -476,9 +517,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--lever-x", type=float, metavar="M",
                    help="mount the IMU M metres off the rope axis on its x (default: 0.1 ± 0.02 m drawn per seed, "
                    "what the filter assumes): a mount the filter is not told of unless --offset-told")
-    p.add_argument("--offset-told", type=float, metavar="STD_M",
+    p.add_argument("--offset-told", metavar="STD_M|twist",
                    help="tell the filter the IMU's offset from the rope axis as measured with STD_M metres of error "
-                   "per axis (HookThresholds.imu_offset_m; default: not told)")
+                   "per axis, or 'twist': as `gateway.calibrate --hook-mount` fits it from the seed's hook twisted "
+                   "by hand for 40 s (HookThresholds.imu_offset_m; default: not told)")
     add_suite_version_argument(p)
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
@@ -486,7 +528,14 @@ def main(argv: list[str] | None = None) -> int:
             else f"{args.length_factor:g}x told at t = 0")
     board = f" (board draw {args.sensor_draw})" if args.sensor_draw else ""
     board += "" if args.lever_x is None else f", IMU {args.lever_x:g} m off the rope axis"
-    board += "" if args.offset_told is None else f", its offset told ± {1000 * args.offset_told:g} mm"
+    if args.offset_told is not None and args.offset_told != "twist":
+        try:
+            args.offset_told = float(args.offset_told)
+        except ValueError:
+            p.error(f"--offset-told: {args.offset_told!r} is neither metres nor 'twist'")
+        board += f", its offset told ± {1000 * args.offset_told:g} mm"
+    elif args.offset_told == "twist":
+        board += ", its offset told as a 40-s twist by hand fits it"
     print(f"hook suite v{args.suite_version} ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}{board}, "
           f"{args.duration:g} s per seed, rope length {told}, {args.rate_hz:g} Hz; degrees; whole run after "
           f"{WARMUP_S:g} s")

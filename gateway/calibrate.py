@@ -6,6 +6,7 @@ many orientations as you can. Then:
 
     python -m gateway.calibrate REC [--device ID] [--method fit|paper] [-o calib.json]
     python -m gateway.calibrate REC --compare       # both methods' fit figures side by side
+    python -m gateway.calibrate REC --hook-mount    # a hook's IMU offset from the rope axis (below)
 
 `--method fit` (default):
 - Accelerometer offset and per-axis scale: rest segments (`rest_mask`) of at least `--min-pose-s`
@@ -20,6 +21,10 @@ gateway's filters learn the bias live, so it is not applied.
 
 The result (`DeviceCalibration`, JSON) is applied before fusion as `acc_cal = (acc - offset) / scale`,
 `mag_cal = soft_iron @ (mag - offset)`.
+
+`--hook-mount`: a crane hook's IMU offset from the rope axis (`gateway.fusion.hook_mount`), for the hook setting
+`imu_offset_m`. Record the hook hanging still on its rope, crane at rest, in calm air, for 30 s or more after you
+turned it by hand 45-90° and let go (turn it again when it settles). Prints the setting and the command that sets it.
 """
 
 from __future__ import annotations
@@ -47,6 +52,7 @@ from gateway.fusion.calibration import (
     calibrate_mag_minmax,
     fit_accel_offset_scale,
 )
+from gateway.fusion.hook_mount import fit_hook_mount
 
 METHODS: tuple[str, ...] = ("fit", "paper")
 POSE_REST = RestSettings(gyr_th_rad_s=float(np.deg2rad(0.5)), acc_th_m_s2=0.1)
@@ -291,7 +297,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--compare", action="store_true", help="print both methods' fit figures instead of the JSON")
     p.add_argument("-o", "--output", default=None, help="write the calibration JSON here (default: stdout)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--hook-mount", action="store_true",
+                   help="fit a hook's IMU offset from the rope axis instead (a recording of the hanging hook twisting)")
+    p.add_argument("--mount-z", type=float, default=0.0, metavar="M",
+                   help="with --hook-mount: the IMU's height above the hook and load's centre, m, as measured (a "
+                   "twist does not show it; default 0)")
     return p
+
+
+def hook_mount_report(imu: ImuSeries, mag_uT: FloatArray | None, z_m: float) -> str:
+    """`--hook-mount`: the fit as JSON (the `imu_offset_m` setting first) and how to set it; ValueError if it cannot."""
+    fit = fit_hook_mount(imu.gyr_rad_s, imu.acc_m_s2, 1.0 / imu.rate_hz, mag_uT)
+    text = json.dumps({"device_id": imu.device_id, "imu_offset_m": fit.setting(z_m), "std_m": round(fit.std_m, 4),
+                       "twist_accel_rms_rad_s2": round(fit.twist_accel_rms_rad_s2, 3),
+                       "residual_m_s2": round(fit.residual_m_s2, 4)}, indent=2)  # fmt: skip
+    body = json.dumps({"kind": "hook", "thresholds": {"imu_offset_m": fit.setting(z_m)}})
+    return (f"{text}\n# set it (with the operator token):\n# curl -X PUT -H 'Authorization: Bearer $TOKEN' -H "
+            f"'Content-Type: application/json' -d '{body}' http://127.0.0.1:8000/api/devices/{imu.device_id}/settings")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -300,6 +322,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         imu = load_imu(args.recording, args.device, progress=not args.no_progress)
         mag = None if args.no_mag else imu.mag_uT
+        if args.hook_mount:
+            print(hook_mount_report(imu, mag, args.mount_z))
+            return 0
         if args.compare:
             print(compare_table(imu, mag, args.min_pose_s))
             return 0

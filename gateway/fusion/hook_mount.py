@@ -1,0 +1,122 @@
+"""Where a hook's IMU sits off the rope axis, from a recording of the hook hanging still while it is twisted by hand.
+
+Why: the hook filter takes the accelerometer's x/y as the force on the hook, minus the lever-arm terms
+`ω' × r + ω × (ω × r)` of the IMU at `r` from the rope axis; an `r` it does not know reads the swing 2-4× worse
+(docs/fusion.md, "The IMU's mount"), and the inside of a hook block is hard to measure with a ruler.
+
+Model: on a hook hanging on its rope, the specific force is along the rope (body z) but for the forces that are not
+tension (wind) and the lever-arm terms, so per sample, body x/y (m/s²):
+
+    f_xy = b + R_z(-α) w + J(ω, ω') r_xy,   J = [[-(ω_y² + ω_z²), ω_x ω_y - ω'_z], [ω_x ω_y + ω'_z, -(ω_x² + ω_z²)]]
+
+with `b` the accelerometer's x/y bias (body), `w` a steady horizontal force (a steady wind, earth frame) seen
+through the twist `α` (from the magnetometer's horizontal field when there is one, else the z rate integrated with
+its mean taken as bias: a twist that dies away leaves that mean off by its net turn), and `r_xy` the offset. Linear in
+(b, w, r_xy): one least-squares fit. `ω'` is the gyro's central difference, smoothed over 50 ms. The z offset (along
+the rope) needs a swing, not a twist, and is not fitted. The uncertainty is taken from the spread of the fits of
+`SEGMENTS` consecutive parts of the recording (the residual's gusts are correlated over seconds, so the formal
+least-squares error would be too small), and the fit is refused when the twist does not excite it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from gateway.fusion.base import FloatArray
+
+SEGMENTS = 4
+SMOOTH_S = 0.05
+MIN_TWIST_ACCEL_RAD_S2 = 0.2  # rms of ω'_z below this: not twisted enough for a centimetre
+MAX_STD_M = 0.01  # a fit less certain than this is refused (the setting's prior is 1 cm)
+
+
+@dataclass(frozen=True)
+class MountFit:
+    """The IMU's x/y offset from the rope axis (m, body frame), its 1σ (m, from the segments' spread), the
+    accelerometer x/y bias and steady force it fitted beside it (m/s²), the twist's excitation (rms of ω'_z, rad/s²)
+    and the residual rms (m/s²)."""
+
+    offset_xy_m: FloatArray
+    std_m: float
+    bias_xy_m_s2: FloatArray
+    steady_force_m_s2: FloatArray
+    twist_accel_rms_rad_s2: float
+    residual_m_s2: float
+
+    def setting(self, z_m: float = 0.0) -> list[float]:
+        """`HookThresholds.imu_offset_m` from this fit: [x, y, z] m, rounded to the millimetre (z as measured)."""
+        return [round(float(self.offset_xy_m[0]), 3), round(float(self.offset_xy_m[1]), 3), round(z_m, 3)]
+
+
+def _twist(gyr: FloatArray, mag: FloatArray | None, dt_s: float) -> FloatArray:
+    """The hook's twist about the rope (rad, up to a constant): the body's horizontal field turns by -α."""
+    if mag is not None:
+        return -np.unwrap(np.arctan2(mag[:, 1], mag[:, 0]))
+    wz = gyr[:, 2]
+    return np.cumsum(wz - wz.mean()) * dt_s
+
+
+def _design(gyr: FloatArray, mag: FloatArray | None, dt_s: float) -> tuple[FloatArray, FloatArray]:
+    """Per sample the 2 × 6 design rows (bias x/y, steady force x/y, r_x, r_y) and ω'_z."""
+    n_smooth = max(1, int(round(SMOOTH_S / dt_s)))
+    dw = np.gradient(gyr, dt_s, axis=0)
+    if n_smooth > 1:
+        kernel = np.ones(n_smooth) / n_smooth
+        dw = np.stack([np.convolve(dw[:, i], kernel, mode="same") for i in range(3)], axis=1)
+    wx, wy, wz = gyr.T
+    alpha = _twist(gyr, mag, dt_s)
+    c, s = np.cos(alpha), np.sin(alpha)
+    n = gyr.shape[0]
+    a = np.zeros((n, 2, 6))
+    a[:, 0, 0] = a[:, 1, 1] = 1.0
+    a[:, 0, 2], a[:, 0, 3], a[:, 1, 2], a[:, 1, 3] = c, s, -s, c  # R_z(-α) w
+    a[:, 0, 4], a[:, 0, 5] = -(wy * wy + wz * wz), wx * wy - dw[:, 2]
+    a[:, 1, 4], a[:, 1, 5] = wx * wy + dw[:, 2], -(wx * wx + wz * wz)
+    return a, dw[:, 2]
+
+
+def _solve(a: FloatArray, f_xy: FloatArray) -> tuple[FloatArray, float]:
+    sol: FloatArray = np.linalg.lstsq(a.reshape(-1, 6), f_xy.reshape(-1), rcond=None)[0].astype(np.float64)
+    res = f_xy.reshape(-1) - a.reshape(-1, 6) @ sol
+    return sol, float(np.sqrt(np.mean(res * res)))
+
+
+def fit_hook_mount(gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float, mag_uT: ArrayLike | None = None
+                   ) -> MountFit:  # fmt: skip
+    """The IMU's offset from the rope axis from a hook hanging still and twisted (see the module docstring).
+
+    Raises ValueError with what to do when the recording cannot give it within `MAX_STD_M`: too short, not
+    twisted enough, or too disturbed (a swinging hook, gusts, a hand pushing it sideways)."""
+    gyr, acc = np.asarray(gyr_rad_s, dtype=np.float64), np.asarray(acc_m_s2, dtype=np.float64)
+    if gyr.ndim != 2 or gyr.shape[1] != 3 or acc.shape != gyr.shape:
+        raise ValueError(f"need gyr and acc of the same shape (N, 3), got {gyr.shape} and {acc.shape}")
+    if not (dt_s > 0.0 and math.isfinite(dt_s)):
+        raise ValueError(f"dt_s must be positive, got {dt_s}")
+    n_min = int(round(20.0 / dt_s))
+    if gyr.shape[0] < n_min:
+        raise ValueError(f"{gyr.shape[0] * dt_s:.0f} s of samples; twist the hanging hook for 20 s or more")
+    mag = None if mag_uT is None else np.asarray(mag_uT, dtype=np.float64)
+    if mag is not None and mag.shape != gyr.shape:
+        raise ValueError(f"need mag of the shape of gyr {gyr.shape}, got {mag.shape}")
+    if not (np.isfinite(gyr).all() and np.isfinite(acc).all() and (mag is None or np.isfinite(mag).all())):
+        raise ValueError("the samples are not all finite")
+    a, dwz = _design(gyr, mag, dt_s)
+    edge = max(1, int(round(SMOOTH_S / dt_s)))  # the smoothed difference is cut at the ends
+    a, f_xy, dwz = a[edge:-edge], acc[edge:-edge, :2], dwz[edge:-edge]
+    excitation = float(np.sqrt(np.mean(dwz * dwz)))
+    if excitation < MIN_TWIST_ACCEL_RAD_S2:
+        raise ValueError(f"the hook hardly twists (rms twist acceleration {excitation:.2f} rad/s², need "
+                         f"{MIN_TWIST_ACCEL_RAD_S2:g}): turn it by hand 45-90° and let it twist back, a few times")
+    sol, resid = _solve(a, f_xy)
+    parts = np.array_split(np.arange(a.shape[0]), SEGMENTS)
+    seg = np.array([_solve(a[p], f_xy[p])[0][4:6] for p in parts])
+    std = float(np.sqrt(np.mean(np.var(seg, axis=0, ddof=1)) / SEGMENTS))
+    fit = MountFit(sol[4:6].copy(), std, sol[0:2].copy(), sol[2:4].copy(), excitation, resid)
+    if std > MAX_STD_M:
+        raise ValueError(f"the offset is uncertain by {100 * std:.1f} cm (fit {np.round(fit.offset_xy_m, 3).tolist()} "
+                         "m): hold the crane still, twist the hook more and longer, in calmer air")  # fmt: skip
+    return fit
