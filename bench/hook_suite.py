@@ -28,6 +28,7 @@
     python -m bench.hook_suite --offset-told 0.005          # the IMU's offset from the rope told, measured to 5 mm
     python -m bench.hook_suite --offset-told twist          # ... as a twist of the hook by hand fits it
     python -m bench.hook_suite --lever-x 0.3                # the IMU 0.3 m off the rope axis, a mount not assumed
+    python -m bench.hook_suite --mount-tilt 2               # the IMU tilted 2° on the hook (a twist fits it too)
     python -m bench.hook_suite --sensor-draw 1              # the same cranes with another board of the preset
     python -m bench.hook_suite --suite-version 1            # the cranes before the hoist fix (earlier figures)
 
@@ -105,7 +106,7 @@ from gateway.fusion.hook_filter import (
     HookFilter,
     HookFilterSettings,
 )
-from gateway.fusion.hook_mount import fit_hook_mount
+from gateway.fusion.hook_mount import TiltedHookFilter, fit_hook_mount, tilt_matrix
 
 RATE_HZ = 100.0  # the IMU's sampling rate unless `rate_hz` / `--rate-hz` says otherwise (the filters take dt from it)
 WARMUP_S = 0.5
@@ -126,6 +127,7 @@ class SuiteCase:
     physics: HookPhysicsSettings
     scenario: HookScenario
     events: tuple[tuple[str, float, float], ...]  # (kind, start_s, end_s)
+    mount_tilt_rad: tuple[float, float] = (0.0, 0.0)  # the IMU's axes turned on the hook by this rotation (x, y)
 
     def phase(self, t_s: np.ndarray) -> np.ndarray:
         out = np.zeros(t_s.shape, dtype=np.int64)
@@ -156,7 +158,8 @@ FAMILIES = ("crane", "windy", "short")
 
 
 def make_case(seed: int, duration_s: float = 180.0, family: str = "crane", rate_hz: float = RATE_HZ,
-              suite_version: int = SUITE_VERSION, lever_x_m: float | None = None) -> SuiteCase:
+              suite_version: int = SUITE_VERSION, lever_x_m: float | None = None,
+              mount_tilt_deg: float = 0.0) -> SuiteCase:
     """The randomised crane and timeline of `seed` (see the module docstring). `family="windy"`: the same draws on a
     light load (0.5-1.5 t) on a short rope (2-6 m) in a steady wind of 30-60 N present from the start, which a
     filter that takes the warm-up's mean force for accelerometer bias reads as a steady tilt error.
@@ -166,7 +169,8 @@ def make_case(seed: int, duration_s: float = 180.0, family: str = "crane", rate_
     target, and a hoist after it (the rope is elsewhere than in version 1) keeps version 1's duration at the speed
     that ends on its target, capped at the drawn speed. The timeline and every draw are the same in both.
     `lever_x_m`: the IMU that far off the rope axis on its x (the drawn y/z offsets kept) instead of 0.1 ± 0.02 m, a
-    mount the filter does not assume (every other draw the same)."""
+    mount the filter does not assume (every other draw the same). `mount_tilt_deg`: the IMU tilted on the hook by
+    that much about a horizontal axis of the seed's own (drawn from the seed alone, after every other draw)."""
     if family not in FAMILIES:
         raise ValueError(f"unknown scenario family {family!r}; known: {', '.join(FAMILIES)}")
     if suite_version not in SUITE_VERSIONS:
@@ -244,19 +248,31 @@ def make_case(seed: int, duration_s: float = 180.0, family: str = "crane", rate_
         wind_tau_s=float(rng.uniform(1.0, 4.0)), wind_torque_std_n_m=float(rng.uniform(0.0, 0.3)) * stiffness,
         seed=seed,
     )  # fmt: skip
-    return SuiteCase(seed, physics, scenario, tuple(events))
+    tilt_axis = float(np.random.default_rng(40_000 + seed).uniform(-math.pi, math.pi))
+    tilt = (math.radians(mount_tilt_deg) * math.cos(tilt_axis), math.radians(mount_tilt_deg) * math.sin(tilt_axis))
+    return SuiteCase(seed, physics, scenario, tuple(events), tilt)
+
+
+def mounted(case: SuiteCase, *vectors: np.ndarray) -> list[np.ndarray]:
+    """Vectors of the hook's axes (rows) as the IMU tilted on it by `case.mount_tilt_rad` reads them."""
+    m = tilt_matrix(case.mount_tilt_rad)  # hook = M @ IMU, so IMU = Mᵀ @ hook: rows @ M
+    return [v @ m for v in vectors]
 
 
 def hook_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rope_length_m: float | None,
                   tracking: bool = False, overrides: dict[str, float] | None = None, rate_hz: float = RATE_HZ,
-                  imu_offset_m: tuple[float, float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  imu_offset_m: tuple[float, float, float] | None = None,
+                  imu_tilt_rad: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Hook filter quaternions (N, 4) and rope-length estimates (N,), started as the gateway starts it (`tracking`:
     with the optional boom-tip tracking, `hook_filter.TRACKING`; `overrides`: further settings on top;
-    `imu_offset_m`: the IMU's offset from the rope axis configured, as `HookThresholds.imu_offset_m`)."""
+    `imu_offset_m`, `imu_tilt_rad`: the IMU's offset from the rope axis and its tilt on the hook configured, as
+    `HookThresholds.imu_offset_m` and `imu_tilt_deg`)."""
     extra: dict[str, float] = (TRACKING if tracking else {}) | (overrides or {})
     settings = (HookFilterSettings(**extra) if rope_length_m is None
                 else HookFilterSettings(rope_length_m=rope_length_m, rope_length_known=True, **extra))  # fmt: skip
-    f = HookFilter(settings.with_imu_offset(imu_offset_m), use_mag=mag is not None)
+    f: HookFilter | TiltedHookFilter = HookFilter(settings.with_imu_offset(imu_offset_m), use_mag=mag is not None)
+    if imu_tilt_rad is not None:
+        f = TiltedHookFilter(f, imu_tilt_rad)
     n = int(WARMUP_S * rate_hz)
     f.start(gyr[:n], acc[:n], None if mag is None else mag[:n], 1.0 / rate_hz)
     q, length = f.run_with_length(gyr, acc, mag, 1.0 / rate_hz)
@@ -314,22 +330,26 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
              family: str = "crane", tracking: bool = False, overrides: dict[str, float] | None = None,
              rate_hz: float = RATE_HZ, length_factor: float = 1.0, suite_version: int = SUITE_VERSION,
              sensor_draw: int = 0, told_m: float | None = None, lever_x_m: float | None = None,
-             offset_told: float | str | None = None) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+             offset_told: float | str | None = None, mount_tilt_deg: float = 0.0
+             ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`; the filter is told
     `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1), or `told_m` whatever
-    the rope (the gateway's 10 m for a hook whose length nobody configured); `sensor_draw`, `lever_x_m`: see
-    `simulate_seed`; `offset_told`: the IMU's offset from the rope axis told as measured with this error (m, std
-    per axis, drawn per seed), or "twist": as `gateway.calibrate --hook-mount` fits it (`twist_offset`; not told
-    when the fit refuses); None: not told."""
+    the rope (the gateway's 10 m for a hook whose length nobody configured); `sensor_draw`, `lever_x_m`,
+    `mount_tilt_deg`: see `simulate_seed`; `offset_told`: the IMU's offset from the rope axis told as measured with
+    this error (m, std per axis, drawn per seed), or "twist": the offset and tilt `gateway.calibrate --hook-mount`
+    fits (`twist_offset`; not told when the fit refuses); None: not told."""
     case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz, suite_version,
-                                               sensor_draw, lever_x_m)  # fmt: skip
+                                               sensor_draw, lever_x_m, mount_tilt_deg)  # fmt: skip
     out: dict[str, dict[str, dict[str, float]]] = {}
     told = case.physics.rope_length_m * length_factor if tell_length else None
     if tell_length and told_m is not None:
         told = told_m
-    offset = (twist_offset(case, imu, rate_hz, sensor_draw) if offset_told == "twist" else None
-              if offset_told is None else measured_offset(case, float(offset_told)))  # fmt: skip
-    q_hook, length = hook_estimate(gyr, acc, mag, told, tracking, overrides, rate_hz, offset)
+    offset, tilt = None, None
+    if offset_told == "twist":
+        offset, tilt = twist_offset(case, imu, rate_hz, sensor_draw) or (None, None)
+    elif offset_told is not None:
+        offset = measured_offset(case, float(offset_told))
+    q_hook, length = hook_estimate(gyr, acc, mag, told, tracking, overrides, rate_hz, offset, tilt)
     others = [("vqf", vqf_estimate(gyr, acc, mag, rate_hz))]
     if paper_ekf:
         others.append(("ekf001", paper_ekf_estimate(gyr, acc, mag, rate_hz)))
@@ -367,36 +387,37 @@ def twist_session(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_dr
     truth = simulate(ph, sc)
     sensor = SensorModel(ImuErrorModel.preset(imu), 1, np.random.default_rng(10_000 + case.seed
                                                                              + SENSOR_DRAW_STRIDE * sensor_draw))
-    gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / rate_hz)
+    gyr, acc, mag = sensor.measure(*mounted(case, truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT), 1.0 / rate_hz)
     return truth, gyr, acc, mag
 
 
 def twist_offset(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw: int = 0
-                 ) -> tuple[float, float, float] | None:  # fmt: skip
-    """The offset the `twist_session` of the seed's hook fits (`gateway.fusion.hook_mount`; z not fitted: 0), or None
-    when the fit refuses."""
+                 ) -> tuple[tuple[float, float, float], tuple[float, float]] | None:  # fmt: skip
+    """The offset (m; z not fitted: 0) and tilt (rad) the `twist_session` of the seed's hook fits
+    (`gateway.fusion.hook_mount`, as the settings round them), or None when the fit refuses."""
     _, gyr, acc, mag = twist_session(case, imu, rate_hz, sensor_draw)
     try:
         fit = fit_hook_mount(gyr, acc, 1.0 / rate_hz, mag)
     except ValueError:
         return None
     x, y, _ = fit.setting()
-    return x, y, 0.0
+    tx, ty = (math.radians(a) for a in fit.tilt_setting())
+    return (x, y, 0.0), (tx, ty)
 
 
 def simulate_seed(seed: int, duration_s: float, imu: str, use_mag: bool, family: str = "crane",
                   rate_hz: float = RATE_HZ, suite_version: int = SUITE_VERSION, sensor_draw: int = 0,
-                  lever_x_m: float | None = None
+                  lever_x_m: float | None = None, mount_tilt_deg: float = 0.0
                   ) -> tuple[SuiteCase, HookTruth, np.ndarray, np.ndarray, np.ndarray | None]:  # fmt: skip
     """The crane of `seed`, its ground truth and the IMU's samples (gyr, acc, mag or None, at `rate_hz`) as the suite
     (`suite_version`, see `make_case`) draws them. `sensor_draw` > 0: the same crane and motion with another board
     of the same preset (its biases, scales and noise drawn afresh; 0: the suite's own board for the seed);
-    `lever_x_m`: see `make_case`."""
-    case = make_case(seed, duration_s, family, rate_hz, suite_version, lever_x_m)
+    `lever_x_m`, `mount_tilt_deg`: see `make_case`."""
+    case = make_case(seed, duration_s, family, rate_hz, suite_version, lever_x_m, mount_tilt_deg)
     truth = simulate(case.physics, case.scenario)
     rng = np.random.default_rng(10_000 + seed + SENSOR_DRAW_STRIDE * sensor_draw)
     sensor = SensorModel(ImuErrorModel.preset(imu), 1, rng)
-    gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / rate_hz)
+    gyr, acc, mag = sensor.measure(*mounted(case, truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT), 1.0 / rate_hz)
     return case, truth, gyr, acc, mag if use_mag else None
 
 
@@ -517,10 +538,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--lever-x", type=float, metavar="M",
                    help="mount the IMU M metres off the rope axis on its x (default: 0.1 ± 0.02 m drawn per seed, "
                    "what the filter assumes): a mount the filter is not told of unless --offset-told")
+    p.add_argument("--mount-tilt", type=float, default=0.0, metavar="DEG",
+                   help="the IMU tilted on the hook by DEG degrees about a horizontal axis drawn per seed (default 0: "
+                   "square to the rope, what the filter assumes unless --offset-told twist)")
     p.add_argument("--offset-told", metavar="STD_M|twist",
                    help="tell the filter the IMU's offset from the rope axis as measured with STD_M metres of error "
-                   "per axis, or 'twist': as `gateway.calibrate --hook-mount` fits it from the seed's hook twisted "
-                   "by hand for 40 s (HookThresholds.imu_offset_m; default: not told)")
+                   "per axis, or 'twist': the offset and the tilt as `gateway.calibrate --hook-mount` fits them from "
+                   "the seed's hook twisted by hand for 40 s (HookThresholds.imu_offset_m, imu_tilt_deg; default: "
+                   "not told)")
     add_suite_version_argument(p)
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
@@ -528,6 +553,7 @@ def main(argv: list[str] | None = None) -> int:
             else f"{args.length_factor:g}x told at t = 0")
     board = f" (board draw {args.sensor_draw})" if args.sensor_draw else ""
     board += "" if args.lever_x is None else f", IMU {args.lever_x:g} m off the rope axis"
+    board += f", IMU tilted {args.mount_tilt:g}° on the hook" if args.mount_tilt else ""
     if args.offset_told is not None and args.offset_told != "twist":
         try:
             args.offset_told = float(args.offset_told)
@@ -545,10 +571,12 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     causes: dict[str, list[str]] = {}  # cause of the worst error -> seeds whose max exceeds WORST_LIMIT_DEG
     for seed in seeds:
-        case = make_case(seed, args.duration, args.family, args.rate_hz, args.suite_version, args.lever_x)
+        case = make_case(seed, args.duration, args.family, args.rate_hz, args.suite_version, args.lever_x,
+                         args.mount_tilt)
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
                      args.tracking, parse_settings(args.settings), args.rate_hz, args.length_factor,
-                     args.suite_version, args.sensor_draw, args.told_m, args.lever_x, args.offset_told)
+                     args.suite_version, args.sensor_draw, args.told_m, args.lever_x, args.offset_told,
+                     args.mount_tilt)
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]

@@ -22,9 +22,10 @@ gateway's filters learn the bias live, so it is not applied.
 The result (`DeviceCalibration`, JSON) is applied before fusion as `acc_cal = (acc - offset) / scale`,
 `mag_cal = soft_iron @ (mag - offset)`.
 
-`--hook-mount`: a crane hook's IMU offset from the rope axis (`gateway.fusion.hook_mount`), for the hook setting
-`imu_offset_m`. Record the hook hanging still on its rope, crane at rest, in calm air, for 30 s or more after you
-turned it by hand 45-90° and let go (turn it again when it settles). Prints the setting and the command that sets it.
+`--hook-mount`: a crane hook's IMU offset from the rope axis and its tilt on the hook (`gateway.fusion.hook_mount`),
+for the hook settings `imu_offset_m` and `imu_tilt_deg`. Record the hook hanging still on its rope, crane at rest,
+in calm air, for 30 s or more after you turned it by hand 45-90° and let go (turn it again when it settles). Prints
+the settings and the command that sets them.
 """
 
 from __future__ import annotations
@@ -308,10 +309,11 @@ def build_parser() -> argparse.ArgumentParser:
 def hook_mount_report(imu: ImuSeries, mag_uT: FloatArray | None, z_m: float) -> str:
     """`--hook-mount`: the fit as JSON (the `imu_offset_m` setting first) and how to set it; ValueError if it cannot."""
     fit = fit_hook_mount(imu.gyr_rad_s, imu.acc_m_s2, 1.0 / imu.rate_hz, mag_uT)
-    text = json.dumps({"device_id": imu.device_id, "imu_offset_m": fit.setting(z_m), "std_m": round(fit.std_m, 4),
-                       "twist_accel_rms_rad_s2": round(fit.twist_accel_rms_rad_s2, 3),
+    text = json.dumps({"device_id": imu.device_id, "imu_offset_m": fit.setting(z_m), "imu_tilt_deg": fit.tilt_setting(),
+                       "std_m": round(fit.std_m, 4), "twist_accel_rms_rad_s2": round(fit.twist_accel_rms_rad_s2, 3),
                        "residual_m_s2": round(fit.residual_m_s2, 4)}, indent=2)  # fmt: skip
-    body = json.dumps({"kind": "hook", "thresholds": {"imu_offset_m": fit.setting(z_m)}})
+    body = json.dumps({"kind": "hook", "thresholds": {"imu_offset_m": fit.setting(z_m),
+                                                      "imu_tilt_deg": fit.tilt_setting()}})  # fmt: skip
     return (f"{text}\n# set it (with the operator token):\n# curl -X PUT -H 'Authorization: Bearer $TOKEN' -H "
             f"'Content-Type: application/json' -d '{body}' http://127.0.0.1:8000/api/devices/{imu.device_id}/settings")
 

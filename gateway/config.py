@@ -148,6 +148,8 @@ class RodThresholds(_Thresholds):
 
 OffsetM = Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)]
 """One coordinate of a mounting offset, m: a hook's IMU sits within a metre of its rope axis."""
+TiltDeg = Annotated[float, Field(ge=-15.0, le=15.0, allow_inf_nan=False)]
+"""One angle of a mounting tilt, degrees: more than 15° off square is a mount to fix, not to correct."""
 
 
 class HookThresholds(_Thresholds):
@@ -170,6 +172,11 @@ class HookThresholds(_Thresholds):
                                                                   "filter's lever arm, a prior it trusts to 1 cm. "
                                                                   "None: 0.1 m on x, learnt from the data (less "
                                                                   "well). A change restarts fusion.")
+    imu_tilt_deg: tuple[TiltDeg, TiltDeg] | None = Field(default=None, description="How the IMU is tilted on the "
+                                                           "hook: the rotation about its x and y axes (degrees) "
+                                                           "that takes its axes onto the hook's (z up the rope), as "
+                                                           "`python -m gateway.calibrate --hook-mount` fits it. None: "
+                                                           "square to the rope. A change restarts fusion.")
     rest_heading_deg: float | None = Field(default=None, ge=-180.0, le=180.0, description="Heading of the untwisted "
                                            "hook's body x, CCW from East, in the gateway's heading frame (9D: "
                                            "magnetic); torsion is measured from it. None: the first fused heading.")

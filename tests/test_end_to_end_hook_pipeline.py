@@ -14,6 +14,7 @@ from bench.hook_e2e import Case, HookFleet, analyse, fleet_settings, make_case, 
 from gateway import schemas
 from gateway.config import DeviceSettings
 from gateway.fusion import hook as hook_geo
+from gateway.fusion.hook_mount import TiltedHookFilter
 from gateway.pipeline import Pipeline
 
 
@@ -111,6 +112,15 @@ def test_imu_offset_setting_reaches_the_filter_and_a_change_restarts_fusion() ->
     assert dev_id not in pipe.devices, "clearing it restarts the device's fusion"
     pipe.process(pkts[30:45], now_wall_s=1e9)
     assert lever() is None
+    assert not isinstance(pipe.devices[dev_id].filt, TiltedHookFilter)
+    pipe.set_device_settings(dev_id, "hook", DeviceSettings(thresholds={"imu_tilt_deg": [1.5, -0.5]}))
+    assert dev_id not in pipe.devices, "a tilt restarts the device's fusion"
+    pipe.process(pkts[45:], now_wall_s=1e9)
+    filt = pipe.devices[dev_id].filt
+    assert isinstance(filt, TiltedHookFilter) and filt.imu_tilt_told == (1.5, -0.5)
+    assert pipe.devices[dev_id].quat is not None and np.isfinite(pipe.devices[dev_id].quat).all()
+    pipe.set_device_settings(dev_id, "hook", DeviceSettings(thresholds={"imu_tilt_deg": [1.5, -0.5]}))
+    assert dev_id in pipe.devices, "the same tilt again changes nothing"
 
 
 def test_torsion_is_measured_from_the_configured_rest_heading() -> None:

@@ -2315,6 +2315,7 @@ class HookFilter(AttitudeFilter):
         return quats[-n:], lengths[-n:]
 
     _constants: tuple[HookFilterSettings, bool, int, bytes, FloatArray, FloatArray] | None = None
+    imu_tilt_told: tuple[float, float] | None = None  # fed through `hook_mount.TiltedHookFilter` (`make_filter`)
 
     def _kernel_constants(self, use_mag: bool, m: int) -> tuple[FloatArray, FloatArray]:
         """`_params(use_mag)` and `_r_diag(m)`, made again only when the settings, the magnetometer reference or

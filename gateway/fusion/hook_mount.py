@@ -16,12 +16,19 @@ its mean taken as bias: a twist that dies away leaves that mean off by its net t
 the rope) needs a swing, not a twist, and is not fitted. The uncertainty is taken from the spread of the fits of
 `SEGMENTS` consecutive parts of the recording (the residual's gusts are correlated over seconds, so the formal
 least-squares error would be too small), and the fit is refused when the twist does not excite it.
+
+The same twist gives the IMU's tilt on the hook: a twist about the rope is read on the gyroscope's x/y in proportion
+`s` to its z (`gyr_xy = s ω_z + bias`, one more least-squares fit), which an IMU tilted by the rotation
+`(s_y, -s_x) atan|s| / |s|` about its x and y (or a board whose axes are not square) does; the hook filter takes
+such x/y rate for a swing (a 2° tilt doubled the suite's Θ error, docs/fusion.md "The IMU's mount"). `tilt_xy_rad`
+is the rotation that takes the IMU's axes onto the hook's (`imu_tilt_deg`).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -42,6 +49,7 @@ class MountFit:
 
     offset_xy_m: FloatArray
     std_m: float
+    tilt_xy_rad: FloatArray
     bias_xy_m_s2: FloatArray
     steady_force_m_s2: FloatArray
     twist_accel_rms_rad_s2: float
@@ -50,6 +58,32 @@ class MountFit:
     def setting(self, z_m: float = 0.0) -> list[float]:
         """`HookThresholds.imu_offset_m` from this fit: [x, y, z] m, rounded to the millimetre (z as measured)."""
         return [round(float(self.offset_xy_m[0]), 3), round(float(self.offset_xy_m[1]), 3), round(z_m, 3)]
+
+    def tilt_setting(self) -> list[float]:
+        """`HookThresholds.imu_tilt_deg` from this fit: [about x, about y] degrees, to 0.01°."""
+        return [round(math.degrees(float(v)), 2) for v in self.tilt_xy_rad]
+
+
+def fit_tilt(gyr: FloatArray) -> FloatArray:
+    """The rotation (about x, y; rad, small) taking the IMU's axes onto the hook's, from the gyroscope's x/y read in
+    proportion to its z on a twisting hook (see the module docstring)."""
+    a = np.column_stack([gyr[:, 2], np.ones(gyr.shape[0])])
+    s_x, s_y = (float(v) for v in np.linalg.lstsq(a, gyr[:, :2], rcond=None)[0][0])
+    slope = math.hypot(s_x, s_y)  # the hook's z in the IMU's axes is (s_x, s_y, 1): tilted by atan(|s|)
+    scale = 1.0 if slope == 0.0 else math.atan(slope) / slope
+    return np.array([s_y * scale, -s_x * scale])
+
+
+def tilt_matrix(tilt_xy_rad: ArrayLike) -> FloatArray:
+    """The rotation matrix of the rotation vector (tx, ty, 0): body (hook) = M @ IMU."""
+    tx, ty = (float(v) for v in np.asarray(tilt_xy_rad, dtype=np.float64))
+    angle = math.hypot(tx, ty)
+    if angle == 0.0:
+        return np.eye(3)
+    kx, ky = tx / angle, ty / angle
+    k = np.array([[0.0, 0.0, ky], [0.0, 0.0, -kx], [-ky, kx, 0.0]])
+    out: FloatArray = np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
+    return out
 
 
 def _twist(gyr: FloatArray, mag: FloatArray | None, dt_s: float) -> FloatArray:
@@ -115,8 +149,57 @@ def fit_hook_mount(gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float, mag_u
     parts = np.array_split(np.arange(a.shape[0]), SEGMENTS)
     seg = np.array([_solve(a[p], f_xy[p])[0][4:6] for p in parts])
     std = float(np.sqrt(np.mean(np.var(seg, axis=0, ddof=1)) / SEGMENTS))
-    fit = MountFit(sol[4:6].copy(), std, sol[0:2].copy(), sol[2:4].copy(), excitation, resid)
+    fit = MountFit(sol[4:6].copy(), std, fit_tilt(gyr), sol[0:2].copy(), sol[2:4].copy(), excitation, resid)
     if std > MAX_STD_M:
         raise ValueError(f"the offset is uncertain by {100 * std:.1f} cm (fit {np.round(fit.offset_xy_m, 3).tolist()} "
                          "m): hold the crane still, twist the hook more and longer, in calmer air")  # fmt: skip
     return fit
+
+
+class TiltedHookFilter:
+    """A hook filter fed in the hook's axes from an IMU tilted on the hook by `tilt_xy_rad` (`imu_tilt_deg`): every
+    sample method turns its vectors by `tilt_matrix` and hands them on; everything else is the inner filter's (its
+    state, settings and outputs, which are then of the hook's axes)."""
+
+    def __init__(self, inner: Any, tilt_xy_rad: ArrayLike) -> None:
+        self.__dict__["inner"] = inner
+        self.__dict__["m_t"] = tilt_matrix(tilt_xy_rad).T  # rows @ M.T: each (3,) row turned by M
+
+    def _turn(self, v: ArrayLike | None) -> FloatArray | None:
+        return None if v is None else np.asarray(v, dtype=np.float64) @ self.m_t
+
+    def initialise(self, acc_m_s2: FloatArray, mag_uT: FloatArray | None) -> None:
+        self.inner.initialise(self._turn(acc_m_s2), self._turn(mag_uT))
+
+    def start(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
+              seed_bias: bool = True) -> None:  # fmt: skip
+        self.inner.start(self._turn(gyr_rad_s), self._turn(acc_m_s2), self._turn(mag_uT), dt_s, seed_bias=seed_bias)
+
+    def update(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float
+               ) -> FloatArray:  # fmt: skip
+        out: FloatArray = self.inner.update(self._turn(gyr_rad_s), self._turn(acc_m_s2), self._turn(mag_uT), dt_s)
+        return out
+
+    def run_with_length(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
+                        r_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+        out: tuple[FloatArray, FloatArray] = self.inner.run_with_length(
+            self._turn(gyr_rad_s), self._turn(acc_m_s2), self._turn(mag_uT), dt_s, r_scale)
+        return out
+
+    def run(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float) -> FloatArray:
+        return self.run_with_length(gyr_rad_s, acc_m_s2, mag_uT, dt_s)[0]
+
+    def run_bridged(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
+                    coast: Any) -> FloatArray:  # fmt: skip
+        out: FloatArray = self.inner.run_bridged(self._turn(gyr_rad_s), self._turn(acc_m_s2), self._turn(mag_uT),
+                                                 dt_s, coast)  # fmt: skip
+        return out
+
+    def seed_gyro_bias(self, bias_rad_s: FloatArray, *args: Any, **kwargs: Any) -> None:
+        self.inner.seed_gyro_bias(self._turn(bias_rad_s), *args, **kwargs)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        setattr(self.inner, name, value)
