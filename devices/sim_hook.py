@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from devices import common
+from devices import _quat, common
 from devices.common import FleetSettings, ImuErrorModel, Message, SensorModel
 from devices.hook_physics import (
     Hoist,
@@ -45,8 +45,11 @@ class HookFleet:
     command_selectors: tuple[str, ...] = ()
 
     def __init__(self, fleet: FleetSettings, physics: HookPhysicsSettings, scenario: HookScenario, *,
-                 error_model: ImuErrorModel | None = None, with_mag: bool = True, load_kg: float | None = None) -> None:
+                 error_model: ImuErrorModel | None = None, with_mag: bool = True, load_kg: float | None = None,
+                 imu_tilt_deg: tuple[float, float] = (0.0, 0.0)) -> None:  # fmt: skip
         self.fleet, self.physics, self.with_mag, self.load_kg = fleet, physics, with_mag, load_kg
+        # the IMU tilted on the hook (`HookThresholds.imu_tilt_deg` undoes it): it reads each hook vector v as Mᵀ v
+        self.tilt = tilt_matrix(*(math.radians(a) for a in imu_tilt_deg))
         self.ids = fleet.ids
         rng = np.random.default_rng(fleet.seed)
         sub = max(1, round(physics.internal_rate_hz / fleet.rate_hz))
@@ -75,9 +78,10 @@ class HookFleet:
         fl = self.fleet
         n, dt = fl.samples_per_packet, 1.0 / fl.rate_hz
         truths = [s.advance(n) for s in self.streams]
+        m = self.tilt  # rows @ M: each hook vector as the tilted IMU reads it
         gyr, acc, mag = self.sensor.measure(
-            np.stack([t.gyr_rad_s for t in truths]), np.stack([t.acc_m_s2 for t in truths]),
-            np.stack([t.mag_uT for t in truths]) if self.with_mag else None, dt,
+            np.stack([t.gyr_rad_s for t in truths]) @ m, np.stack([t.acc_m_s2 for t in truths]) @ m,
+            np.stack([t.mag_uT for t in truths]) @ m if self.with_mag else None, dt,
         )  # fmt: skip
         gyr_l, acc_l = common.rows(gyr, 6), common.rows(acc, 5)
         mag_l = None if mag is None else common.rows(mag, 3)
@@ -118,6 +122,15 @@ def truth_payload(truth: HookTruth, *, device_id: str, boot_id: int, seq: int, t
     if load_kg is not None:
         d["load_kg"] = load_kg
     return common.encode_json(d)
+
+
+def tilt_matrix(tx_rad: float, ty_rad: float) -> np.ndarray:
+    """The rotation by the vector (tx, ty, 0): hook axes = M @ IMU axes (a quaternion's matrix, `devices._quat`)."""
+    angle = math.hypot(tx_rad, ty_rad)
+    if angle == 0.0:
+        return np.eye(3)
+    s = math.sin(angle / 2.0) / angle
+    return _quat.to_matrix([math.cos(angle / 2.0), tx_rad * s, ty_rad * s, 0.0])
 
 
 def parse_trolley(text: str) -> tuple[TrolleyMove, ...]:
@@ -185,6 +198,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--damping", type=float, default=0.002, help="swing air damping, 1/s")
     g.add_argument("--lever-arm", type=float, nargs=3, default=(0.1, 0.0, 0.0), metavar=("X", "Y", "Z"),
                    help="IMU position from the rope axis, body frame, m")
+    g.add_argument("--imu-tilt", type=float, nargs=2, default=(0.0, 0.0), metavar=("TX", "TY"),
+                   help="the IMU tilted on the hook: the rotation about its x and y, degrees, that takes its axes onto "
+                   "the hook's (the gateway's hook setting imu_tilt_deg undoes it; default square)")
     g.add_argument("--load-kg", type=float, default=None, help="hook + load mass, kg (default 500; also in the truth)")
     g.add_argument("--no-mag", action="store_true", help="no magnetometer (6-axis IMU)")
     return p
@@ -210,7 +226,7 @@ def make_fleet(args: argparse.Namespace, fleet: FleetSettings) -> HookFleet:
         slews=tuple(parse_slew(t) for t in args.slew),
     )  # fmt: skip
     return HookFleet(fleet, physics, scenario, with_mag=not args.no_mag, load_kg=args.load_kg,
-                     error_model=ImuErrorModel.preset(args.imu))
+                     error_model=ImuErrorModel.preset(args.imu), imu_tilt_deg=tuple(args.imu_tilt))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -303,10 +303,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mount-z", type=float, default=0.0, metavar="M",
                    help="with --hook-mount: the IMU's height above the hook and load's centre, m, as measured (a "
                    "twist does not show it; default 0)")
+    p.add_argument("--api", default="http://127.0.0.1:8000", metavar="URL",
+                   help="with --hook-mount: the gateway's address in the printed command (default http://127.0.0.1:8000)")
     return p
 
 
-def hook_mount_report(imu: ImuSeries, mag_uT: FloatArray | None, z_m: float) -> str:
+def hook_mount_report(imu: ImuSeries, mag_uT: FloatArray | None, z_m: float, api: str = "http://127.0.0.1:8000"
+                      ) -> str:  # fmt: skip
     """`--hook-mount`: the fit as JSON (the `imu_offset_m` setting first) and how to set it; ValueError if it cannot."""
     fit = fit_hook_mount(imu.gyr_rad_s, imu.acc_m_s2, 1.0 / imu.rate_hz, mag_uT)
     text = json.dumps({"device_id": imu.device_id, "imu_offset_m": fit.setting(z_m), "imu_tilt_deg": fit.tilt_setting(),
@@ -315,7 +318,7 @@ def hook_mount_report(imu: ImuSeries, mag_uT: FloatArray | None, z_m: float) -> 
     body = json.dumps({"kind": "hook", "thresholds": {"imu_offset_m": fit.setting(z_m),
                                                       "imu_tilt_deg": fit.tilt_setting()}})  # fmt: skip
     return (f"{text}\n# set it (with the operator token):\n# curl -X PUT -H 'Authorization: Bearer $TOKEN' -H "
-            f"'Content-Type: application/json' -d '{body}' http://127.0.0.1:8000/api/devices/{imu.device_id}/settings")
+            f"'Content-Type: application/json' -d '{body}' {api.rstrip('/')}/api/devices/{imu.device_id}/settings")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -325,7 +328,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         imu = load_imu(args.recording, args.device, progress=not args.no_progress)
         mag = None if args.no_mag else imu.mag_uT
         if args.hook_mount:
-            print(hook_mount_report(imu, mag, args.mount_z))
+            print(hook_mount_report(imu, mag, args.mount_z, args.api))
             return 0
         if args.compare:
             print(compare_table(imu, mag, args.min_pose_s))

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from bench import hook_suite as hs
-from gateway import calibrate
+from gateway import calibrate, schemas
 from gateway.config import HookThresholds
 from gateway.fusion.bank import make_filter
 from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
@@ -220,3 +220,25 @@ def test_an_imu_tilted_2_degrees_on_the_hook_told_its_tilt_reads_the_swing_as_if
         scores[name] = hs.score(q, truth, keep, True)["swing_rmse"]
     assert scores["told"] < 0.15, scores
     assert scores["assumed"] > 1.6 * scores["told"], scores
+
+
+def test_the_simulated_hooks_imu_tilt_is_read_as_twist_on_its_x_y_gyroscope() -> None:
+    """`python -m devices.sim_hook --imu-tilt TX TY` (a hook twisting hanging still, an ideal board): its packets'
+    x/y rates follow the z rate as the tilt says, which `fit_tilt` reads back within 0.05°; square, none."""
+    from devices.common import FleetSettings, ImuErrorModel
+    from devices.hook_physics import HookPhysicsSettings, HookScenario
+    from devices.sim_hook import HookFleet
+
+    def rates(tilt: tuple[float, float]) -> np.ndarray:
+        fleet = HookFleet(FleetSettings(count=1, rate_hz=100.0, samples_per_packet=10, seed=3, truth=False),
+                          HookPhysicsSettings(rope_length_m=6.0), HookScenario(initial_torsion_rad=1.2),
+                          error_model=ImuErrorModel.ideal(), imu_tilt_deg=tilt)  # fmt: skip
+        out = []
+        for k in range(200):
+            data, _ = fleet.tick(k)
+            p = schemas.decode(data[0][0].key, data[0][0].payload)
+            out.append(np.asarray(p.gyr_rad_s))  # type: ignore[union-attr]
+        return np.concatenate(out)
+
+    assert np.allclose(np.degrees(fit_tilt(rates((1.5, -0.5)))), [1.5, -0.5], atol=0.05)
+    assert np.allclose(np.degrees(fit_tilt(rates((0.0, 0.0)))), [0.0, 0.0], atol=0.05)
