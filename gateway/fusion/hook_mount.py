@@ -1,4 +1,6 @@
-"""Where a hook's IMU sits off the rope axis, from a recording of the hook hanging still while it is twisted by hand.
+"""Where a hook's IMU sits off the rope axis and how it is tilted on the hook, from a recording of the hook hanging
+still while it is twisted by hand (`python -m gateway.calibrate --hook-mount`; the hook settings `imu_offset_m` and
+`imu_tilt_deg`).
 
 Why: the hook filter takes the accelerometer's x/y as the force on the hook, minus the lever-arm terms
 `ω' × r + ω × (ω × r)` of the IMU at `r` from the rope axis; an `r` it does not know reads the swing 2-4× worse
@@ -43,9 +45,9 @@ MAX_STD_M = 0.01  # a fit less certain than this is refused (the setting's prior
 
 @dataclass(frozen=True)
 class MountFit:
-    """The IMU's x/y offset from the rope axis (m, body frame), its 1σ (m, from the segments' spread), the
-    accelerometer x/y bias and steady force it fitted beside it (m/s²), the twist's excitation (rms of ω'_z, rad/s²)
-    and the residual rms (m/s²)."""
+    """The IMU's x/y offset from the rope axis (m, body frame), its 1σ (m, from the segments' spread), its tilt on the
+    hook (`fit_tilt`, rad), the accelerometer x/y bias and steady force fitted beside the offset (m/s²), the twist's
+    excitation (rms of ω'_z, rad/s²) and the residual rms (m/s²)."""
 
     offset_xy_m: FloatArray
     std_m: float
