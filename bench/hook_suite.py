@@ -157,6 +157,11 @@ class SuiteCase:
 FAMILIES = ("crane", "windy", "short")
 
 
+def torsion_damping(stiffness_n_m_rad: float, inertia_kg_m2: float) -> float:
+    """The rope's torsional damping, N·m·s/rad: a damping ratio of 0.04 for the hook's twist."""
+    return 0.04 * 2.0 * math.sqrt(stiffness_n_m_rad * inertia_kg_m2)
+
+
 def make_case(seed: int, duration_s: float = 180.0, family: str = "crane", rate_hz: float = RATE_HZ,
               suite_version: int = SUITE_VERSION, lever_x_m: float | None = None,
               mount_tilt_deg: float = 0.0) -> SuiteCase:
@@ -188,7 +193,7 @@ def make_case(seed: int, duration_s: float = 180.0, family: str = "crane", rate_
     physics = HookPhysicsSettings(
         rope_length_m=l0, gravity_m_s2=G_M_S2, earth_field_uT=EARTH_FIELD_ENU_UT, swing_damping_1_s=0.002,
         hook_mass_kg=mass, torsion_inertia_kg_m2=inertia, torsion_stiffness_n_m_rad=stiffness,
-        torsion_damping_n_m_s_rad=0.04 * 2.0 * math.sqrt(stiffness * inertia), lever_arm_m=lever,
+        torsion_damping_n_m_s_rad=torsion_damping(stiffness, inertia), lever_arm_m=lever,
     )  # fmt: skip
     swinging = rng.random() < 0.5
     swing0 = math.radians(rng.uniform(1.0, 8.0)) if swinging else 0.0
@@ -380,7 +385,7 @@ def twist_session(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_dr
     inertia = 20.0  # the hook unloaded, as it hangs between lifts (`make_case`: 20 kg m² per 500 kg)
     stiffness = case.physics.torsion_stiffness_n_m_rad
     ph = dataclasses.replace(case.physics, hook_mass_kg=500.0, torsion_inertia_kg_m2=inertia,
-                             torsion_damping_n_m_s_rad=0.04 * 2.0 * math.sqrt(stiffness * inertia))  # fmt: skip
+                             torsion_damping_n_m_s_rad=torsion_damping(stiffness, inertia))  # fmt: skip
     sc = HookScenario(duration_s=TWIST_SESSION_S, output_rate_hz=rate_hz,
                       initial_torsion_rad=math.radians(rng.uniform(45.0, 90.0)) * float(rng.choice([-1.0, 1.0])),
                       wind_torque_std_n_m=0.5 * stiffness, wind_tau_s=2.0, seed=30_000 + case.seed)  # fmt: skip

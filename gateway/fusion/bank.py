@@ -74,14 +74,13 @@ def make_filter(name: str, use_mag: bool, rope_length_m: float | None = None,
         # telling it 10 m instead diverged on short ropes (fresh crane 1692, 2.3 m: Θ RMSE 68.7° against 1.24°).
         settings = HookFilterSettings() if rope_length_m is None else HookFilterSettings(
             rope_length_m=rope_length_m, rope_length_known=True)
-        filt = HookFilter(settings.with_imu_offset(imu_offset_m), use_mag=use_mag and name not in COMPASS_FREE)
+        settings = settings.with_imu_offset(imu_offset_m).with_imu_tilt(imu_tilt_deg)
+        filt = HookFilter(settings, use_mag=use_mag and name not in COMPASS_FREE)
         if imu_tilt_deg is None:
             return filt
         from gateway.fusion.hook_mount import TiltedHookFilter
 
-        tilted = TiltedHookFilter(filt, [math.radians(a) for a in imu_tilt_deg])
-        filt.imu_tilt_told = (float(imu_tilt_deg[0]), float(imu_tilt_deg[1]))  # what `HookKind.apply` compares
-        return tilted  # type: ignore[return-value]
+        return TiltedHookFilter(filt, [math.radians(a) for a in imu_tilt_deg])  # type: ignore[return-value]
     if name in registry.FILTERS:
         return registry.make_filter(name, use_mag=use_mag)
     raise KeyError(name)

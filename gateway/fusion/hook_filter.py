@@ -184,6 +184,9 @@ class HookFilterSettings:
     # (docs/fusion.md, "The IMU's mount").
     imu_offset_told: tuple[float, float, float] | None = None
     lever_told_std_m: float = 0.01
+    # The IMU's tilt on the hook configured (`HookThresholds.imu_tilt_deg`, degrees): recorded here only, the samples
+    # are turned onto the hook's axes before the filter (`hook_mount.TiltedHookFilter`, made by `bank.make_filter`).
+    imu_tilt_told: tuple[float, float] | None = None
     torsion_accel_psd: float = 1.0  # (rad/s²)²/Hz: the hook's twist is driven by the rope's torsion spring
     gyro_bias_psd: float = 4e-10  # (rad/s)²/s: bias random walk, the MPU-6050's (devices.common.ImuErrorModel: 2e-5
     # rad/s/√s). 1e-8 before (third round): the bias then took a slowly changing boom-tip acceleration (a slew), and
@@ -402,6 +405,12 @@ class HookFilterSettings:
             return self
         told = (float(imu_offset_m[0]), float(imu_offset_m[1]), float(imu_offset_m[2]))
         return replace(self, lever_arm_m=told, imu_offset_told=told, lever_std_m=self.lever_told_std_m)
+
+    def with_imu_tilt(self, imu_tilt_deg: tuple[float, float] | None) -> HookFilterSettings:
+        """These settings with the IMU's configured tilt recorded (`imu_tilt_told`); None: unchanged (square)."""
+        if imu_tilt_deg is None:
+            return self
+        return replace(self, imu_tilt_told=(float(imu_tilt_deg[0]), float(imu_tilt_deg[1])))
 
 
 
@@ -2315,7 +2324,11 @@ class HookFilter(AttitudeFilter):
         return quats[-n:], lengths[-n:]
 
     _constants: tuple[HookFilterSettings, bool, int, bytes, FloatArray, FloatArray] | None = None
-    imu_tilt_told: tuple[float, float] | None = None  # fed through `hook_mount.TiltedHookFilter` (`make_filter`)
+
+    @property
+    def imu_tilt_told(self) -> tuple[float, float] | None:
+        """The IMU tilt this filter's samples are turned by (`HookFilterSettings.imu_tilt_told`), degrees."""
+        return self.settings.imu_tilt_told
 
     def _kernel_constants(self, use_mag: bool, m: int) -> tuple[FloatArray, FloatArray]:
         """`_params(use_mag)` and `_r_diag(m)`, made again only when the settings, the magnetometer reference or

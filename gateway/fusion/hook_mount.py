@@ -22,7 +22,7 @@ least-squares error would be too small), and the fit is refused when the twist d
 The same twist gives the IMU's tilt on the hook: a twist about the rope is read on the gyroscope's x/y in proportion
 `s` to its z (`gyr_xy = s ω_z + bias`, one more least-squares fit), which an IMU tilted by the rotation
 `(s_y, -s_x) atan|s| / |s|` about its x and y (or a board whose axes are not square) does; the hook filter takes
-such x/y rate for a swing (a 2° tilt doubled the suite's Θ error, docs/fusion.md "The IMU's mount"). `tilt_xy_rad`
+such x/y rate for a swing (a 2° tilt read the suite's Θ 1.5-2.2× worse, docs/fusion.md "The IMU's mount"). `tilt_xy_rad`
 is the rotation that takes the IMU's axes onto the hook's (`imu_tilt_deg`).
 """
 
@@ -36,7 +36,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from gateway.fusion.base import FloatArray
+from gateway.fusion.quaternion import from_rotvec, to_matrix
 
+MIN_RECORDING_S = 20.0  # shorter: too few twists to tell a centimetre
 SEGMENTS = 4
 SMOOTH_S = 0.05
 MIN_TWIST_ACCEL_RAD_S2 = 0.2  # rms of ω'_z below this: not twisted enough for a centimetre
@@ -79,13 +81,7 @@ def fit_tilt(gyr: FloatArray) -> FloatArray:
 def tilt_matrix(tilt_xy_rad: ArrayLike) -> FloatArray:
     """The rotation matrix of the rotation vector (tx, ty, 0): body (hook) = M @ IMU."""
     tx, ty = (float(v) for v in np.asarray(tilt_xy_rad, dtype=np.float64))
-    angle = math.hypot(tx, ty)
-    if angle == 0.0:
-        return np.eye(3)
-    kx, ky = tx / angle, ty / angle
-    k = np.array([[0.0, 0.0, ky], [0.0, 0.0, -kx], [-ky, kx, 0.0]])
-    out: FloatArray = np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
-    return out
+    return to_matrix(from_rotvec([tx, ty, 0.0]))
 
 
 def _twist(gyr: FloatArray, mag: FloatArray | None, dt_s: float) -> FloatArray:
@@ -132,9 +128,9 @@ def fit_hook_mount(gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float, mag_u
         raise ValueError(f"need gyr and acc of the same shape (N, 3), got {gyr.shape} and {acc.shape}")
     if not (dt_s > 0.0 and math.isfinite(dt_s)):
         raise ValueError(f"dt_s must be positive, got {dt_s}")
-    n_min = int(round(20.0 / dt_s))
-    if gyr.shape[0] < n_min:
-        raise ValueError(f"{gyr.shape[0] * dt_s:.0f} s of samples; twist the hanging hook for 20 s or more")
+    if gyr.shape[0] < int(round(MIN_RECORDING_S / dt_s)):
+        raise ValueError(f"{gyr.shape[0] * dt_s:.0f} s of samples; twist the hanging hook for {MIN_RECORDING_S:g} s "
+                         "or more")
     mag = None if mag_uT is None else np.asarray(mag_uT, dtype=np.float64)
     if mag is not None and mag.shape != gyr.shape:
         raise ValueError(f"need mag of the shape of gyr {gyr.shape}, got {mag.shape}")

@@ -97,7 +97,7 @@ class HookKind(KindBase):
                 return False
             if getattr(fs, "imu_offset_told", None) != th.imu_offset_m:  # ... or the IMU's lever arm
                 return False
-            if getattr(dev.filt, "imu_tilt_told", None) != th.imu_tilt_deg:  # ... or its tilt on the hook
+            if getattr(fs, "imu_tilt_told", None) != th.imu_tilt_deg:  # ... or its tilt on the hook
                 return False
         st: HookState = dev.state
         st.rules.set_thresholds(th)
