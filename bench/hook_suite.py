@@ -29,6 +29,7 @@
     python -m bench.hook_suite --offset-told twist          # ... as a twist of the hook by hand fits it
     python -m bench.hook_suite --lever-x 0.3                # the IMU 0.3 m off the rope axis, a mount not assumed
     python -m bench.hook_suite --mount-tilt 2               # the IMU tilted 2° on the hook (a twist fits it too)
+    python -m bench.hook_suite --crane-feed drive           # the crane tells its boom tip's acceleration (drive refs)
     python -m bench.hook_suite --sensor-draw 1              # the same cranes with another board of the preset
     python -m bench.hook_suite --suite-version 1            # the cranes before the hoist fix (earlier figures)
 
@@ -82,6 +83,7 @@ from devices.hook_physics import (
     SlewMove,
     TrolleyMove,
     simulate,
+    suspension_acceleration,
     trolley_traverse,
 )
 from gateway.fusion import hook
@@ -267,11 +269,13 @@ def mounted(case: SuiteCase, *vectors: np.ndarray) -> list[np.ndarray]:
 def hook_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rope_length_m: float | None,
                   tracking: bool = False, overrides: dict[str, float] | None = None, rate_hz: float = RATE_HZ,
                   imu_offset_m: tuple[float, float, float] | None = None,
-                  imu_tilt_rad: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  imu_tilt_rad: tuple[float, float] | None = None,
+                  tip_enu: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Hook filter quaternions (N, 4) and rope-length estimates (N,), started as the gateway starts it (`tracking`:
     with the optional boom-tip tracking, `hook_filter.TRACKING`; `overrides`: further settings on top;
     `imu_offset_m`, `imu_tilt_rad`: the IMU's offset from the rope axis and its tilt on the hook configured, as
-    `HookThresholds.imu_offset_m` and `imu_tilt_deg`)."""
+    `HookThresholds.imu_offset_m` and `imu_tilt_deg`); `tip_enu` (N, 2): the boom tip's acceleration as a crane
+    feed tells it (`crane_feed`)."""
     extra: dict[str, float] = (TRACKING if tracking else {}) | (overrides or {})
     settings = (HookFilterSettings(**extra) if rope_length_m is None
                 else HookFilterSettings(rope_length_m=rope_length_m, rope_length_known=True, **extra))  # fmt: skip
@@ -280,8 +284,32 @@ def hook_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rope
         f = TiltedHookFilter(f, imu_tilt_rad)
     n = int(WARMUP_S * rate_hz)
     f.start(gyr[:n], acc[:n], None if mag is None else mag[:n], 1.0 / rate_hz)
-    q, length = f.run_with_length(gyr, acc, mag, 1.0 / rate_hz)
+    q, length = f.run_with_length(gyr, acc, mag, 1.0 / rate_hz, tip_enu=tip_enu)
     return np.asarray(q), np.asarray(length)
+
+
+CRANE_FEEDS = ("exact", "drive")
+CRANE_FEED_HZ = 10.0
+
+
+def crane_feed(case: SuiteCase, n: int, rate_hz: float, quality: str) -> np.ndarray:
+    """The boom tip's horizontal acceleration (n, 2), East/North m/s², at each IMU sample as the gateway would have
+    it from a crane feed (docs/protocol.md, crane motion). `exact`: the simulator's own. `drive`: what a crane's
+    controller can tell from its drives' references, drawn per seed (from the seed alone): sampled at
+    `CRANE_FEED_HZ` and interpolated linearly at the IMU's times, 0-150 ms late (the drive's response behind its
+    reference, clock offset), its scale off by 10 % (std; the structure's give), plus 0.02 m/s² of noise."""
+    t_s = np.arange(n) / rate_hz
+    sc = case.scenario
+    if quality == "exact":
+        return suspension_acceleration(sc.trolley_moves, t_s, sc.slews)[:, :2]
+    if quality != "drive":
+        raise ValueError(f"unknown crane feed {quality!r}; known: {', '.join(CRANE_FEEDS)}")
+    rng = np.random.default_rng(50_000 + case.seed)
+    lag_s, scale = float(rng.uniform(0.0, 0.15)), float(1.0 + 0.1 * rng.standard_normal())
+    t_feed = np.arange(0.0, t_s[-1] + 1.0 / CRANE_FEED_HZ, 1.0 / CRANE_FEED_HZ)
+    a = scale * suspension_acceleration(sc.trolley_moves, t_feed - lag_s, sc.slews)[:, :2]
+    a += 0.02 * rng.standard_normal(a.shape)
+    return np.column_stack([np.interp(t_s, t_feed, a[:, k]) for k in range(2)])
 
 
 def paper_ekf_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rate_hz: float = RATE_HZ
@@ -335,14 +363,15 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
              family: str = "crane", tracking: bool = False, overrides: dict[str, float] | None = None,
              rate_hz: float = RATE_HZ, length_factor: float = 1.0, suite_version: int = SUITE_VERSION,
              sensor_draw: int = 0, told_m: float | None = None, lever_x_m: float | None = None,
-             offset_told: float | str | None = None, mount_tilt_deg: float = 0.0
+             offset_told: float | str | None = None, mount_tilt_deg: float = 0.0, feed: str | None = None
              ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`; the filter is told
     `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1), or `told_m` whatever
     the rope (the gateway's 10 m for a hook whose length nobody configured); `sensor_draw`, `lever_x_m`,
     `mount_tilt_deg`: see `simulate_seed`; `offset_told`: the IMU's offset from the rope axis told as measured with
     this error (m, std per axis, drawn per seed), or "twist": the offset and tilt `gateway.calibrate --hook-mount`
-    fits (`twist_offset`; not told when the fit refuses); None: not told."""
+    fits (`twist_offset`; not told when the fit refuses); None: not told. `feed`: the crane tells the boom tip's
+    acceleration (`crane_feed`: exact or drive), None: it does not."""
     case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz, suite_version,
                                                sensor_draw, lever_x_m, mount_tilt_deg)  # fmt: skip
     out: dict[str, dict[str, dict[str, float]]] = {}
@@ -354,7 +383,8 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
         offset, tilt = twist_offset(case, imu, rate_hz, sensor_draw) or (None, None)
     elif offset_told is not None:
         offset = measured_offset(case, float(offset_told))
-    q_hook, length = hook_estimate(gyr, acc, mag, told, tracking, overrides, rate_hz, offset, tilt)
+    tip = None if feed is None else crane_feed(case, gyr.shape[0], rate_hz, feed)
+    q_hook, length = hook_estimate(gyr, acc, mag, told, tracking, overrides, rate_hz, offset, tilt, tip)
     others = [("vqf", vqf_estimate(gyr, acc, mag, rate_hz))]
     if paper_ekf:
         others.append(("ekf001", paper_ekf_estimate(gyr, acc, mag, rate_hz)))
@@ -551,6 +581,10 @@ def main(argv: list[str] | None = None) -> int:
                    "per axis, or 'twist': the offset and the tilt as `gateway.calibrate --hook-mount` fits them from "
                    "the seed's hook twisted by hand for 40 s (HookThresholds.imu_offset_m, imu_tilt_deg; default: "
                    "not told)")
+    p.add_argument("--crane-feed", choices=CRANE_FEEDS,
+                   help="the crane tells the hook filter its boom tip's acceleration (docs/protocol.md, crane motion): "
+                   "exact (the simulator's) or drive (10 Hz, 0-150 ms late, scale off by 10 %%, noisy: what drive "
+                   "references give); 9D only (the feed is East/North); default: no feed")
     add_suite_version_argument(p)
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
@@ -567,6 +601,7 @@ def main(argv: list[str] | None = None) -> int:
         board += f", its offset told ± {1000 * args.offset_told:g} mm"
     elif args.offset_told == "twist":
         board += ", its offset told as a 40-s twist by hand fits it"
+    board += "" if args.crane_feed is None else f", crane feed {args.crane_feed}"
     print(f"hook suite v{args.suite_version} ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}{board}, "
           f"{args.duration:g} s per seed, rope length {told}, {args.rate_hz:g} Hz; degrees; whole run after "
           f"{WARMUP_S:g} s")
@@ -581,7 +616,7 @@ def main(argv: list[str] | None = None) -> int:
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
                      args.tracking, parse_settings(args.settings), args.rate_hz, args.length_factor,
                      args.suite_version, args.sensor_draw, args.told_m, args.lever_x, args.offset_told,
-                     args.mount_tilt)
+                     args.mount_tilt, args.crane_feed)
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]

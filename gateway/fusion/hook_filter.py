@@ -102,7 +102,8 @@ _P, _V, _ALPHA, _ALPHA_RATE, _BIAS, _ACC_BIAS = slice(0, 2), slice(2, 4), 4, 5, 
 _ACC_XY, _CROSS, _LOG_L, _L_RATE, _L_ACC, _TIP = slice(10, 12), slice(12, 14), 14, 15, 16, slice(17, 19)
 _LEVER = slice(19, 21)  # the IMU's x/y offset from the rope axis (its z offset is a setting)
 _HARD_IRON = slice(21, 24)  # the magnetometer's residual hard iron (µT, body), learnt as the hook twists
-N_INPUT = 8  # per-sample process input: accelerometer x/y, gyroscope (3), its backward difference (3)
+N_INPUT = 10  # per-sample process input: accelerometer x/y, gyroscope (3), its backward difference (3), the
+# boom tip's known acceleration (2, the filter's frame; 0 unless a crane feed tells it: `run_with_length`'s `tip_enu`)
 # params layout (numba kernels take one float array)
 (_G, _RX, _RY, _RZ, _MX, _MY, _MZ, _USE_MAG, _GATE, _TIP_PSD, _FORCE_STD, _HOIST_TAU, _L_MIN, _TIP_TAU,
  _FORCE_ON, _L_MAX, _NIS_TAU, _NIS_GATE, _TIP_MOVE, _TIP_STD, _TIP_GATE, _MOVE_FREEZE, _MOVE_HOLD,
@@ -122,19 +123,20 @@ COAST_R_SCALE = 1e8  # `run_bridged`: measurement variances × this on rows that
 
 
 class _Replay:
-    """`HookFilter.start()`'s arguments and the samples run since, for `HookFilter._replay_start`."""
+    """`HookFilter.start()`'s arguments and the samples run since (with their known tip acceleration, the filter's
+    frame), for `HookFilter._replay_start`."""
 
     def __init__(self, window: tuple[FloatArray, FloatArray, FloatArray, float, bool]) -> None:
         self.window = window
-        self.chunks: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+        self.chunks: list[tuple[FloatArray, FloatArray, FloatArray, FloatArray]] = []  # gyr, acc, mag, tip
         self.samples = 0
 
-    def add(self, gyr: FloatArray, acc: FloatArray, mag: FloatArray) -> None:
-        self.chunks.append((gyr.copy(), acc.copy(), np.array(mag, dtype=np.float64)))
+    def add(self, gyr: FloatArray, acc: FloatArray, mag: FloatArray, tip: FloatArray) -> None:
+        self.chunks.append((gyr.copy(), acc.copy(), np.array(mag, dtype=np.float64), tip.copy()))
         self.samples += gyr.shape[0]
 
-    def samples_since(self) -> tuple[FloatArray, FloatArray, FloatArray]:
-        return tuple(np.concatenate([c[k] for c in self.chunks]) for k in range(3))  # type: ignore[return-value]
+    def samples_since(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        return tuple(np.concatenate([c[k] for c in self.chunks]) for k in range(4))  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)
@@ -583,7 +585,7 @@ def _swing_drive(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray) 
     l = max(math.exp(x[_LOG_L]) + 0.5 * dt_s * x[_L_RATE], params[_L_MIN])
     qw, qx, qy, qz, _, _, _ = _attitude_rate(x[0], x[1], x[2], x[3], x[4], x[5])
     fx, fy = force_input(u, x[19], x[20], params[_RZ])
-    wx, wy = _horizontal_force(qw, qx, qy, qz, fx - x[10], fy - x[11], x[17], x[18], params)
+    wx, wy = _horizontal_force(qw, qx, qy, qz, fx - x[10], fy - x[11], x[17] + u[8], x[18] + u[9], params)
     return l, wx, wy
 
 
@@ -1806,6 +1808,7 @@ def process_inputs(gyr: FloatArray, acc: FloatArray, gyr_prev: FloatArray, dt_s:
         for k in range(3):
             u[i, 2 + k] = gyr[i, k]
             u[i, 5 + k] = (gyr[i, k] - (gyr_prev[k] if i == 0 else gyr[i - 1, k])) / dt_s
+        u[i, 8] = u[i, 9] = 0.0  # no known tip acceleration (`HookFilter._run` writes one when told)
     return u
 
 
@@ -2064,7 +2067,8 @@ class HookFilter(AttitudeFilter):
         return "tested" if self._twin is not None else "trusted"
 
     def _check_compass(self, gyr: FloatArray, acc: FloatArray, dt_s: float, r_scale: float,
-                       out: tuple[FloatArray, FloatArray]) -> tuple[FloatArray, FloatArray]:
+                       out: tuple[FloatArray, FloatArray], tip: FloatArray | None = None
+                       ) -> tuple[FloatArray, FloatArray]:  # fmt: skip
         """Step the twin without the magnetometer on the same samples and compare the two swing-rate -2 log-likelihoods
         (`monitor[9]`) over the last `compass_check_window_s`: when this filter's exceeds the twin's by more than
         `compass_check_excess`, the compass has been misleading the twist, and so the swing (an uncalibrated board's
@@ -2076,7 +2080,7 @@ class HookFilter(AttitudeFilter):
         filter's state (`_start_twin`)."""
         twin, s = self._twin, self.settings
         assert twin is not None
-        twin_out = out if self._twin_paused else twin.run_with_length(gyr, acc, None, dt_s, r_scale)
+        twin_out = out if self._twin_paused else twin._run(gyr, acc, None, dt_s, r_scale, tip)  # the same frame
         self._to_check -= gyr.shape[0]
         if self._to_check > 0:
             return out
@@ -2259,9 +2263,29 @@ class HookFilter(AttitudeFilter):
         return self.quaternion
 
     def run_with_length(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
-                        r_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+                        r_scale: float = 1.0, tip_enu: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
         """Whole arrays (N, 3) through the numba twin of `update()`: quaternions (N, 4) and rope lengths (N,), m.
-        `r_scale` multiplies the measurement noise variances (`run_bridged`: rows that were never measured)."""
+        `r_scale` multiplies the measurement noise variances (`run_bridged`: rows that were never measured).
+        `tip_enu` (N, 2), m/s²: the boom tip's horizontal acceleration (East, North) at each sample as the crane
+        tells it (docs/protocol.md, crane motion); the pendulum is driven by it and the tip state keeps only what it
+        misses. Used when the filter's frame is tied to North (a 9D start), else ignored."""
+        return self._run(gyr_rad_s, acc_m_s2, mag_uT, dt_s, r_scale, self._tip_in_frame(tip_enu))
+
+    def _tip_in_frame(self, tip_enu: FloatArray | None) -> FloatArray | None:
+        """`tip_enu` (N, 2) turned into the filter's own frame (by -β, `north_turn_rad`), or None when the frame
+        is not tied to North (no magnetometer reference: 6D's heading is a free gauge)."""
+        if tip_enu is None or self.mag_ref_uT is None:
+            return None
+        tip = np.asarray(tip_enu, dtype=np.float64)
+        beta = self.north_turn_rad
+        if beta == 0.0:
+            return tip
+        c, s = math.cos(beta), math.sin(beta)
+        return np.column_stack((c * tip[:, 0] + s * tip[:, 1], -s * tip[:, 0] + c * tip[:, 1]))
+
+    def _run(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
+             r_scale: float, tip: FloatArray | None) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+        """`run_with_length` with the known tip acceleration already in the filter's frame (`tip`, or None)."""
         gyr, acc = np.asarray(gyr_rad_s, dtype=np.float64), np.asarray(acc_m_s2, dtype=np.float64)
         if not self._initialised:
             self.initialise(acc[0], None if mag_uT is None else mag_uT[0])
@@ -2271,26 +2295,29 @@ class HookFilter(AttitudeFilter):
             parts, a, n = [], 0, gyr.shape[0]
             while a < n:
                 k = max(1, self._to_check) if self._twin is not None and self.use_mag else n - a
-                parts.append(self.run_with_length(gyr[a:a + k], acc[a:a + k], mag_uT[a:a + k], dt_s, r_scale))
+                parts.append(self._run(gyr[a:a + k], acc[a:a + k], mag_uT[a:a + k], dt_s, r_scale,
+                                       None if tip is None else tip[a:a + k]))  # fmt: skip
                 a += k
             return np.concatenate([q for q, _ in parts]), np.concatenate([ln for _, ln in parts])
         z, u = _packet_rows(gyr, acc, np.asarray(mag_uT, dtype=np.float64) if use_mag else gyr, 7 if use_mag else 4,
                             self.acc_z_offset_m_s2, self._gyr_before(gyr), dt_s)  # fmt: skip
+        if tip is not None:
+            u[:, 8:10] = tip
         params, r_diag = self._kernel_constants(use_mag, z.shape[1])
         if r_scale != 1.0:
             r_diag = r_diag * r_scale
         quats, lengths, self.x, self.P = ekf_run(self.x, self.P, z, u, dt_s, params, self._q_psd, r_diag,
                                                  self._monitor, *self._rings(dt_s))  # fmt: skip
         if self._replay is not None:
-            redone = self._replay_start(gyr, acc, mag_uT if use_mag else None, dt_s, r_scale)
+            redone = self._replay_start(gyr, acc, mag_uT if use_mag else None, dt_s, r_scale, u[:, 8:10])
             if redone is not None:  # started again: the re-started filter ran these samples, its compass test too
                 return redone
         if self._twin is not None and use_mag:
-            return self._check_compass(gyr, acc, dt_s, r_scale, (quats, lengths))
+            return self._check_compass(gyr, acc, dt_s, r_scale, (quats, lengths), tip)
         return quats, lengths
 
     def _replay_start(self, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, dt_s: float,
-                      r_scale: float) -> tuple[FloatArray, FloatArray] | None:  # fmt: skip
+                      r_scale: float, tip: FloatArray) -> tuple[FloatArray, FloatArray] | None:  # fmt: skip
         """Keep this call's samples while a re-start may come (see `restart_told_std`); once the rope length is
         known well enough, start again from `start()`'s window told that length and run the kept samples again, then
         go on from there with this filter's own settings. Returns the re-started filter's output for this call's
@@ -2303,7 +2330,7 @@ class HookFilter(AttitudeFilter):
         if mag is None or r_scale != 1.0 or dt_s != replay.window[3] or not self.compass_trusted:
             self._replay = None
             return None
-        replay.add(gyr, acc, mag)
+        replay.add(gyr, acc, mag, tip)
         if self._twin is not None and self._to_check > gyr.shape[0]:
             return None  # decided where the compass test runs (calls are cut there): the same whatever the packets
         seen_s = replay.samples * dt_s
@@ -2314,7 +2341,8 @@ class HookFilter(AttitudeFilter):
         told_s = replace(s, rope_length_m=math.exp(float(self.x[_LOG_L])), rope_length_known=True)
         told = HookFilter(told_s, use_mag=self.use_mag)
         told.start(*replay.window)
-        quats, lengths = told.run_with_length(*replay.samples_since(), dt_s)
+        r_gyr, r_acc, r_mag, r_tip = replay.samples_since()
+        quats, lengths = told._run(r_gyr, r_acc, r_mag, dt_s, 1.0, r_tip)
         told.settings = s  # told only for the start: `rope_length_known` and `rope_length_m` act nowhere else
         if told._twin is not None:
             told._twin.settings = s
@@ -2341,23 +2369,26 @@ class HookFilter(AttitudeFilter):
         return c[4], c[5]
 
     def run(
-        self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float
+        self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
+        tip_enu: FloatArray | None = None,
     ) -> FloatArray:
-        """Whole arrays (N, 3) through the numba twin of `update()`; returns (N, 4)."""
-        return self.run_with_length(gyr_rad_s, acc_m_s2, mag_uT, dt_s)[0]
+        """Whole arrays (N, 3) through the numba twin of `update()`; returns (N, 4). `tip_enu`: see
+        `run_with_length`."""
+        return self.run_with_length(gyr_rad_s, acc_m_s2, mag_uT, dt_s, tip_enu=tip_enu)[0]
 
     def run_bridged(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
-                    coast: NDArray[np.bool_]) -> FloatArray:  # fmt: skip
+                    coast: NDArray[np.bool_], tip_enu: FloatArray | None = None) -> FloatArray:  # fmt: skip
         """`run` of rows some of which were never measured (`coast`: interpolated across lost packets,
         `gateway.fusion.gaps`): on those the pendulum model carries the state on alone (their measurements weigh
         `COAST_R_SCALE` times less; the interpolated force still drives the model). Returns (N, 4)."""
         n = coast.shape[0]
         out = np.empty((n, 4))
         edges = [0, *(np.flatnonzero(coast[1:] != coast[:-1]) + 1).tolist(), n]
+        tip = self._tip_in_frame(tip_enu)
         for a, b in zip(edges[:-1], edges[1:], strict=False):
             mag = None if mag_uT is None else mag_uT[a:b]
             scale = COAST_R_SCALE if coast[a] else 1.0
-            out[a:b] = self.run_with_length(gyr_rad_s[a:b], acc_m_s2[a:b], mag, dt_s, scale)[0]
+            out[a:b] = self._run(gyr_rad_s[a:b], acc_m_s2[a:b], mag, dt_s, scale, None if tip is None else tip[a:b])[0]
         return out
 
     def _output_params(self) -> FloatArray:

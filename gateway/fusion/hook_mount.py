@@ -179,18 +179,19 @@ class TiltedHookFilter:
         return out
 
     def run_with_length(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
-                        r_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+                        r_scale: float = 1.0, tip_enu: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
         out: tuple[FloatArray, FloatArray] = self.inner.run_with_length(
-            self._turn(gyr_rad_s), self._turn(acc_m_s2), self._turn(mag_uT), dt_s, r_scale)
-        return out
+            self._turn(gyr_rad_s), self._turn(acc_m_s2), self._turn(mag_uT), dt_s, r_scale, tip_enu)
+        return out  # the boom tip's acceleration is in ENU: the IMU's tilt does not turn it
 
-    def run(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float) -> FloatArray:
-        return self.run_with_length(gyr_rad_s, acc_m_s2, mag_uT, dt_s)[0]
+    def run(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
+            tip_enu: FloatArray | None = None) -> FloatArray:  # fmt: skip
+        return self.run_with_length(gyr_rad_s, acc_m_s2, mag_uT, dt_s, tip_enu=tip_enu)[0]
 
     def run_bridged(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
-                    coast: Any) -> FloatArray:  # fmt: skip
+                    coast: Any, tip_enu: FloatArray | None = None) -> FloatArray:  # fmt: skip
         out: FloatArray = self.inner.run_bridged(self._turn(gyr_rad_s), self._turn(acc_m_s2), self._turn(mag_uT),
-                                                 dt_s, coast)  # fmt: skip
+                                                 dt_s, coast, tip_enu)  # fmt: skip
         return out
 
     def seed_gyro_bias(self, bias_rad_s: FloatArray, *args: Any, **kwargs: Any) -> None:
