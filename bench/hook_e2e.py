@@ -51,7 +51,14 @@ from tqdm import tqdm
 from bench.bite_latency import REPO, Recorder, free_port, observer_config, start_gateway, stop_process, wait_http
 from devices import common
 from devices.common import FleetSettings, ImuErrorModel, Message, SensorModel
-from devices.hook_physics import HookPhysicsSettings, HookScenario, TrolleyMove, simulate, trolley_traverse
+from devices.hook_physics import (
+    HookPhysicsSettings,
+    HookScenario,
+    TrolleyMove,
+    simulate,
+    suspension_acceleration,
+    trolley_traverse,
+)
 from gateway import schemas
 from gateway.fusion import hook as hook_geo
 
@@ -113,8 +120,8 @@ class HookFleet:
     kind = "hook"
     command_selectors: tuple[str, ...] = ()
 
-    def __init__(self, fleet: FleetSettings, case: Case, seed: int) -> None:
-        self.fleet = fleet
+    def __init__(self, fleet: FleetSettings, case: Case, seed: int, crane_feed: bool = False) -> None:
+        self.fleet, self.scenario, self.crane_feed = fleet, case.scenario, crane_feed
         self.ids = fleet.ids
         self.physics = case.physics or physics()
         self.truth = simulate(self.physics, case.scenario)
@@ -145,8 +152,15 @@ class HookFleet:
             torsion_rad=[float(math.remainder(x, 2 * math.pi)) for x in tr.torsion_rad[sl]],
             rope_length_m=self.physics.rope_length_m,
         )  # fmt: skip
-        return [[Message(schemas.imu_key("hook", dev), imu, schemas.ENCODING_IMU)]], [
-            Message(schemas.truth_key("hook", dev), truth.to_json(), schemas.ENCODING_TRUTH)]
+        data = [Message(schemas.imu_key("hook", dev), imu, schemas.ENCODING_IMU)]
+        if self.crane_feed:  # the crane tells its boom tip's acceleration at the same samples (docs/protocol.md 3.7)
+            sc = self.scenario
+            tip = suspension_acceleration(sc.trolley_moves, tr.t_s[sl], sc.slews)[:, :2]
+            data.append(Message(schemas.crane_key(dev), schemas.CraneMotion(
+                v=1, device_id=dev, boot_id=self.boot_id, seq=k, wall_t0_us=wall, rate_hz=self.fleet.rate_hz,
+                tip_acc_m_s2=[(round(float(x), 4), round(float(y), 4)) for x, y in tip]).to_json(),
+                schemas.ENCODING_CRANE))  # fmt: skip
+        return [data], [Message(schemas.truth_key("hook", dev), truth.to_json(), schemas.ENCODING_TRUTH)]
 
 
 def fleet_settings(duration_s: float, seed: int, link: common.LinkModel | None = None) -> FleetSettings:
@@ -156,10 +170,11 @@ def fleet_settings(duration_s: float, seed: int, link: common.LinkModel | None =
                          link=link or common.LinkModel())  # fmt: skip
 
 
-def run_device(port: int, case: Case, duration_s: float, seed: int, link: common.LinkModel | None = None) -> None:
+def run_device(port: int, case: Case, duration_s: float, seed: int, link: common.LinkModel | None = None,
+               crane_feed: bool = False) -> None:  # fmt: skip
     fleet = fleet_settings(duration_s, seed, link)
     with zenoh.open(common.zenoh_config("peer", [f"tcp/127.0.0.1:{port}"])) as session:
-        common.run_fleet(session, HookFleet(fleet, case, seed), fleet)
+        common.run_fleet(session, HookFleet(fleet, case, seed, crane_feed), fleet)
 
 
 def wrap(x: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
@@ -264,17 +279,20 @@ def _vqf(packets: list[schemas.ImuPacket]) -> np.ndarray[Any, Any]:
 
 
 def device_args(case_name: str, duration_s: float, still_s: float, seed: int, twist: float | None,
-                link: common.LinkModel | None = None) -> list[str]:  # fmt: skip
+                link: common.LinkModel | None = None, crane_feed: bool = False) -> list[str]:  # fmt: skip
     args = ["--scenario", case_name, "--duration", str(duration_s), "--still", str(still_s), "--seed", str(seed)]
+    args += ["--crane-feed"] if crane_feed else []
     args += [] if link is None else ["--loss", str(link.loss_prob), "--burst", str(link.burst_len)]
     return args + ([] if twist is None else ["--twist-torque", str(twist)])
 
 
 def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenario: str = "free",
                 twist_torque_n_m: float | None = None, record_imu: bool = False,
-                link: common.LinkModel | None = None, tell_length: bool = True) -> tuple[Recorder, int]:  # fmt: skip
+                link: common.LinkModel | None = None, tell_length: bool = True, crane_feed: bool = False
+                ) -> tuple[Recorder, int]:  # fmt: skip
     """Gateway + hook processes with an observer session; returns what it saw and the device's exit code
-    (`tell_length` False: a suite crane's rope length is not set, the gateway's default)."""
+    (`tell_length` False: a suite crane's rope length is not set, the gateway's default; `crane_feed`: the device
+    process also plays the crane, `rig/hook/{id}/crane`)."""
     import subprocess
 
     zport, hport = free_port(), free_port()
@@ -292,7 +310,7 @@ def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenar
             time.sleep(0.5)
             dev = subprocess.run(
                 [sys.executable, "-m", "bench.hook_e2e", "--device", "--port", str(zport),
-                 *device_args(scenario, duration_s, still_s, seed, twist_torque_n_m, link)],
+                 *device_args(scenario, duration_s, still_s, seed, twist_torque_n_m, link, crane_feed)],
                 cwd=REPO, capture_output=True, timeout=duration_s + 120,
             )  # fmt: skip
             rec.wait_quiet()
@@ -315,13 +333,14 @@ def set_rope_length(http_port: int, data_dir: Path, rope_length_m: float) -> Non
     r.raise_for_status()
 
 
-def run_in_process(case: Case, duration_s: float, seed: int, tell_length: bool = True) -> tuple[Recorder, float, int]:
+def run_in_process(case: Case, duration_s: float, seed: int, tell_length: bool = True, crane_feed: bool = False
+                   ) -> tuple[Recorder, float, int]:  # fmt: skip
     """The same packets straight into a `Pipeline` (no zenoh, no processes): recorder, pipeline CPU seconds, packets."""
     from gateway.config import HookThresholds
     from gateway.pipeline import Pipeline
 
     fleet = fleet_settings(duration_s, seed)
-    hooks = HookFleet(fleet, case, seed)
+    hooks = HookFleet(fleet, case, seed, crane_feed)
     pipe = Pipeline()
     if case.physics is not None and tell_length:
         pipe.set_defaults("hook", HookThresholds(rope_length_m=case.physics.rope_length_m))
@@ -332,9 +351,9 @@ def run_in_process(case: Case, duration_s: float, seed: int, tell_length: bool =
         data, extra = hooks.tick(k)
         for m in [m for ms in data for m in ms] + extra:
             rec.samples.append((0.0, m.key, m.payload))
-        packet = schemas.decode(data[0][0].key, data[0][0].payload)
+        packets = [schemas.decode(m.key, m.payload) for m in data[0]]
         t0 = time.process_time()  # CPU time: the box is shared, wall time would count other jobs
-        out = pipe.process([packet], now_wall_s=1.0e9)
+        out = pipe.process(packets, now_wall_s=1.0e9)
         busy_s += time.process_time() - t0
         for s in out.swings:
             rec.samples.append((0.0, schemas.swing_key(s.device_id), s.model_dump_json().encode()))
@@ -375,18 +394,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--burst", type=float, default=2.0, help="with --loss: mean burst length, packets (default 2)")
     p.add_argument("--no-length", action="store_true",
                    help="suite:SEED: do not set the rope length (the gateway's default: the filter finds it)")
+    p.add_argument("--crane-feed", action="store_true",
+                   help="the device also plays the crane: its boom tip's acceleration on rig/hook/{id}/crane")
     p.add_argument("--device", action="store_true", help="(internal) run the hook device process")
     p.add_argument("--port", type=int, default=7447, help="(with --device) gateway zenoh port")
     args = p.parse_args(argv)
     case = make_case(args.scenario, args.duration, args.still, args.seed, args.twist_torque)
     link = common.LinkModel(args.loss, args.burst) if args.loss > 0 else None
     if args.device:
-        run_device(args.port, case, args.duration, args.seed, link)
+        run_device(args.port, case, args.duration, args.seed, link, args.crane_feed)
         return 0
     if args.in_process and link is not None:
         p.error("--loss needs the zenoh run (the device process's link drops the packets)")
     if args.in_process:
-        rec, busy_s, n_packets = run_in_process(case, args.duration, args.seed, not args.no_length)
+        rec, busy_s, n_packets = run_in_process(case, args.duration, args.seed, not args.no_length, args.crane_feed)
         code = 0
         print(f"pipeline cost: {busy_s / n_packets * 1e3:.3f} CPU ms per hook packet of {SAMPLES_PER_PACKET} samples "
               f"({n_packets * SAMPLES_PER_PACKET / busy_s:,.0f} samples per CPU-second, one hook, after warm_up())")
@@ -395,7 +416,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"running {args.duration:g} s of hook data through zenoh and the gateway ...", file=sys.stderr)
             rec, code = run_session(args.duration, args.still, args.seed, Path(tmp), args.scenario,
                                     args.twist_torque, record_imu=args.compare, link=link,
-                                    tell_length=not args.no_length)  # fmt: skip
+                                    tell_length=not args.no_length, crane_feed=args.crane_feed)  # fmt: skip
     if not args.compare:
         rec.samples = [s for s in rec.samples if not s[1].endswith("/imu")]
     r = analyse(rec, case.excitation_end_s, args.settle)

@@ -292,23 +292,31 @@ CRANE_FEEDS = ("exact", "drive")
 CRANE_FEED_HZ = 10.0
 
 
-def crane_feed(case: SuiteCase, n: int, rate_hz: float, quality: str) -> np.ndarray:
-    """The boom tip's horizontal acceleration (n, 2), East/North m/s², at each IMU sample as the gateway would have
-    it from a crane feed (docs/protocol.md, crane motion). `exact`: the simulator's own. `drive`: what a crane's
-    controller can tell from its drives' references, drawn per seed (from the seed alone): sampled at
-    `CRANE_FEED_HZ` and interpolated linearly at the IMU's times, 0-150 ms late (the drive's response behind its
-    reference, clock offset), its scale off by 10 % (std; the structure's give), plus 0.02 m/s² of noise."""
-    t_s = np.arange(n) / rate_hz
+def crane_samples(case: SuiteCase, duration_s: float, quality: str, rate_hz: float = RATE_HZ
+                  ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """What the crane of `case` publishes of its boom tip (docs/protocol.md, crane motion): sample times (s from the
+    hook's first sample) and horizontal accelerations (n, 2), East/North m/s². `exact`: the simulator's own, at the
+    IMU's `rate_hz`. `drive`: what a crane's controller can tell from its drives' references, drawn per seed (from
+    the seed alone): `CRANE_FEED_HZ`, 0-150 ms late (the drive's response behind its reference, clock offset), its
+    scale off by 10 % (std; the structure's give), plus 0.02 m/s² of noise."""
     sc = case.scenario
     if quality == "exact":
-        return suspension_acceleration(sc.trolley_moves, t_s, sc.slews)[:, :2]
+        t_s = np.arange(round(duration_s * rate_hz)) / rate_hz
+        return t_s, suspension_acceleration(sc.trolley_moves, t_s, sc.slews)[:, :2]
     if quality != "drive":
         raise ValueError(f"unknown crane feed {quality!r}; known: {', '.join(CRANE_FEEDS)}")
     rng = np.random.default_rng(50_000 + case.seed)
     lag_s, scale = float(rng.uniform(0.0, 0.15)), float(1.0 + 0.1 * rng.standard_normal())
-    t_feed = np.arange(0.0, t_s[-1] + 1.0 / CRANE_FEED_HZ, 1.0 / CRANE_FEED_HZ)
+    t_feed = np.arange(0.0, duration_s + 1.0 / CRANE_FEED_HZ, 1.0 / CRANE_FEED_HZ)
     a = scale * suspension_acceleration(sc.trolley_moves, t_feed - lag_s, sc.slews)[:, :2]
-    a += 0.02 * rng.standard_normal(a.shape)
+    return t_feed, a + 0.02 * rng.standard_normal(a.shape)
+
+
+def crane_feed(case: SuiteCase, n: int, rate_hz: float, quality: str) -> np.ndarray:
+    """The boom tip's acceleration (n, 2) at each of n IMU samples as the gateway has it from the crane's samples
+    (`crane_samples`): linear between them (`gateway.fusion.crane_feed.CraneFeed`)."""
+    t_feed, a = crane_samples(case, n / rate_hz, quality, rate_hz)
+    t_s = np.arange(n) / rate_hz
     return np.column_stack([np.interp(t_s, t_feed, a[:, k]) for k in range(2)])
 
 

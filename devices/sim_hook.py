@@ -3,7 +3,9 @@
 Each instance runs devices.hook_physics (spherical pendulum + torsion, 1 kHz RK4), passes the true rates,
 specific force and field through the shared MPU-6050/HMC5883L error model (devices.common.SensorModel), and
 publishes `rig/hook/{id}/imu` plus `rig/hook/{id}/truth` (attitude, swing angle Θ, displacement bearing as the
-swing direction, torsion φ; unless --no-truth), holding the liveliness token `rig/hook/{id}`.
+swing direction, torsion φ; unless --no-truth), holding the liveliness token `rig/hook/{id}`. With --crane-feed it
+also plays the crane: `rig/hook/{id}/crane`, the boom tip's acceleration (trolley and slew moves) at the IMU's
+sample times, one packet per IMU packet (docs/protocol.md, crane motion).
 
 Examples:
 
@@ -11,6 +13,7 @@ Examples:
     python -m devices.sim_hook --swing-deg 0 --trolley 5,4,90         # at rest, then a 4 m trolley move north
     python -m devices.sim_hook --count 3 --auto-trolley-s 40 --wind 0.2 --duration 120
     python -m devices.sim_hook --load-kg 2000 --pull 10,3,200,45 --hoist 20,10,0.5 --slew 40,20,60
+    python -m devices.sim_hook --slew 10,40,60,30 --crane-feed       # the crane tells its slew to the gateway
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from devices.hook_physics import (
     Pull,
     SlewMove,
     TrolleyMove,
+    suspension_acceleration,
     trolley_traverse,
 )
 from gateway import schemas
@@ -46,8 +50,9 @@ class HookFleet:
 
     def __init__(self, fleet: FleetSettings, physics: HookPhysicsSettings, scenario: HookScenario, *,
                  error_model: ImuErrorModel | None = None, with_mag: bool = True, load_kg: float | None = None,
-                 imu_tilt_deg: tuple[float, float] = (0.0, 0.0)) -> None:  # fmt: skip
+                 imu_tilt_deg: tuple[float, float] = (0.0, 0.0), crane_feed: bool = False) -> None:  # fmt: skip
         self.fleet, self.physics, self.with_mag, self.load_kg = fleet, physics, with_mag, load_kg
+        self.crane_feed = crane_feed  # also publish what the crane knows of its boom tip (`schemas.CraneMotion`)
         # the IMU tilted on the hook (`HookThresholds.imu_tilt_deg` undoes it): it reads each hook vector v as Mᵀ v
         self.tilt = tilt_matrix(*(math.radians(a) for a in imu_tilt_deg))
         self.ids = fleet.ids
@@ -69,6 +74,8 @@ class HookFleet:
         self.seq = [0] * fleet.count
         self._imu_keys = [schemas.imu_key("hook", i) for i in self.ids]
         self._truth_keys = [schemas.truth_key("hook", i) for i in self.ids]
+        self._crane_keys = [schemas.crane_key(i) for i in self.ids]
+        self._crane_boot_id = common.new_boot_id(rng)
 
     def on_command(self, key: str, payload: bytes) -> None:
         """Hooks have no command channel."""
@@ -97,6 +104,13 @@ class HookFleet:
                 rate_hz=fl.rate_hz, gyr_rad_s=gyr_l[i], acc_m_s2=acc_l[i], mag_uT=None if mag_l is None else mag_l[i],
                 wall_t0_us=wall,
             )])  # fmt: skip
+            if self.crane_feed:
+                sc = self.streams[i].scenario
+                tip = suspension_acceleration(sc.trolley_moves, truths[i].t_s, sc.slews)[:, :2]
+                data[i].append(Message(self._crane_keys[i], schemas.CraneMotion(
+                    v=1, device_id=dev, boot_id=self._crane_boot_id, seq=self.seq[i], wall_t0_us=wall,
+                    rate_hz=fl.rate_hz, tip_acc_m_s2=[(round(float(x), 4), round(float(y), 4)) for x, y in tip],
+                ).to_json(), schemas.ENCODING_CRANE))  # fmt: skip
             if fl.truth:
                 extra.append(Message(self._truth_keys[i], truth_payload(
                     truths[i], device_id=dev, boot_id=self.boot_ids[i], seq=self.seq[i], t0_us=t0_us,
@@ -203,6 +217,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "the hook's (the gateway's hook setting imu_tilt_deg undoes it; default square)")
     g.add_argument("--load-kg", type=float, default=None, help="hook + load mass, kg (default 500; also in the truth)")
     g.add_argument("--no-mag", action="store_true", help="no magnetometer (6-axis IMU)")
+    g.add_argument("--crane-feed", action="store_true",
+                   help="also publish the crane's feed of its boom tip's acceleration (trolley and slew moves) on "
+                   "rig/hook/{id}/crane, which the gateway's hook filter takes as a known input")
     return p
 
 
@@ -226,7 +243,8 @@ def make_fleet(args: argparse.Namespace, fleet: FleetSettings) -> HookFleet:
         slews=tuple(parse_slew(t) for t in args.slew),
     )  # fmt: skip
     return HookFleet(fleet, physics, scenario, with_mag=not args.no_mag, load_kg=args.load_kg,
-                     error_model=ImuErrorModel.preset(args.imu), imu_tilt_deg=tuple(args.imu_tilt))
+                     error_model=ImuErrorModel.preset(args.imu), imu_tilt_deg=tuple(args.imu_tilt),
+                     crane_feed=args.crane_feed)  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -141,6 +141,8 @@ class Pipeline:
             on_drop=self.reel_control.forget,
             bridge_kinds={name for name, h in self.handlers.items() if h.bridge_lost_samples},
             gyro_taper_s={name: h.bridge_gyro_taper_s for name, h in self.handlers.items()},
+            filter_inputs=lambda dev, wall_end_s, n, dt_s: self.handlers[dev.kind].filter_inputs(
+                dev.device_id, wall_end_s, n, dt_s),
         )  # fmt: skip
         for d, (_, ds) in self.device_settings.items():
             if ds.calibration is not None:

@@ -35,6 +35,7 @@ from gateway.schemas import (
     AttitudeBlock,
     BallCommand,
     BallTruth,
+    CraneMotion,
     DeviceConfig,
     DeviceIngestCounters,
     EnvPacket,
@@ -59,6 +60,7 @@ from gateway.schemas import (
     attitude_key,
     ball_cmd_key,
     config_key,
+    crane_key,
     encoding_of,
     env_key,
     height_key,
@@ -110,6 +112,10 @@ def examples() -> dict[str, tuple[str, WireModel]]:
         v=1, device_id="rod-1", boot_id=2_882_400_001, seq=208, t_us=10_420_000, wall_t_us=wall + 10_420_000,
         line_out_m=27.4, line_in_speed_m_s=0.48, motor="reeling_in", mode="in", cmd_speed_m_s=0.5, drag_n=25.0,
         tension_n=6.2, last_cmd_id=17,
+    )
+    crane = CraneMotion(
+        v=1, device_id="hook-1", boot_id=7, seq=311, wall_t0_us=wall + 31_100_000, rate_hz=10.0,
+        tip_acc_m_s2=[(0.212, -0.105), (0.208, -0.111)],
     )
     rod_truth = RodTruth(
         v=1, device_id="rod-1", boot_id=2_882_400_001, seq=1042, t0_us=10_420_000, rate_hz=100.0,
@@ -171,6 +177,7 @@ def examples() -> dict[str, tuple[str, WireModel]]:
         "imu_plain": (imu_key("imu", "imu-1"), plain_imu),
         "env": (env_key("ball-1"), env),
         "reel_status": (reel_key("rod-1"), reel),
+        "crane": (crane_key("hook-1"), crane),
         "rod_truth": (truth_key("rod", "rod-1"), rod_truth),
         "hook_truth": (truth_key("hook", "hook-1"), hook_truth),
         "ball_truth": (truth_key("ball", "ball-1"), ball_truth),

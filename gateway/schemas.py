@@ -58,6 +58,7 @@ IMU_KINDS: Final[tuple[str, ...]] = typing.get_args(ImuKind)
 ENCODING_IMU: Final = "application/json;schema=rig.imu.v1"
 ENCODING_ENV: Final = "application/json;schema=rig.env.v1"
 ENCODING_REEL: Final = "application/json;schema=rig.reel.v1"
+ENCODING_CRANE: Final = "application/json;schema=rig.crane.v1"
 ENCODING_TRUTH: Final = "application/json;schema=rig.truth.v1"
 ENCODING_REEL_CMD: Final = "application/json;schema=rig.reel_cmd.v1"
 ENCODING_BALL_CMD: Final = "application/json;schema=rig.ball_cmd.v1"
@@ -352,6 +353,33 @@ class ReelStatus(WireModel):
     drag_n: NonNeg
     tension_n: NonNeg | None = None
     last_cmd_id: Uint32 | None = None
+
+
+TIP_ACC_LIMIT_M_S2: Final = 20.0  # a boom tip's acceleration beyond this (2 g) is no crane's
+MAX_CRANE_SAMPLES: Final = 100
+_TipAcc = Annotated[float, Field(ge=-TIP_ACC_LIMIT_M_S2, le=TIP_ACC_LIMIT_M_S2, allow_inf_nan=False)]
+
+
+class CraneMotion(WireModel):
+    """What the crane carrying a hook tells of its suspension point (the boom tip or trolley): the point's horizontal
+    acceleration, East and North in the gateway's heading frame (section 3.5), sample i at wall time
+    `wall_t0_us + i * 1e6 / rate_hz`. Published on the hook's key by the crane's controller or a bridge from it (its
+    drives' references or encoders); the hook filter takes it as a known input (docs/fusion.md, "A crane that tells
+    its moves"). The wall clock must be the one the hook's `wall_t0_us` is on: it is how the two are aligned."""
+
+    v: Version
+    device_id: DeviceId
+    kind: Literal["hook"] = "hook"
+    boot_id: Uint32
+    seq: Uint32
+    wall_t0_us: TimeUs
+    rate_hz: RateHz
+    tip_acc_m_s2: list[tuple[_TipAcc, _TipAcc]] = _samples(MAX_CRANE_SAMPLES)
+
+    @property
+    def n(self) -> int:
+        """Samples in the packet."""
+        return len(self.tip_acc_m_s2)
 
 
 TruthPhase: TypeAlias = Literal["start", "end", "instant"]
@@ -747,6 +775,8 @@ def _kinds(*names: str) -> tuple[str, ...]:
 T_IMU: Final = Topic("imu", "rig/{kind}/{id}/imu", IMU_KINDS, ImuPacket, ENCODING_IMU, "device")
 T_ENV: Final = Topic("env", "rig/{kind}/{id}/env", _kinds("ball"), EnvPacket, ENCODING_ENV, "device")
 T_REEL: Final = Topic("reel", "rig/{kind}/{id}/reel", _kinds("rod"), ReelStatus, ENCODING_REEL, "device")
+T_CRANE: Final = Topic("crane", "rig/{kind}/{id}/crane", _kinds("hook"), CraneMotion, ENCODING_CRANE, "device",
+                       note="published by the crane carrying the hook, not by the hook")
 T_ROD_TRUTH: Final = Topic("rod_truth", "rig/{kind}/{id}/truth", _kinds("rod"), RodTruth, ENCODING_TRUTH,
                            "simulator")
 T_HOOK_TRUTH: Final = Topic("hook_truth", "rig/{kind}/{id}/truth", _kinds("hook"), HookTruth, ENCODING_TRUTH,
@@ -781,7 +811,7 @@ T_CONFIG: Final = Topic("config", "gw/config/{kind}/{id}", KINDS, DeviceConfig, 
 T_GW_ALIVE: Final = Topic("gw_alive", "gw/alive", (), None, "", "token", note="liveliness token of the gateway")
 
 TOPICS: Final[tuple[Topic, ...]] = (
-    T_IMU, T_ENV, T_REEL, T_ROD_TRUTH, T_HOOK_TRUTH, T_BALL_TRUTH, T_DEVICE_TOKEN, T_REEL_CMD, T_BALL_CMD,
+    T_IMU, T_ENV, T_REEL, T_CRANE, T_ROD_TRUTH, T_HOOK_TRUTH, T_BALL_TRUTH, T_DEVICE_TOKEN, T_REEL_CMD, T_BALL_CMD,
     T_ATTITUDE, T_ATTITUDES, T_ATTITUDE_BLOCK, T_SWING, T_HEIGHT, T_ALARM, T_SPOTS, T_DIAG_INGEST, T_DIAG_REJECTED,
     T_CONFIG, T_GW_ALIVE,
 )
@@ -826,6 +856,11 @@ def env_key(device_id: str) -> str:
 def reel_key(device_id: str) -> str:
     """`rig/rod/{device_id}/reel`: reel status."""
     return T_REEL.key(None, device_id)
+
+
+def crane_key(device_id: str) -> str:
+    """`rig/hook/{device_id}/crane`: what the crane carrying the hook tells of its boom tip's motion."""
+    return T_CRANE.key(None, device_id)
 
 
 def truth_key(kind: str, device_id: str) -> str:
@@ -937,7 +972,8 @@ def parse_key(key: str) -> ParsedKey:
 # decode
 # ---------------------------------------------------------------------------------------------------------------
 
-Packet: TypeAlias = ImuPacket | EnvPacket | ReelStatus | RodTruth | HookTruth | BallTruth | ReelCommand | BallCommand
+Packet: TypeAlias = (ImuPacket | EnvPacket | ReelStatus | CraneMotion | RodTruth | HookTruth | BallTruth | ReelCommand
+                     | BallCommand)
 
 _RANGE_TYPES: Final = frozenset({"greater_than", "greater_than_equal", "less_than", "less_than_equal", "out_of_range"})
 

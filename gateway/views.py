@@ -43,6 +43,9 @@ def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dic
             out["height"] = dev.height.model_dump()
         if kind == "rod":
             out["auto_reel"] = pl.auto_reel.get(device_id, False)
+    feed_view = getattr(pl.handlers.get(kind), "feed_view", None)  # a hook's crane feed (docs/protocol.md 3.7)
+    if feed_view is not None:
+        out["crane_feed"] = feed_view(device_id, time.time())
     if device_id in pl.env:
         out["readings"] = pl.env[device_id].model_dump(exclude={"profile"} if not detail else set())
     if device_id in pl.reel:

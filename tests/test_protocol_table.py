@@ -41,14 +41,15 @@ def test_every_device_topic_key_parses_back_to_its_row_and_matches_its_selector(
         for kind in set(schemas.KINDS) - set(t.kinds) if t.kinds else ():
             with pytest.raises(ValueError):
                 t.key(kind, "dev-1")
-    assert seen == 10  # imu x3 (rod, hook, imu), env, reel, truth x3, reel/cmd, cmd
+    assert seen == 11  # imu x3 (rod, hook, imu), env, reel, crane, truth x3, reel/cmd, cmd
 
 
 def test_named_builders_and_selectors_are_the_tables() -> None:
     assert schemas.imu_key("hook", "h-2") == schemas.T_IMU.key("hook", "h-2") == "rig/hook/h-2/imu"
     assert schemas.truth_key("ball", "b-1") == "rig/ball/b-1/truth"
     assert schemas.alarm_key("ball", "b-1") == "gw/ball/b-1/alarm"
-    assert schemas.SEL_DEVICE_DATA == ("rig/*/*/imu", "rig/ball/*/env", "rig/rod/*/reel")
+    assert schemas.SEL_DEVICE_DATA == ("rig/*/*/imu", "rig/ball/*/env", "rig/rod/*/reel", "rig/hook/*/crane")
+    assert schemas.crane_key("h-2") == "rig/hook/h-2/crane"
     assert schemas.SEL_TRUTH == "rig/*/*/truth" and schemas.SEL_DEVICE_TOKENS == "rig/*/*"
     assert (schemas.SEL_REEL_CMD, schemas.SEL_BALL_CMD) == ("rig/rod/*/reel/cmd", "rig/ball/*/cmd")
     with pytest.raises(ValueError):

@@ -394,6 +394,10 @@ function updateDevice(d, c) {
     if (sw.swing_phi_rad != null) facts.push(["Φ (paper 001 eq. 7)", `${fmt(sw.swing_phi_rad * DEG)}° from ψ`]);
     if (sw.rope_length_m != null) facts.push(["rope (estimated)", `${fmt(sw.rope_length_m, 1)} m`]);
   }
+  if (d.kind === "hook") { // what the crane tells of its boom tip (docs/protocol.md 3.7): the filter's known input
+    const cf = c.crane_feed;
+    facts.push(["crane feed", cf ? (cf.newest_age_s < 0.5 ? "in use" : `quiet ${fmt(cf.newest_age_s, 0)} s`) : "none"]);
+  }
   if (c.height) facts.push(["height / Vz", `${fmt(c.height.height_m, 2)} m / ${fmt(c.height.vz_m_s, 2)} m/s${c.height.at_rest ? " (rest)" : ""}`]);
   if (c.readings) facts.push(["spot", c.readings.spot], ["water", `${fmt(c.readings.water_temp_c)} °C`], ["O₂", `${fmt(c.readings.oxygen_mg_l, 2)} mg/l`]);
   if (c.reel) facts.push(["reel", `${c.reel.mode} / ${c.reel.motor}`], ["line out", `${fmt(c.reel.line_out_m)} m`]);

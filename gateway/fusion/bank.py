@@ -236,6 +236,7 @@ class FusionBank:
         filter_options: Callable[[str, Any], dict[str, Any]], new_state: Callable[[FusedDevice, Any], Any],
         on_drop: Callable[[str], None] = lambda _: None, bridge_kinds: Iterable[str] = (),
         gyro_taper_s: dict[str, float] | None = None,
+        filter_inputs: Callable[[FusedDevice, float, int, float], dict[str, FloatArray]] | None = None,
     ) -> None:  # fmt: skip
         self.warmup_s, self.rest_gyr_std_rad_s, self.rest_acc_tol_m_s2 = warmup_s, rest_gyr_std_rad_s, rest_acc_tol_m_s2
         self.warmup_bias_seed = warmup_bias_seed
@@ -246,6 +247,9 @@ class FusionBank:
         self.coast_min_s = COAST_MIN_S  # gaps this long or longer: a filter with `run_bridged` coasts on its model
         self._effective, self._filter_options, self._new_state, self._on_drop = (effective, filter_options,
                                                                                  new_state, on_drop)  # fmt: skip
+        # known inputs of a device's own filter for a block (device, wall time of its last sample s, rows, dt):
+        # keyword arguments of its `run` (a hook's crane feed: `tip_enu`); none by default
+        self._filter_inputs = filter_inputs
         self.devices: dict[str, FusedDevice] = {}
         self.batch: DefaultFilterBatch | None = None
         self.cal: dict[str, DeviceCalibration] = {}  # per-device IMU calibration (absent: raw values are fused)
@@ -468,11 +472,13 @@ class FusionBank:
             step = getattr(dev.filt, "update_block", None) or dev.filt.run
             bridged_run = getattr(dev.filt, "run_bridged", None)
             try:
+                known = {} if self._filter_inputs is None else self._filter_inputs(
+                    dev, float(t_s[-1]) + 1e-6 * dev.wall_offset_us, gyr.shape[0], dev.dt_s)  # fmt: skip
                 if dev_id in kept and bridged_run is not None and self.coast_min_s < math.inf:
                     coast = coast_mask(gyr.shape[0], kept[dev_id], max(1, round(self.coast_min_s / dev.dt_s)))
-                    quats[dev_id] = bridged_run(gyr, acc, mag, dev.dt_s, coast)
+                    quats[dev_id] = bridged_run(gyr, acc, mag, dev.dt_s, coast, **known)
                 else:
-                    quats[dev_id] = step(gyr, acc, mag, dev.dt_s)
+                    quats[dev_id] = step(gyr, acc, mag, dev.dt_s, **known)
             except Exception as exc:
                 self.fail(dev.kind, dev_id, exc, out)
         finite: set[str] = set()  # devices whose quaternions were checked finite already

@@ -407,6 +407,11 @@ class GatewayService:
                 if checked is None:
                     continue
                 p = checked
+            elif isinstance(p, schemas.CraneMotion) and not wall_time_plausible(p.wall_t0_us, now):
+                # a crane feed is put beside the hook's samples by wall time: without a sane one it is nothing
+                c.drop(p.kind, p.device_id, "crane_wall_time", f"wall_t0_us {p.wall_t0_us} is far from the gateway's "
+                       "clock; the crane feed is aligned by it, so the packet is dropped", arrival)  # fmt: skip
+                continue
             elif isinstance(p, schemas.EnvPacket | schemas.ReelStatus) and p.wall_t_us is not None \
                     and not wall_time_plausible(p.wall_t_us, now):  # fmt: skip
                 # e.g. 2**63 - 1 would stay the spot's "newest" reading for good

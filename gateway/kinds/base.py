@@ -373,6 +373,11 @@ class DeviceKind(Protocol):
         """A non-IMU packet of this kind (e.g. reel status, environment readings)."""
         ...
 
+    def filter_inputs(self, device_id: str, wall_end_s: float, n: int, dt_s: float) -> dict[str, Any]:
+        """Known inputs of the device's own filter for a block of `n` samples `dt_s` apart whose last is at wall time
+        `wall_end_s`: keyword arguments of its `run` (e.g. the hook's crane feed, `tip_enu`); {} for none."""
+        ...
+
     def post(self, ctx: KindContext, kb: KindBatch, now_s: float, out: Output) -> list[Timed]:
         """Kind logic on a batch's fused blocks (Euler etc. already in `kb`): outputs and rule conditions."""
         ...
@@ -409,6 +414,9 @@ class KindBase:
 
     def on_packet(self, ctx: KindContext, packet: Any, now_s: float) -> None:
         return None
+
+    def filter_inputs(self, device_id: str, wall_end_s: float, n: int, dt_s: float) -> dict[str, Any]:
+        return {}
 
     def post(self, ctx: KindContext, kb: KindBatch, now_s: float, out: Output) -> list[Timed]:
         return []

@@ -1,5 +1,6 @@
 """The crane hook: swing angle Θ, displacement bearing and torsion φ (`gateway.fusion.hook`), the hook rules, and
-`Swing` messages at packet ends (decimated to `swing_interval_s`).
+`Swing` messages at packet ends (decimated to `swing_interval_s`); the crane's feed of its boom tip's motion
+(`schemas.CraneMotion`), which the hook filter takes as a known input (`gateway.fusion.crane_feed`).
 
 Θ and φ of every hook in a batch are computed in one call each over the concatenated blocks (φ against each
 hook's own rest heading, repeated over its rows); rules and messages are per hook.
@@ -18,6 +19,7 @@ from gateway.alarm.engine import Condition
 from gateway.alarm.hook import HookAlarms, hook_rules
 from gateway.config import HookThresholds
 from gateway.fusion import hook as hook_geo
+from gateway.fusion.crane_feed import CraneFeed
 from gateway.kinds.base import (
     TWO_PI,
     FusedDevice,
@@ -69,6 +71,30 @@ class HookKind(KindBase):
     name: ClassVar[str] = "hook"
     fused: ClassVar[bool] = True
     bridge_lost_samples: ClassVar[bool] = True  # the pendulum's phase must cross a gap (Θ 0.58° -> 0.22° at 2 % loss)
+    packet_types: ClassVar[tuple[type[Any], ...]] = (schemas.CraneMotion,)
+
+    def __init__(self) -> None:
+        self.feeds: dict[str, CraneFeed] = {}  # device id -> its crane's feed (kept across filter restarts)
+
+    def on_packet(self, ctx: KindContext, packet: Any, now_s: float) -> None:
+        if isinstance(packet, schemas.CraneMotion):
+            feed = self.feeds.get(packet.device_id)
+            if feed is None:
+                feed = self.feeds[packet.device_id] = CraneFeed()
+            feed.add(packet.wall_t0_us * 1e-6, packet.rate_hz, np.asarray(packet.tip_acc_m_s2, dtype=np.float64))
+
+    def feed_view(self, device_id: str, now_wall_s: float) -> dict[str, Any] | None:
+        """REST's view of the hook's crane feed: packets taken, the newest sample's age by the gateway's clock (s);
+        None when its crane has sent none."""
+        feed = self.feeds.get(device_id)
+        if feed is None or not feed.t_s.size:
+            return None
+        return {"packets": feed.packets, "newest_age_s": now_wall_s - float(feed.t_s[-1])}
+
+    def filter_inputs(self, device_id: str, wall_end_s: float, n: int, dt_s: float) -> dict[str, Any]:
+        feed = self.feeds.get(device_id)
+        tip = None if feed is None else feed.at(wall_end_s, n, dt_s)
+        return {} if tip is None else {"tip_enu": tip}
 
     def thresholds_model(self) -> type[BaseModel]:
         return HookThresholds

@@ -66,3 +66,24 @@ def test_cli_pulls_hoists_and_slews_reach_the_physics():
     np.testing.assert_allclose(pull.force_n, (0.0, 200.0), atol=1e-9)
     assert sc.hoists[0].speed_m_s == -0.5
     assert sc.slews[0].angle_rad == math.radians(60.0) and sc.slews[0].radius_m == 25.0
+
+
+def test_crane_feed_publishes_the_slews_tip_acceleration():
+    """`--crane-feed`: one CraneMotion per IMU packet on rig/hook/{id}/crane, at the IMU's wall time and rate, with
+    the boom tip's horizontal acceleration of the slew (here tangential + centripetal, about 0.07 m/s² 15 s in;
+    0 before the slew starts)."""
+    args = sim_hook.build_parser().parse_args(["--slew", "5,40,60,30", "--crane-feed", "--swing-deg", "0"])
+    fleet = sim_hook.make_fleet(args, FleetSettings(count=1, seed=3, samples_per_packet=10, progress=False,
+                                                    id_prefix="hook"))  # fmt: skip
+    tips = []
+    for k in range(200):  # 20 s
+        data, _ = fleet.tick(k)
+        imu_msg, crane_msg = data[0]
+        assert crane_msg.key == schemas.crane_key("hook-1")
+        imu, crane = schemas.decode(imu_msg.key, imu_msg.payload), schemas.decode(crane_msg.key, crane_msg.payload)
+        assert isinstance(imu, schemas.ImuPacket) and isinstance(crane, schemas.CraneMotion)
+        assert (crane.wall_t0_us, crane.rate_hz, crane.n) == (imu.wall_t0_us, imu.rate_hz, imu.n)
+        tips.append(np.hypot(*np.asarray(crane.tip_acc_m_s2).T))
+    mag = np.concatenate(tips)
+    assert mag[:450].max() == 0.0
+    assert 0.02 < mag[1500] < 0.2

@@ -23,6 +23,7 @@ from gateway.config import Settings
 from gateway.ingest.bus import MemoryBus
 from gateway.ingest.runner import GatewayService
 from gateway.store import Store
+from gateway.views import device_view
 
 Msg = tuple[str, bytes]
 
@@ -222,3 +223,29 @@ def test_an_extreme_env_wall_time_does_not_pin_a_spot(tmp_path: Path) -> None:
         spot = svc.pipeline.rank_spots(time.time()).spots[0]
         assert spot.last_seen_wall_us == now_us
         assert svc.counters.snapshot(0).rejected["wall_time_ignored"] == 1
+
+
+def test_a_crane_feed_is_counted_and_checked_like_any_device_data(tmp_path: Path) -> None:
+    """CraneMotion on a hook's key (docs/protocol.md, crane motion): a good one reaches the hook's feed; one whose
+    wall time is far from the gateway's clock is dropped as `crane_wall_time` (it is aligned by it); one with a tip
+    acceleration beyond 2 g is rejected `out_of_range`; one naming another hook than its key `key_mismatch`. None of
+    them costs the other hook's feed anything."""
+    key, crane = protocol_doc.examples()["crane"]
+    now_us = int(time.time() * 1e6)
+    good = crane.model_copy(update={"wall_t0_us": now_us, "seq": 1})
+    far = crane.model_copy(update={"wall_t0_us": 2**63 - 1, "seq": 2})
+    wild = json.loads(crane.model_copy(update={"wall_t0_us": now_us, "seq": 3}).to_json())
+    wild["tip_acc_m_s2"][0][0] = 30.0
+    other = json.loads(good.to_json())
+    other["device_id"] = "hook-2"
+    with service(tmp_path) as (svc, _, _):
+        run(svc, [(key, good.to_json()), (key, far.to_json()), (key, json.dumps(wild).encode()),
+                  (key, json.dumps(other).encode())], batch=4)
+        rejected = svc.counters.snapshot(0).rejected
+        assert (rejected["crane_wall_time"], rejected["out_of_range"], rejected["key_mismatch"]) == (1, 1, 1)
+        hook = svc.pipeline.handlers["hook"]
+        feed = hook.feeds["hook-1"]  # type: ignore[attr-defined]
+        assert feed.packets == 1 and feed.t_s[0] == pytest.approx(now_us * 1e-6)
+        assert set(hook.feeds) == {"hook-1"}  # type: ignore[attr-defined]
+        view = device_view(svc, "hook-1", detail=False)["crane_feed"]  # what REST and the dashboard's card show
+        assert view["packets"] == 1 and -1.0 < view["newest_age_s"] < 60.0  # its last sample is 0.1 s after now

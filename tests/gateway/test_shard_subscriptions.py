@@ -90,7 +90,7 @@ def beside_b(rig: Rig) -> None:
 
 def test_device_keys_are_the_data_keys_only() -> None:
     assert device_keys("rod", "r1") == ("rig/rod/r1/imu", "rig/rod/r1/reel")
-    assert device_keys("hook", "h1") == ("rig/hook/h1/imu",)
+    assert device_keys("hook", "h1") == ("rig/hook/h1/imu", "rig/hook/h1/crane")  # the crane's feed beside it
     assert device_keys("ball", "b1") == ("rig/ball/b1/env",)
 
 
