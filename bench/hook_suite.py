@@ -292,13 +292,23 @@ CRANE_FEEDS = ("exact", "drive")
 CRANE_FEED_HZ = 10.0
 
 
-def crane_samples(case: SuiteCase, duration_s: float, quality: str, rate_hz: float = RATE_HZ
-                  ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def crane_samples(case: SuiteCase, duration_s: float, quality: str, rate_hz: float = RATE_HZ,
+                  bearing_error_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """What the crane of `case` publishes of its boom tip (docs/protocol.md, crane motion): sample times (s from the
     hook's first sample) and horizontal accelerations (n, 2), East/North m/s². `exact`: the simulator's own, at the
     IMU's `rate_hz`. `drive`: what a crane's controller can tell from its drives' references, drawn per seed (from
     the seed alone): `CRANE_FEED_HZ`, 0-150 ms late (the drive's response behind its reference, clock offset), its
-    scale off by 10 % (std; the structure's give), plus 0.02 m/s² of noise."""
+    scale off by 10 % (std; the structure's give), plus 0.02 m/s² of noise. `bearing_error_deg`: the crane's idea of
+    North that far off the gateway's (a jib's zero bearing set wrong), its sign drawn per seed; turns either feed."""
+    t_s, a = _crane_samples(case, duration_s, quality, rate_hz)
+    if bearing_error_deg:
+        sign = 1.0 if np.random.default_rng(60_000 + case.seed).random() < 0.5 else -1.0
+        c, s = math.cos(math.radians(sign * bearing_error_deg)), math.sin(math.radians(sign * bearing_error_deg))
+        a = a @ np.array([[c, s], [-s, c]])
+    return t_s, a
+
+
+def _crane_samples(case: SuiteCase, duration_s: float, quality: str, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
     sc = case.scenario
     if quality == "exact":
         t_s = np.arange(round(duration_s * rate_hz)) / rate_hz
@@ -312,10 +322,10 @@ def crane_samples(case: SuiteCase, duration_s: float, quality: str, rate_hz: flo
     return t_feed, a + 0.02 * rng.standard_normal(a.shape)
 
 
-def crane_feed(case: SuiteCase, n: int, rate_hz: float, quality: str) -> np.ndarray:
+def crane_feed(case: SuiteCase, n: int, rate_hz: float, quality: str, bearing_error_deg: float = 0.0) -> np.ndarray:
     """The boom tip's acceleration (n, 2) at each of n IMU samples as the gateway has it from the crane's samples
     (`crane_samples`): linear between them (`gateway.fusion.crane_feed.CraneFeed`)."""
-    t_feed, a = crane_samples(case, n / rate_hz, quality, rate_hz)
+    t_feed, a = crane_samples(case, n / rate_hz, quality, rate_hz, bearing_error_deg)
     t_s = np.arange(n) / rate_hz
     return np.column_stack([np.interp(t_s, t_feed, a[:, k]) for k in range(2)])
 
@@ -371,15 +381,15 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
              family: str = "crane", tracking: bool = False, overrides: dict[str, float] | None = None,
              rate_hz: float = RATE_HZ, length_factor: float = 1.0, suite_version: int = SUITE_VERSION,
              sensor_draw: int = 0, told_m: float | None = None, lever_x_m: float | None = None,
-             offset_told: float | str | None = None, mount_tilt_deg: float = 0.0, feed: str | None = None
-             ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+             offset_told: float | str | None = None, mount_tilt_deg: float = 0.0, feed: str | None = None,
+             feed_bearing_error_deg: float = 0.0) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`; the filter is told
     `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1), or `told_m` whatever
     the rope (the gateway's 10 m for a hook whose length nobody configured); `sensor_draw`, `lever_x_m`,
     `mount_tilt_deg`: see `simulate_seed`; `offset_told`: the IMU's offset from the rope axis told as measured with
     this error (m, std per axis, drawn per seed), or "twist": the offset and tilt `gateway.calibrate --hook-mount`
     fits (`twist_offset`; not told when the fit refuses); None: not told. `feed`: the crane tells the boom tip's
-    acceleration (`crane_feed`: exact or drive), None: it does not."""
+    acceleration (`crane_feed`: exact or drive; its North `feed_bearing_error_deg` off), None: it does not."""
     case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz, suite_version,
                                                sensor_draw, lever_x_m, mount_tilt_deg)  # fmt: skip
     out: dict[str, dict[str, dict[str, float]]] = {}
@@ -391,7 +401,7 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
         offset, tilt = twist_offset(case, imu, rate_hz, sensor_draw) or (None, None)
     elif offset_told is not None:
         offset = measured_offset(case, float(offset_told))
-    tip = None if feed is None else crane_feed(case, gyr.shape[0], rate_hz, feed)
+    tip = None if feed is None else crane_feed(case, gyr.shape[0], rate_hz, feed, feed_bearing_error_deg)
     q_hook, length = hook_estimate(gyr, acc, mag, told, tracking, overrides, rate_hz, offset, tilt, tip)
     others = [("vqf", vqf_estimate(gyr, acc, mag, rate_hz))]
     if paper_ekf:
@@ -593,6 +603,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="the crane tells the hook filter its boom tip's acceleration (docs/protocol.md, crane motion): "
                    "exact (the simulator's) or drive (10 Hz, 0-150 ms late, scale off by 10 %%, noisy: what drive "
                    "references give); 9D only (the feed is East/North); default: no feed")
+    p.add_argument("--crane-bearing-error", type=float, default=0.0, metavar="DEG",
+                   help="with --crane-feed: the crane's North that many degrees off the gateway's (its sign drawn "
+                   "per seed; default 0)")
     add_suite_version_argument(p)
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
@@ -610,6 +623,7 @@ def main(argv: list[str] | None = None) -> int:
     elif args.offset_told == "twist":
         board += ", its offset told as a 40-s twist by hand fits it"
     board += "" if args.crane_feed is None else f", crane feed {args.crane_feed}"
+    board += f" {args.crane_bearing_error:g}° off North" if args.crane_feed and args.crane_bearing_error else ""
     print(f"hook suite v{args.suite_version} ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}{board}, "
           f"{args.duration:g} s per seed, rope length {told}, {args.rate_hz:g} Hz; degrees; whole run after "
           f"{WARMUP_S:g} s")
@@ -624,7 +638,7 @@ def main(argv: list[str] | None = None) -> int:
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
                      args.tracking, parse_settings(args.settings), args.rate_hz, args.length_factor,
                      args.suite_version, args.sensor_draw, args.told_m, args.lever_x, args.offset_told,
-                     args.mount_tilt, args.crane_feed)
+                     args.mount_tilt, args.crane_feed, args.crane_bearing_error)
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]
