@@ -119,6 +119,7 @@ N_MONITOR = 22  # `ekf_step`'s innovation statistics, move and hoist timers, the
 
 
 COMPASS_CHECK_S = 1.0  # the compass test runs every this many seconds of samples (`HookFilter._check_compass`)
+TIP_FRAME_SAMPLES = 10  # a crane feed is turned into the filter's frame by the β read every this many samples
 COAST_R_SCALE = 1e8  # `run_bridged`: measurement variances × this on rows that were never measured
 
 
@@ -1860,6 +1861,7 @@ class HookFilter(AttitudeFilter):
         self.compass_dropped_s: float | None = None  # the magnetometer misled the swing: dropped this many seconds
         # after the start (`_check_compass`); None while it is used
         self._north_kept_rad: float | None = None  # β at a drop that kept the heading (`north_turn_rad`)
+        self._samples_run = 0  # samples through `run_with_length` / `run_bridged` (where a crane feed's β is read)
         hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
         self._q_psd = np.array(
             [0.0, 0.0, 0.0, 0.0, 0.0, s.torsion_accel_psd]
@@ -2269,11 +2271,30 @@ class HookFilter(AttitudeFilter):
         `tip_enu` (N, 2), m/s²: the boom tip's horizontal acceleration (East, North) at each sample as the crane
         tells it (docs/protocol.md, crane motion); the pendulum is driven by it and the tip state keeps only what it
         misses. Used when the filter's frame is tied to North (a 9D start), else ignored."""
-        return self._run(gyr_rad_s, acc_m_s2, mag_uT, dt_s, r_scale, self._tip_in_frame(tip_enu))
+        return self._run_fed(gyr_rad_s, acc_m_s2, mag_uT, dt_s, r_scale, tip_enu)
+
+    def _run_fed(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
+                 r_scale: float, tip_enu: FloatArray | None) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+        """`_run` with `tip_enu` turned into the filter's frame by the β (`north_turn_rad`, which moves as the hard
+        iron is learnt) read at every `TIP_FRAME_SAMPLES`-th sample counted from the first run, so the turn is the
+        same whatever the packets (one β for a whole recording was a legacy board's 16° off: Θ 0.077 -> 0.132°)."""
+        n, first = np.asarray(gyr_rad_s).shape[0], self._samples_run
+        self._samples_run += n
+        if tip_enu is None or self.mag_ref_uT is None:
+            return self._run(gyr_rad_s, acc_m_s2, mag_uT, dt_s, r_scale, None)
+        tip = np.asarray(tip_enu, dtype=np.float64)
+        cuts = [0, *range(-first % TIP_FRAME_SAMPLES or TIP_FRAME_SAMPLES, n, TIP_FRAME_SAMPLES), n]
+        parts = []
+        for a, b in zip(cuts[:-1], cuts[1:], strict=False):
+            parts.append(self._run(gyr_rad_s[a:b], acc_m_s2[a:b], None if mag_uT is None else mag_uT[a:b], dt_s,
+                                   r_scale, self._tip_in_frame(tip[a:b])))  # fmt: skip
+        if len(parts) == 1:
+            return parts[0]
+        return np.concatenate([q for q, _ in parts]), np.concatenate([ln for _, ln in parts])
 
     def _tip_in_frame(self, tip_enu: FloatArray | None) -> FloatArray | None:
-        """`tip_enu` (N, 2) turned into the filter's own frame (by -β, `north_turn_rad`), or None when the frame
-        is not tied to North (no magnetometer reference: 6D's heading is a free gauge)."""
+        """`tip_enu` (N, 2) turned into the filter's own frame by -β (`north_turn_rad`, now), or None when the
+        frame is not tied to North (no magnetometer reference: 6D's heading is a free gauge)."""
         if tip_enu is None or self.mag_ref_uT is None:
             return None
         tip = np.asarray(tip_enu, dtype=np.float64)
@@ -2346,7 +2367,9 @@ class HookFilter(AttitudeFilter):
         told.settings = s  # told only for the start: `rope_length_known` and `rope_length_m` act nowhere else
         if told._twin is not None:
             told._twin.settings = s
+        samples_run = self._samples_run  # the crane feed's β is read at the same samples after the start again
         self.__dict__.update(told.__dict__)
+        self._samples_run = samples_run
         self._constants, self.start_redone_s, self.start_redone_q0 = None, seen_s, quats[0].copy()
         n = gyr.shape[0]
         return quats[-n:], lengths[-n:]
@@ -2384,11 +2407,11 @@ class HookFilter(AttitudeFilter):
         n = coast.shape[0]
         out = np.empty((n, 4))
         edges = [0, *(np.flatnonzero(coast[1:] != coast[:-1]) + 1).tolist(), n]
-        tip = self._tip_in_frame(tip_enu)
         for a, b in zip(edges[:-1], edges[1:], strict=False):
             mag = None if mag_uT is None else mag_uT[a:b]
             scale = COAST_R_SCALE if coast[a] else 1.0
-            out[a:b] = self._run(gyr_rad_s[a:b], acc_m_s2[a:b], mag, dt_s, scale, None if tip is None else tip[a:b])[0]
+            out[a:b] = self._run_fed(gyr_rad_s[a:b], acc_m_s2[a:b], mag, dt_s, scale,
+                                     None if tip_enu is None else tip_enu[a:b])[0]  # fmt: skip
         return out
 
     def _output_params(self) -> FloatArray:
