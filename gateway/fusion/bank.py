@@ -472,8 +472,10 @@ class FusionBank:
             step = getattr(dev.filt, "update_block", None) or dev.filt.run
             bridged_run = getattr(dev.filt, "run_bridged", None)
             try:
-                known = {} if self._filter_inputs is None else self._filter_inputs(
-                    dev, float(t_s[-1]) + 1e-6 * dev.wall_offset_us, gyr.shape[0], dev.dt_s)  # fmt: skip
+                takes = getattr(dev.filt, "known_inputs", ())  # a filter that takes none gets none
+                known = {} if self._filter_inputs is None or not takes else {
+                    k: v for k, v in self._filter_inputs(dev, float(t_s[-1]) + 1e-6 * dev.wall_offset_us,
+                                                         gyr.shape[0], dev.dt_s).items() if k in takes}  # fmt: skip
                 if dev_id in kept and bridged_run is not None and self.coast_min_s < math.inf:
                     coast = coast_mask(gyr.shape[0], kept[dev_id], max(1, round(self.coast_min_s / dev.dt_s)))
                     quats[dev_id] = bridged_run(gyr, acc, mag, dev.dt_s, coast, **known)

@@ -1833,6 +1833,7 @@ class HookFilter(AttitudeFilter):
     the batch `ekf_run` (the same step in a numba loop). State: `self.x` (N_STATE,) = (24,), `self.P` (24, 24)."""
 
     name = "hook"
+    known_inputs: tuple[str, ...] = ("tip_enu",)  # what `run` takes beside the samples (`FusionBank`: a crane feed)
 
     def __init__(self, settings: HookFilterSettings | None = None, *, use_mag: bool = True) -> None:
         super().__init__(use_mag=use_mag)

@@ -120,14 +120,17 @@ def test_crane_feed_stays_within_its_samples(values: list[float], where: float) 
 # ---- through the pipeline: CraneMotion packets on the hook's key ----------------------------------------------
 
 
-def _pipeline_swing_error(seed: int, crane: bool, duration_s: float = 60.0, late: int = 1) -> float:
+def _pipeline_swing_error(seed: int, crane: bool, duration_s: float = 60.0, late: int = 1,
+                          filter_name: str | None = None) -> float:
     """Θ RMSE (degrees) of the Swing messages `Pipeline.process` publishes for the suite's crane `seed` (9D, rope
     told over the device's settings), its IMU in 10-sample packets with wall time; with `crane`, the drive-quality
     feed's 10 Hz samples as CraneMotion packets, each arriving one packet period after the samples it covers."""
     case, truth, gyr, acc, mag = hs.simulate_seed(seed, duration_s, "calibrated", True)
     pipe = Pipeline()
     dev = "crane-7"
-    pipe.set_device_settings(dev, "hook", DeviceSettings(thresholds={"rope_length_m": case.physics.rope_length_m}))
+    pipe.set_device_settings(dev, "hook", DeviceSettings(filter_name=filter_name,
+                                                         thresholds={"rope_length_m": case.physics.rope_length_m}))
+    failures: list[str] = []
     wall0_us, spp = 1_767_225_600_000_000, 10
     t_feed, a_feed = hs.crane_samples(case, duration_s, "drive")
     errors: list[float] = []
@@ -144,10 +147,13 @@ def _pipeline_swing_error(seed: int, crane: bool, duration_s: float = 60.0, late
             v=1, device_id=dev, kind="hook", boot_id=1, seq=k, t0_us=t0_us, rate_hz=hs.RATE_HZ,
             gyr_rad_s=[tuple(r) for r in gyr[rows].tolist()], acc_m_s2=[tuple(r) for r in acc[rows].tolist()],
             mag_uT=[tuple(r) for r in mag[rows].tolist()], wall_t0_us=wall0_us + t0_us))  # fmt: skip
-        for sw in pipe.process(packets, now_wall_s=(wall0_us + t0_us) * 1e-6 + 0.1).swings:
+        out = pipe.process(packets, now_wall_s=(wall0_us + t0_us) * 1e-6 + 0.1)
+        failures += [f.reason for f in out.filter_failures]
+        for sw in out.swings:
             i = sw.t_us // 10_000
             errors.append(math.degrees(sw.swing_angle_rad - truth.swing_rad[i]))
     assert len(errors) > 0.9 * duration_s / 0.1
+    assert not failures, failures
     return float(np.sqrt(np.mean(np.square(errors))))
 
 
@@ -182,3 +188,11 @@ def test_the_feed_is_used_the_same_whatever_the_packets() -> None:
     whole = run(gyr.shape[0])
     for packet in (10, 7):
         np.testing.assert_allclose(run(packet), whole, atol=1e-9, rtol=0.0)
+
+
+def test_a_hook_on_another_filter_ignores_its_cranes_feed() -> None:
+    """A hook configured to a filter that takes no crane feed (the papers' EKF) gets none: its fusion does not fail
+    on every batch, and it reads as it does without the feed (the same RMSE to 1e-9°)."""
+    alone = _pipeline_swing_error(24, crane=False, duration_s=20.0, filter_name="ekf")
+    fed = _pipeline_swing_error(24, crane=True, duration_s=20.0, filter_name="ekf")
+    assert fed == pytest.approx(alone, abs=1e-9)
