@@ -51,14 +51,8 @@ from tqdm import tqdm
 from bench.bite_latency import REPO, Recorder, free_port, observer_config, start_gateway, stop_process, wait_http
 from devices import common
 from devices.common import FleetSettings, ImuErrorModel, Message, SensorModel
-from devices.hook_physics import (
-    HookPhysicsSettings,
-    HookScenario,
-    TrolleyMove,
-    simulate,
-    suspension_acceleration,
-    trolley_traverse,
-)
+from devices.hook_physics import HookPhysicsSettings, HookScenario, TrolleyMove, simulate, trolley_traverse
+from devices.sim_hook import crane_message
 from gateway import schemas
 from gateway.fusion import hook as hook_geo
 
@@ -154,12 +148,8 @@ class HookFleet:
         )  # fmt: skip
         data = [Message(schemas.imu_key("hook", dev), imu, schemas.ENCODING_IMU)]
         if self.crane_feed:  # the crane tells its boom tip's acceleration at the same samples (docs/protocol.md 3.7)
-            sc = self.scenario
-            tip = suspension_acceleration(sc.trolley_moves, tr.t_s[sl], sc.slews)[:, :2]
-            data.append(Message(schemas.crane_key(dev), schemas.CraneMotion(
-                v=1, device_id=dev, boot_id=self.boot_id, seq=k, wall_t0_us=wall, rate_hz=self.fleet.rate_hz,
-                tip_acc_m_s2=[(round(float(x), 4), round(float(y), 4)) for x, y in tip]).to_json(),
-                schemas.ENCODING_CRANE))  # fmt: skip
+            data.append(crane_message(self.scenario, tr.t_s[sl], device_id=dev, boot_id=self.boot_id, seq=k,
+                                      wall_t0_us=wall, rate_hz=self.fleet.rate_hz))  # fmt: skip
         return [data], [Message(schemas.truth_key("hook", dev), truth.to_json(), schemas.ENCODING_TRUTH)]
 
 

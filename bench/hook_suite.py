@@ -303,8 +303,7 @@ def crane_samples(case: SuiteCase, duration_s: float, quality: str, rate_hz: flo
     t_s, a = _crane_samples(case, duration_s, quality, rate_hz)
     if bearing_error_deg:
         sign = 1.0 if np.random.default_rng(60_000 + case.seed).random() < 0.5 else -1.0
-        c, s = math.cos(math.radians(sign * bearing_error_deg)), math.sin(math.radians(sign * bearing_error_deg))
-        a = a @ np.array([[c, s], [-s, c]])
+        a = hook.turn_horizontal(a, math.radians(sign * bearing_error_deg))
     return t_s, a
 
 

@@ -74,7 +74,6 @@ class HookFleet:
         self.seq = [0] * fleet.count
         self._imu_keys = [schemas.imu_key("hook", i) for i in self.ids]
         self._truth_keys = [schemas.truth_key("hook", i) for i in self.ids]
-        self._crane_keys = [schemas.crane_key(i) for i in self.ids]
         self._crane_boot_id = common.new_boot_id(rng)
 
     def on_command(self, key: str, payload: bytes) -> None:
@@ -105,12 +104,9 @@ class HookFleet:
                 wall_t0_us=wall,
             )])  # fmt: skip
             if self.crane_feed:
-                sc = self.streams[i].scenario
-                tip = suspension_acceleration(sc.trolley_moves, truths[i].t_s, sc.slews)[:, :2]
-                data[i].append(Message(self._crane_keys[i], schemas.CraneMotion(
-                    v=1, device_id=dev, boot_id=self._crane_boot_id, seq=self.seq[i], wall_t0_us=wall,
-                    rate_hz=fl.rate_hz, tip_acc_m_s2=[(round(float(x), 4), round(float(y), 4)) for x, y in tip],
-                ).to_json(), schemas.ENCODING_CRANE))  # fmt: skip
+                data[i].append(crane_message(self.streams[i].scenario, truths[i].t_s, device_id=dev,
+                                             boot_id=self._crane_boot_id, seq=self.seq[i], wall_t0_us=wall,
+                                             rate_hz=fl.rate_hz))  # fmt: skip
             if fl.truth:
                 extra.append(Message(self._truth_keys[i], truth_payload(
                     truths[i], device_id=dev, boot_id=self.boot_ids[i], seq=self.seq[i], t0_us=t0_us,
@@ -118,6 +114,16 @@ class HookFleet:
                 ), schemas.ENCODING_TRUTH))  # fmt: skip
             self.seq[i] = (self.seq[i] + 1) % schemas.UINT32
         return data, extra
+
+
+def crane_message(scenario: HookScenario, t_s: np.ndarray, *, device_id: str, boot_id: int, seq: int,
+                  wall_t0_us: int, rate_hz: float) -> Message:  # fmt: skip
+    """What the crane of `scenario` publishes on `rig/hook/{device_id}/crane` for the IMU samples at scenario times
+    `t_s` (s): its boom tip's horizontal acceleration there (trolley and slew moves), East/North, 0.1 mm/s²."""
+    tip = suspension_acceleration(scenario.trolley_moves, t_s, scenario.slews)[:, :2]
+    return Message(schemas.crane_key(device_id), schemas.CraneMotion(
+        v=1, device_id=device_id, boot_id=boot_id, seq=seq, wall_t0_us=wall_t0_us, rate_hz=rate_hz,
+        tip_acc_m_s2=[(round(float(x), 4), round(float(y), 4)) for x, y in tip]).to_json(), schemas.ENCODING_CRANE)
 
 
 def truth_payload(truth: HookTruth, *, device_id: str, boot_id: int, seq: int, t0_us: int, rate_hz: float,

@@ -396,7 +396,7 @@ function updateDevice(d, c) {
   }
   if (d.kind === "hook") { // what the crane tells of its boom tip (docs/protocol.md 3.7): the filter's known input
     const cf = c.crane_feed;
-    facts.push(["crane feed", cf ? (cf.newest_age_s < 0.5 ? "in use" : `quiet ${fmt(cf.newest_age_s, 0)} s`) : "none"]);
+    facts.push(["crane feed", cf ? (cf.in_use ? "in use" : `quiet ${fmt(cf.newest_age_s, 0)} s`) : "none"]);
   }
   if (c.height) facts.push(["height / Vz", `${fmt(c.height.height_m, 2)} m / ${fmt(c.height.vz_m_s, 2)} m/s${c.height.at_rest ? " (rest)" : ""}`]);
   if (c.readings) facts.push(["spot", c.readings.spot], ["water", `${fmt(c.readings.water_temp_c)} °C`], ["O₂", `${fmt(c.readings.oxygen_mg_l, 2)} mg/l`]);

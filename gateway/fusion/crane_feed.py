@@ -8,7 +8,7 @@ acceleration at the wall times of a block of IMU samples (`at`): linear between 
 (a feed that arrives after the hook's samples) carried on along its trend over the last `TREND_S` for at most
 `MAX_EXTRAPOLATE_S`, then held, while the newest is at most `MAX_HOLD_S` old; nothing (None: the filter runs on
 its own tip state) when the feed has gone quiet. Carrying the trend on, not holding the newest, is measured: tuning
-seed 24 through the pipeline with the feed one 100-ms packet late, Θ RMSE 0.201° held, 0.168° carried on (0.124°
+seed 24 through the pipeline with the feed one 100-ms packet late, Θ RMSE 0.201° held, 0.168° carried on (0.126°
 on time, 0.313° without a feed; tests/fusion/test_crane_feed.py).
 """
 

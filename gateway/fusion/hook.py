@@ -87,6 +87,14 @@ def swing_plane_direction(q: ArrayLike, rest_heading_rad: ArrayLike = 0.0) -> Fl
     return np.where(out >= np.pi, 0.0, out)  # mod can round a tiny negative up to π
 
 
+def turn_horizontal(rows: ArrayLike, angle_rad: float) -> FloatArray:
+    """Horizontal vectors (N, 2), x/y, turned counter-clockwise (seen from above) by `angle_rad`: the same vectors
+    read in a frame turned by -`angle_rad` (a crane feed's East/North in the filter's own frame)."""
+    v = np.asarray(rows, dtype=np.float64)
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.column_stack((c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]))
+
+
 def twist_heading(q: ArrayLike) -> FloatArray:
     """Hook heading about the rope α in (-π, π]: the twist part of the swing-twist split `q = q_swing ⊗ q_z(α)`."""
     q = np.asarray(q, dtype=np.float64)

@@ -1828,6 +1828,13 @@ def _packet_rows(gyr: FloatArray, acc: FloatArray, mag: FloatArray, m: int, acc_
     return z, process_inputs(gyr, acc, gyr_prev, dt_s)
 
 
+def _joined(parts: list[tuple[FloatArray, FloatArray]]) -> tuple[FloatArray, FloatArray]:
+    """Consecutive calls' (quaternions, rope lengths) as one call's."""
+    if len(parts) == 1:
+        return parts[0]
+    return np.concatenate([q for q, _ in parts]), np.concatenate([ln for _, ln in parts])
+
+
 class HookFilter(AttitudeFilter):
     """Pendulum-aware EKF for the crane hook (see the module docstring). `update()` runs one `ekf_step`, `run()`
     the batch `ekf_run` (the same step in a numba loop). State: `self.x` (N_STATE,) = (24,), `self.P` (24, 24)."""
@@ -2281,29 +2288,16 @@ class HookFilter(AttitudeFilter):
         same whatever the packets (one β for a whole recording was a legacy board's 16° off: Θ 0.077 -> 0.132°)."""
         n, first = np.asarray(gyr_rad_s).shape[0], self._samples_run
         self._samples_run += n
-        if tip_enu is None or self.mag_ref_uT is None:
+        if tip_enu is None or self.mag_ref_uT is None:  # 6D: its heading is a free gauge, no North to turn by
             return self._run(gyr_rad_s, acc_m_s2, mag_uT, dt_s, r_scale, None)
-        tip = np.asarray(tip_enu, dtype=np.float64)
         cuts = [0, *range(-first % TIP_FRAME_SAMPLES or TIP_FRAME_SAMPLES, n, TIP_FRAME_SAMPLES), n]
-        parts = []
-        for a, b in zip(cuts[:-1], cuts[1:], strict=False):
-            parts.append(self._run(gyr_rad_s[a:b], acc_m_s2[a:b], None if mag_uT is None else mag_uT[a:b], dt_s,
-                                   r_scale, self._tip_in_frame(tip[a:b])))  # fmt: skip
-        if len(parts) == 1:
-            return parts[0]
-        return np.concatenate([q for q, _ in parts]), np.concatenate([ln for _, ln in parts])
+        return _joined([self._run(gyr_rad_s[a:b], acc_m_s2[a:b], None if mag_uT is None else mag_uT[a:b], dt_s,
+                                  r_scale, self._tip_in_frame(tip_enu[a:b]))
+                        for a, b in zip(cuts[:-1], cuts[1:], strict=False)])  # fmt: skip
 
-    def _tip_in_frame(self, tip_enu: FloatArray | None) -> FloatArray | None:
-        """`tip_enu` (N, 2) turned into the filter's own frame by -β (`north_turn_rad`, now), or None when the
-        frame is not tied to North (no magnetometer reference: 6D's heading is a free gauge)."""
-        if tip_enu is None or self.mag_ref_uT is None:
-            return None
-        tip = np.asarray(tip_enu, dtype=np.float64)
-        beta = self.north_turn_rad
-        if beta == 0.0:
-            return tip
-        c, s = math.cos(beta), math.sin(beta)
-        return np.column_stack((c * tip[:, 0] + s * tip[:, 1], -s * tip[:, 0] + c * tip[:, 1]))
+    def _tip_in_frame(self, tip_enu: FloatArray) -> FloatArray:
+        """`tip_enu` (N, 2), East/North, in the filter's own frame: turned by -β (`north_turn_rad`, now)."""
+        return hook_geo.turn_horizontal(tip_enu, -self.north_turn_rad)
 
     def _run(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
              r_scale: float, tip: FloatArray | None) -> tuple[FloatArray, FloatArray]:  # fmt: skip
@@ -2320,7 +2314,7 @@ class HookFilter(AttitudeFilter):
                 parts.append(self._run(gyr[a:a + k], acc[a:a + k], mag_uT[a:a + k], dt_s, r_scale,
                                        None if tip is None else tip[a:a + k]))  # fmt: skip
                 a += k
-            return np.concatenate([q for q, _ in parts]), np.concatenate([ln for _, ln in parts])
+            return _joined(parts)
         z, u = _packet_rows(gyr, acc, np.asarray(mag_uT, dtype=np.float64) if use_mag else gyr, 7 if use_mag else 4,
                             self.acc_z_offset_m_s2, self._gyr_before(gyr), dt_s)  # fmt: skip
         if tip is not None:

@@ -19,7 +19,7 @@ from gateway.alarm.engine import Condition
 from gateway.alarm.hook import HookAlarms, hook_rules
 from gateway.config import HookThresholds
 from gateway.fusion import hook as hook_geo
-from gateway.fusion.crane_feed import CraneFeed
+from gateway.fusion.crane_feed import MAX_HOLD_S, CraneFeed
 from gateway.kinds.base import (
     TWO_PI,
     FusedDevice,
@@ -84,12 +84,14 @@ class HookKind(KindBase):
             feed.add(packet.wall_t0_us * 1e-6, packet.rate_hz, np.asarray(packet.tip_acc_m_s2, dtype=np.float64))
 
     def feed_view(self, device_id: str, now_wall_s: float) -> dict[str, Any] | None:
-        """REST's view of the hook's crane feed: packets taken, the newest sample's age by the gateway's clock (s);
-        None when its crane has sent none."""
+        """REST's view of the hook's crane feed: packets taken, the newest sample's age by the gateway's clock (s),
+        and whether the filter is taking it now (`in_use`: the newest within `MAX_HOLD_S`); None when its crane has
+        sent none."""
         feed = self.feeds.get(device_id)
         if feed is None or not feed.t_s.size:
             return None
-        return {"packets": feed.packets, "newest_age_s": now_wall_s - float(feed.t_s[-1])}
+        age_s = now_wall_s - float(feed.t_s[-1])
+        return {"packets": feed.packets, "newest_age_s": age_s, "in_use": age_s <= MAX_HOLD_S}
 
     def filter_inputs(self, device_id: str, wall_end_s: float, n: int, dt_s: float) -> dict[str, Any]:
         feed = self.feeds.get(device_id)

@@ -249,3 +249,4 @@ def test_a_crane_feed_is_counted_and_checked_like_any_device_data(tmp_path: Path
         assert set(hook.feeds) == {"hook-1"}  # type: ignore[attr-defined]
         view = device_view(svc, "hook-1", detail=False)["crane_feed"]  # what REST and the dashboard's card show
         assert view["packets"] == 1 and -1.0 < view["newest_age_s"] < 60.0  # its last sample is 0.1 s after now
+        assert view["in_use"] is True
