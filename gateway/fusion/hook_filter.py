@@ -361,7 +361,8 @@ class HookFilterSettings:
     # is bias plus that force, which a hook that does not twist cannot tell apart: it is split by the two priors
     # (`init_acc_xy_bias_std_m_s2` for the bias), the force's share leaning the rope. 0: all of it is bias.
     start_wind_std_m_s2: float = 0.0
-    init_acc_xy_bias_std_m_s2: float = 0.03  # after `start()`: wind at start is taken for bias (learnt as it twists)
+    init_acc_xy_bias_std_m_s2: float = 0.03  # after `start()`: wind at start is taken for bias (hardly learnt, even
+    # as it twists: docs/fusion.md, "Conditions never tuned for")
     init_cross_axis_std: float = 0.01  # gyro x/y sensitivity to the z rate (MPU-6050 cross-axis ±2 %)
     moving_swing_std: float = 0.3  # rad, per axis: priors after `assume_moving()` (started while swinging)
     moving_rate_std_rad_s: float = 0.3
