@@ -54,6 +54,19 @@ def get_json(url: str) -> Any:
         return json.loads(r.read())
 
 
+def wait_healthy(base: str, gateway: subprocess.Popen[bytes], log: Path, timeout_s: float = 120.0) -> None:
+    """Wait until the gateway at `base` answers /api/health; fail with its log if it exits or takes too long."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            get_json(base + "/api/health")
+            return
+        except OSError:
+            assert gateway.poll() is None, log.read_text()
+            assert time.monotonic() < deadline, "gateway did not start"
+            time.sleep(0.2)
+
+
 @dataclass
 class System:
     base: str
@@ -61,6 +74,15 @@ class System:
     data_dir: Path
     procs: list[subprocess.Popen[bytes]] = field(default_factory=list)
     started_s: float = 0.0
+
+
+def wait_online(system: System, devices: set[str], logs: list[Path], timeout_s: float = 120.0) -> None:
+    """Wait until every one of `devices` is online at the gateway (from `system.started_s`); fail with the device
+    processes' logs if one of them (`system.procs` after the gateway) exits or it takes too long."""
+    while {d["device_id"] for d in get_json(system.base + "/api/devices") if d.get("online")} < devices:
+        assert all(p.poll() is None for p in system.procs[1:]), [log.read_text() for log in logs]
+        assert time.monotonic() - system.started_s < timeout_s, f"devices did not come online: {sorted(devices)}"
+        time.sleep(0.2)
 
 
 @pytest.fixture(scope="session")
@@ -112,15 +134,7 @@ def system(request: pytest.FixtureRequest, chromium_path: Path,
     gw = subprocess.Popen(argv, cwd=REPO, env=env, stdout=log_gw, stderr=subprocess.STDOUT)
     sysm = System(f"http://127.0.0.1:{http}", "", tmp / "data", [gw])
     try:
-        deadline = time.monotonic() + 120
-        while True:
-            try:
-                get_json(sysm.base + "/api/health")
-                break
-            except OSError:
-                assert gw.poll() is None, (tmp / "gateway.log").read_text()
-                assert time.monotonic() < deadline, "gateway did not start"
-                time.sleep(0.2)
+        wait_healthy(sysm.base, gw, tmp / "gateway.log")
         sysm.token = (tmp / "data" / "api_token").read_text().strip()
         dev = subprocess.Popen(
             [sys.executable, "-m", "devices", "--connect", endpoint, "--only", "rod", "--only", "ball", "--seed", "7",
@@ -129,10 +143,7 @@ def system(request: pytest.FixtureRequest, chromium_path: Path,
         )  # fmt: skip
         sysm.procs.append(dev)
         sysm.started_s = time.monotonic()
-        while {d["device_id"] for d in get_json(sysm.base + "/api/devices") if d.get("online")} < {"rod-1", "ball-1"}:
-            assert dev.poll() is None, (tmp / "devices.log").read_text()
-            assert time.monotonic() - sysm.started_s < 120, "devices did not come online"
-            time.sleep(0.2)
+        wait_online(sysm, {"rod-1", "ball-1"}, [tmp / "devices.log"])
         if shards == 2:  # the devices really are the other shard's
             me = get_json(sysm.base + "/api/shards")["me"]
             assert {d["shard"] for d in get_json(sysm.base + "/api/devices")} == {f"{me}-1"}

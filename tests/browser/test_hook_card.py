@@ -20,7 +20,17 @@ from typing import Any
 import pytest
 
 from bench.bite_latency import stop_process
-from tests.browser.conftest import REPO, Browser, System, _recorder, free_port, get_json, wait_js
+from tests.browser.conftest import (
+    REPO,
+    Browser,
+    System,
+    _recorder,
+    free_port,
+    get_json,
+    wait_healthy,
+    wait_js,
+    wait_online,
+)
 
 pytestmark = pytest.mark.browser
 FED, UNFED = "hook-1", "yard-1"  # the crane that tells its moves, and the one that does not
@@ -41,15 +51,7 @@ def hooks(chromium_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Iter
                           stderr=subprocess.STDOUT)  # fmt: skip
     sysm = System(f"http://127.0.0.1:{http}", "", tmp / "data", [gw])
     try:
-        deadline = time.monotonic() + 120
-        while True:
-            try:
-                get_json(sysm.base + "/api/health")
-                break
-            except OSError:
-                assert gw.poll() is None, (tmp / "gateway.log").read_text()
-                assert time.monotonic() < deadline, "gateway did not start"
-                time.sleep(0.2)
+        wait_healthy(sysm.base, gw, tmp / "gateway.log")
         common = ["--connect", endpoint, "--no-progress", "--duration", "300", "--seed", "5"]
         for log, extra in ((logs[1], ["--id-prefix", "hook", "--rope-length", "12", "--swing-deg", "4",
                                       "--slew", "8,30,40,25", "--crane-feed"]),
@@ -57,10 +59,7 @@ def hooks(chromium_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Iter
             sysm.procs.append(subprocess.Popen([sys.executable, "-m", "devices.sim_hook", *common, *extra], cwd=REPO,
                                                env=env, stdout=log, stderr=subprocess.STDOUT))  # fmt: skip
         sysm.started_s = time.monotonic()
-        while {d["device_id"] for d in get_json(sysm.base + "/api/devices") if d.get("online")} < {FED, UNFED}:
-            assert all(p.poll() is None for p in sysm.procs), [(tmp / f"{n}.log").read_text() for n in (FED, UNFED)]
-            assert time.monotonic() - sysm.started_s < 120, "hooks did not come online"
-            time.sleep(0.2)
+        wait_online(sysm, {FED, UNFED}, [tmp / f"{n}.log" for n in (FED, UNFED)])
         yield sysm
     finally:
         for p in reversed(sysm.procs):
