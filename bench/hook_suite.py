@@ -108,7 +108,7 @@ from gateway.fusion.hook_filter import (
     HookFilter,
     HookFilterSettings,
 )
-from gateway.fusion.hook_mount import TiltedHookFilter, fit_hook_mount, tilt_matrix
+from gateway.fusion.hook_mount import TiltedHookFilter, fit_hook_mount, hook_axes_bias, tilt_matrix
 
 RATE_HZ = 100.0  # the IMU's sampling rate unless `rate_hz` / `--rate-hz` says otherwise (the filters take dt from it)
 WARMUP_S = 0.5
@@ -270,16 +270,19 @@ def hook_estimate(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, rope
                   tracking: bool = False, overrides: dict[str, float] | None = None, rate_hz: float = RATE_HZ,
                   imu_offset_m: tuple[float, float, float] | None = None,
                   imu_tilt_rad: tuple[float, float] | None = None,
-                  tip_enu: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  tip_enu: np.ndarray | None = None,
+                  acc_bias_xy: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Hook filter quaternions (N, 4) and rope-length estimates (N,), started as the gateway starts it (`tracking`:
     with the optional boom-tip tracking, `hook_filter.TRACKING`; `overrides`: further settings on top;
     `imu_offset_m`, `imu_tilt_rad`: the IMU's offset from the rope axis and its tilt on the hook configured, as
     `HookThresholds.imu_offset_m` and `imu_tilt_deg`); `tip_enu` (N, 2): the boom tip's acceleration as a crane
-    feed tells it (`crane_feed`)."""
+    feed tells it (`crane_feed`); `acc_bias_xy`: the accelerometer's x/y bias on the hook told
+    (`HookThresholds.acc_bias_xy_m_s2`, `twist_bias`)."""
     extra: dict[str, float] = (TRACKING if tracking else {}) | (overrides or {})
     settings = (HookFilterSettings(**extra) if rope_length_m is None
                 else HookFilterSettings(rope_length_m=rope_length_m, rope_length_known=True, **extra))  # fmt: skip
-    f: HookFilter | TiltedHookFilter = HookFilter(settings.with_imu_offset(imu_offset_m), use_mag=mag is not None)
+    f: HookFilter | TiltedHookFilter = HookFilter(settings.with_imu_offset(imu_offset_m).with_acc_bias(acc_bias_xy),
+                                                  use_mag=mag is not None)  # fmt: skip
     if imu_tilt_rad is not None:
         f = TiltedHookFilter(f, imu_tilt_rad)
     n = int(WARMUP_S * rate_hz)
@@ -381,14 +384,17 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
              rate_hz: float = RATE_HZ, length_factor: float = 1.0, suite_version: int = SUITE_VERSION,
              sensor_draw: int = 0, told_m: float | None = None, lever_x_m: float | None = None,
              offset_told: float | str | None = None, mount_tilt_deg: float = 0.0, feed: str | None = None,
-             feed_bearing_error_deg: float = 0.0) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+             feed_bearing_error_deg: float = 0.0, bias_told: float | None = None
+             ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`; the filter is told
     `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1), or `told_m` whatever
     the rope (the gateway's 10 m for a hook whose length nobody configured); `sensor_draw`, `lever_x_m`,
     `mount_tilt_deg`: see `simulate_seed`; `offset_told`: the IMU's offset from the rope axis told as measured with
     this error (m, std per axis, drawn per seed), or "twist": the offset and tilt `gateway.calibrate --hook-mount`
     fits (`twist_offset`; not told when the fit refuses); None: not told. `feed`: the crane tells the boom tip's
-    acceleration (`crane_feed`: exact or drive; its North `feed_bearing_error_deg` off), None: it does not."""
+    acceleration (`crane_feed`: exact or drive; its North `feed_bearing_error_deg` off), None: it does not.
+    `bias_told`: the accelerometer's x/y bias told as the twist fits it, drifted since by this std (m/s², per axis;
+    `twist_bias`; with `offset_told="twist"`, in the axes its tilt turns to); None: not told."""
     case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz, suite_version,
                                                sensor_draw, lever_x_m, mount_tilt_deg)  # fmt: skip
     out: dict[str, dict[str, dict[str, float]]] = {}
@@ -401,7 +407,8 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
     elif offset_told is not None:
         offset = measured_offset(case, float(offset_told))
     tip = None if feed is None else crane_feed(case, gyr.shape[0], rate_hz, feed, feed_bearing_error_deg)
-    q_hook, length = hook_estimate(gyr, acc, mag, told, tracking, overrides, rate_hz, offset, tilt, tip)
+    bias = None if bias_told is None else twist_bias(case, imu, rate_hz, sensor_draw, bias_told, tilt)
+    q_hook, length = hook_estimate(gyr, acc, mag, told, tracking, overrides, rate_hz, offset, tilt, tip, bias)
     others = [("vqf", vqf_estimate(gyr, acc, mag, rate_hz))]
     if paper_ekf:
         others.append(("ekf001", paper_ekf_estimate(gyr, acc, mag, rate_hz)))
@@ -455,6 +462,21 @@ def twist_offset(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_dra
     x, y, _ = fit.setting()
     tx, ty = (math.radians(a) for a in fit.tilt_setting())
     return (x, y, 0.0), (tx, ty)
+
+
+def twist_bias(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw: int = 0, drift_m_s2: float = 0.0,
+               tilt_rad: tuple[float, float] | None = None) -> tuple[float, float] | None:  # fmt: skip
+    """The accelerometer's x/y bias (m/s²) the `twist_session` of the seed's hook fits beside the offset
+    (`MountFit.bias_xy_m_s2`), in the axes `tilt_rad` turns the IMU's to (the samples turned before the fit, as the
+    filter sees them; None: the IMU's), plus a drift since the calibration drawn from the seed alone (`drift_m_s2`
+    std per axis: temperature); None when the fit refuses."""
+    _, gyr, acc, mag = twist_session(case, imu, rate_hz, sensor_draw)
+    try:
+        bias = hook_axes_bias(gyr, acc, 1.0 / rate_hz, mag, (0.0, 0.0) if tilt_rad is None else tilt_rad)
+    except ValueError:
+        return None
+    drift = np.random.default_rng(40_000 + case.seed).standard_normal(2) * drift_m_s2
+    return bias[0] + float(drift[0]), bias[1] + float(drift[1])
 
 
 def simulate_seed(seed: int, duration_s: float, imu: str, use_mag: bool, family: str = "crane",
@@ -598,6 +620,10 @@ def main(argv: list[str] | None = None) -> int:
                    "per axis, or 'twist': the offset and the tilt as `gateway.calibrate --hook-mount` fits them from "
                    "the seed's hook twisted by hand for 40 s (HookThresholds.imu_offset_m, imu_tilt_deg; default: "
                    "not told)")
+    p.add_argument("--bias-told", type=float, default=None, metavar="DRIFT_M_S2",
+                   help="tell the filter the accelerometer's x/y bias as the twist of --offset-told twist fits it "
+                   "(HookThresholds.acc_bias_xy_m_s2), drifted since by DRIFT_M_S2 (std per axis, drawn per seed; "
+                   "default: not told)")
     p.add_argument("--crane-feed", choices=CRANE_FEEDS,
                    help="the crane tells the hook filter its boom tip's acceleration (docs/protocol.md, crane motion): "
                    "exact (the simulator's) or drive (10 Hz, 0-150 ms late, scale off by 10 %%, noisy: what drive "
@@ -621,6 +647,7 @@ def main(argv: list[str] | None = None) -> int:
         board += f", its offset told ± {1000 * args.offset_told:g} mm"
     elif args.offset_told == "twist":
         board += ", its offset told as a 40-s twist by hand fits it"
+    board += "" if args.bias_told is None else f", its x/y bias told as the twist fits it ± {args.bias_told:g} m/s²"
     board += "" if args.crane_feed is None else f", crane feed {args.crane_feed}"
     board += f" {args.crane_bearing_error:g}° off North" if args.crane_feed and args.crane_bearing_error else ""
     print(f"hook suite v{args.suite_version} ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}{board}, "
@@ -637,7 +664,7 @@ def main(argv: list[str] | None = None) -> int:
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
                      args.tracking, parse_settings(args.settings), args.rate_hz, args.length_factor,
                      args.suite_version, args.sensor_draw, args.told_m, args.lever_x, args.offset_told,
-                     args.mount_tilt, args.crane_feed, args.crane_bearing_error)
+                     args.mount_tilt, args.crane_feed, args.crane_bearing_error, args.bias_told)
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]

@@ -22,16 +22,18 @@ gateway's filters learn the bias live, so it is not applied.
 The result (`DeviceCalibration`, JSON) is applied before fusion as `acc_cal = (acc - offset) / scale`,
 `mag_cal = soft_iron @ (mag - offset)`.
 
-`--hook-mount`: a crane hook's IMU offset from the rope axis and its tilt on the hook (`gateway.fusion.hook_mount`),
-for the hook settings `imu_offset_m` and `imu_tilt_deg`. Record the hook hanging still on its rope, crane at rest,
-in calm air, for 30 s or more after you turned it by hand 45-90° and let go (turn it again when it settles). Prints
-the settings and the command that sets them.
+`--hook-mount`: a crane hook's IMU offset from the rope axis, its tilt on the hook and its accelerometer's x/y
+offset in the hook's axes (`gateway.fusion.hook_mount`), for the hook settings `imu_offset_m`, `imu_tilt_deg` and
+`acc_bias_xy_m_s2` (measure near the working temperature: the offset drifts with it). Record the hook hanging still
+on its rope, crane at rest, in calm air, for 30 s or more after you turned it by hand 45-90° and let go (turn it
+again when it settles). Prints the settings and the command that sets them.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -53,7 +55,7 @@ from gateway.fusion.calibration import (
     calibrate_mag_minmax,
     fit_accel_offset_scale,
 )
-from gateway.fusion.hook_mount import fit_hook_mount
+from gateway.fusion.hook_mount import fit_hook_mount, hook_axes_bias
 
 METHODS: tuple[str, ...] = ("fit", "paper")
 POSE_REST = RestSettings(gyr_th_rad_s=float(np.deg2rad(0.5)), acc_th_m_s2=0.1)
@@ -311,12 +313,15 @@ def build_parser() -> argparse.ArgumentParser:
 def hook_mount_report(imu: ImuSeries, mag_uT: FloatArray | None, z_m: float, api: str = "http://127.0.0.1:8000"
                       ) -> str:  # fmt: skip
     """`--hook-mount`: the fit as JSON (the `imu_offset_m` setting first) and how to set it; ValueError if it cannot."""
-    fit = fit_hook_mount(imu.gyr_rad_s, imu.acc_m_s2, 1.0 / imu.rate_hz, mag_uT)
-    text = json.dumps({"device_id": imu.device_id, "imu_offset_m": fit.setting(z_m), "imu_tilt_deg": fit.tilt_setting(),
+    dt_s = 1.0 / imu.rate_hz
+    fit = fit_hook_mount(imu.gyr_rad_s, imu.acc_m_s2, dt_s, mag_uT)
+    tilt_deg = fit.tilt_setting()
+    bias = hook_axes_bias(imu.gyr_rad_s, imu.acc_m_s2, dt_s, mag_uT, [math.radians(a) for a in tilt_deg])
+    settings = {"imu_offset_m": fit.setting(z_m), "imu_tilt_deg": tilt_deg, "acc_bias_xy_m_s2": bias}
+    text = json.dumps({"device_id": imu.device_id, **settings,
                        "std_m": round(fit.std_m, 4), "twist_accel_rms_rad_s2": round(fit.twist_accel_rms_rad_s2, 3),
                        "residual_m_s2": round(fit.residual_m_s2, 4)}, indent=2)  # fmt: skip
-    body = json.dumps({"kind": "hook", "thresholds": {"imu_offset_m": fit.setting(z_m),
-                                                      "imu_tilt_deg": fit.tilt_setting()}})  # fmt: skip
+    body = json.dumps({"kind": "hook", "thresholds": settings})
     return (f"{text}\n# set it (with the operator token):\n# curl -X PUT -H 'Authorization: Bearer $TOKEN' -H "
             f"'Content-Type: application/json' -d '{body}' {api.rstrip('/')}/api/devices/{imu.device_id}/settings")
 

@@ -149,6 +149,7 @@ class RodThresholds(_Thresholds):
 OffsetM = Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)]
 """One coordinate of a mounting offset, m: a hook's IMU sits within a metre of its rope axis."""
 TiltDeg = Annotated[float, Field(ge=-15.0, le=15.0, allow_inf_nan=False)]
+AccBiasM_S2 = Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)]
 """One angle of a mounting tilt, degrees: more than 15° off square is a mount to fix, not to correct."""
 
 
@@ -177,6 +178,15 @@ class HookThresholds(_Thresholds):
                                                            "that takes its axes onto the hook's (z up the rope), as "
                                                            "`python -m gateway.calibrate --hook-mount` fits it. None: "
                                                            "square to the rope. A change restarts fusion.")
+    acc_bias_xy_m_s2: tuple[AccBiasM_S2, AccBiasM_S2] | None = Field(default=None, description="The "
+                                                                    "accelerometer's x/y offset on the hook, m/s², "
+                                                                    "in the hook's axes, as `python -m gateway."
+                                                                    "calibrate --hook-mount` fits it (a twist in calm "
+                                                                    "air): the hook filter then takes a steady force "
+                                                                    "at its start beyond it for wind, which leans the "
+                                                                    "rope, instead of for more offset. Measure it near "
+                                                                    "the working temperature. None: not measured. A "
+                                                                    "change restarts fusion.")
     rest_heading_deg: float | None = Field(default=None, ge=-180.0, le=180.0, description="Heading of the untwisted "
                                            "hook's body x, CCW from East, in the gateway's heading frame (9D: "
                                            "magnetic); torsion is measured from it. None: the first fused heading.")

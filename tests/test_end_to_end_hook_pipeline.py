@@ -121,6 +121,11 @@ def test_imu_offset_setting_reaches_the_filter_and_a_change_restarts_fusion() ->
     assert pipe.devices[dev_id].quat is not None and np.isfinite(pipe.devices[dev_id].quat).all()
     pipe.set_device_settings(dev_id, "hook", DeviceSettings(thresholds={"imu_tilt_deg": [1.5, -0.5]}))
     assert dev_id in pipe.devices, "the same tilt again changes nothing"
+    pipe.set_device_settings(dev_id, "hook", DeviceSettings(thresholds={"imu_tilt_deg": [1.5, -0.5],
+                                                                        "acc_bias_xy_m_s2": [0.03, -0.01]}))
+    assert dev_id not in pipe.devices, "the accelerometer's measured offset restarts the device's fusion"
+    pipe.process(pkts[45:], now_wall_s=1e9)
+    assert pipe.devices[dev_id].filt.settings.acc_bias_xy_told == (0.03, -0.01)  # type: ignore[union-attr]
 
 
 def test_torsion_is_measured_from_the_configured_rest_heading() -> None:

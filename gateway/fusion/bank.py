@@ -60,10 +60,11 @@ Block = tuple[FloatArray, FloatArray, FloatArray | None, FloatArray]  # gyr, acc
 
 def make_filter(name: str, use_mag: bool, rope_length_m: float | None = None,
                 imu_offset_m: tuple[float, float, float] | None = None,
-                imu_tilt_deg: tuple[float, float] | None = None) -> AttitudeFilter:
+                imu_tilt_deg: tuple[float, float] | None = None,
+                acc_bias_xy_m_s2: tuple[float, float] | None = None) -> AttitudeFilter:
     """A filter by name: the hook EKF (on a rope of `rope_length_m`, else its default; its IMU at `imu_offset_m`
-    from the rope axis, else its default, and tilted on the hook by `imu_tilt_deg`, else square), else the registry
-    (KeyError when unknown)."""
+    from the rope axis, else its default, and tilted on the hook by `imu_tilt_deg`, else square; its accelerometer's
+    x/y offset `acc_bias_xy_m_s2` as measured, else not), else the registry (KeyError when unknown)."""
     from gateway.fusion import registry
 
     if name in (HOOK_FILTER, HOOK_FILTER_6D):
@@ -74,7 +75,7 @@ def make_filter(name: str, use_mag: bool, rope_length_m: float | None = None,
         # telling it 10 m instead diverged on short ropes (fresh crane 1692, 2.3 m: Θ RMSE 68.7° against 1.24°).
         settings = HookFilterSettings() if rope_length_m is None else HookFilterSettings(
             rope_length_m=rope_length_m, rope_length_known=True)
-        settings = settings.with_imu_offset(imu_offset_m).with_imu_tilt(imu_tilt_deg)
+        settings = settings.with_imu_offset(imu_offset_m).with_imu_tilt(imu_tilt_deg).with_acc_bias(acc_bias_xy_m_s2)
         filt = HookFilter(settings, use_mag=use_mag and name not in COMPASS_FREE)
         if imu_tilt_deg is None:
             return filt

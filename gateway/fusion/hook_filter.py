@@ -363,6 +363,13 @@ class HookFilterSettings:
     start_wind_std_m_s2: float = 0.0
     init_acc_xy_bias_std_m_s2: float = 0.03  # after `start()`: wind at start is taken for bias (hardly learnt, even
     # as it twists: docs/fusion.md, "Conditions never tuned for")
+    # The accelerometer's x/y bias as measured on the hook (body, m/s²: `gateway.calibrate --hook-mount` fits it beside
+    # the offset, from a twist in calm air, `HookThresholds.acc_bias_xy_m_s2`), and how far it may have drifted since
+    # (1σ, temperature). Told, `start()` takes the warm-up's mean force beyond it for a steady force (wind), which
+    # leans the rope, split by the priors (`told_wind_std_m_s2` for the force); None: all of it is bias (as before).
+    acc_bias_xy_told: tuple[float, float] | None = None
+    acc_bias_told_std_m_s2: float = 0.02
+    told_wind_std_m_s2: float = 0.05
     init_cross_axis_std: float = 0.01  # gyro x/y sensitivity to the z rate (MPU-6050 cross-axis ±2 %)
     moving_swing_std: float = 0.3  # rad, per axis: priors after `assume_moving()` (started while swinging)
     moving_rate_std_rad_s: float = 0.3
@@ -409,6 +416,12 @@ class HookFilterSettings:
             return self
         told = (float(imu_offset_m[0]), float(imu_offset_m[1]), float(imu_offset_m[2]))
         return replace(self, lever_arm_m=told, imu_offset_told=told, lever_std_m=self.lever_told_std_m)
+
+    def with_acc_bias(self, acc_bias_xy_m_s2: tuple[float, float] | None) -> HookFilterSettings:
+        """These settings told the accelerometer's x/y bias measured on the hook (m/s², body); None: unchanged."""
+        if acc_bias_xy_m_s2 is None:
+            return self
+        return replace(self, acc_bias_xy_told=(float(acc_bias_xy_m_s2[0]), float(acc_bias_xy_m_s2[1])))
 
     def with_imu_tilt(self, imu_tilt_deg: tuple[float, float] | None) -> HookFilterSettings:
         """These settings with the IMU's configured tilt recorded (`imu_tilt_told`); None: unchanged (square)."""
@@ -1984,10 +1997,12 @@ class HookFilter(AttitudeFilter):
                 self.x[_ACC_XY] = mean
                 lean_force = self._split_start_force(mean)
             else:  # a real force (the hook held aside, a pull): no bias guess, let the dynamics find it
-                self.x[_ACC_XY] = 0.0
+                told = self.settings.acc_bias_xy_told
+                self.x[_ACC_XY] = 0.0 if told is None else told
+                std = self.settings.max_warmup_acc_bias_m_s2 if told is None else self.settings.acc_bias_told_std_m_s2
                 for i in (10, 11):
                     self.P[i, :] = self.P[:, i] = 0.0
-                    self.P[i, i] = self.settings.max_warmup_acc_bias_m_s2**2
+                    self.P[i, i] = std**2
         s = self.settings
         quiet = gyr.std(axis=0) < s.rest_gyr_std_rad_s if gyr.shape[0] > 1 else np.zeros(3, dtype=bool)
         level = abs(float(np.linalg.norm(acc.mean(axis=0))) - s.gravity_m_s2) < s.rest_acc_tol_m_s2
@@ -2021,15 +2036,20 @@ class HookFilter(AttitudeFilter):
         (`settings.start_wind_std_m_s2`): the bias gets `k = σ_b² / (σ_b² + σ_w²)` of it, with the posterior variance
         `k σ_w²`; returns the force's share (None without a force prior), which `_lean` turns into the rope's lean."""
         s = self.settings
-        var_w, var_b = s.start_wind_std_m_s2**2, s.init_acc_xy_bias_std_m_s2**2
+        if s.acc_bias_xy_told is not None:  # the bias measured on the hook: the prior's centre, the force what is left
+            told = np.array(s.acc_bias_xy_told)
+            var_w, var_b = s.told_wind_std_m_s2**2, s.acc_bias_told_std_m_s2**2
+        else:
+            told = np.zeros(2)
+            var_w, var_b = s.start_wind_std_m_s2**2, s.init_acc_xy_bias_std_m_s2**2
         if var_w <= 0.0:
             return None
         k = var_b / (var_b + var_w)
-        self.x[_ACC_XY] = k * mean_m_s2
+        self.x[_ACC_XY] = told + k * (mean_m_s2 - told)
         for i in (10, 11):
             self.P[i, :] = self.P[:, i] = 0.0
             self.P[i, i] = k * var_w
-        out: FloatArray = (1.0 - k) * mean_m_s2
+        out: FloatArray = (1.0 - k) * (mean_m_s2 - told)
         return out
 
     def _lean(self, force_m_s2: FloatArray) -> None:

@@ -154,6 +154,17 @@ def fit_hook_mount(gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float, mag_u
     return fit
 
 
+def hook_axes_bias(gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float, mag_uT: ArrayLike | None,
+                   tilt_xy_rad: ArrayLike) -> list[float]:  # fmt: skip
+    """`HookThresholds.acc_bias_xy_m_s2`: the accelerometer's x/y offset (m/s², to 1 mm/s²) in the hook's axes, i.e.
+    the fit again on the samples turned by the IMU's tilt `tilt_xy_rad` as the hook filter sees them (a tilt moves
+    part of the tension onto x/y). ValueError as `fit_hook_mount`."""
+    m = tilt_matrix(tilt_xy_rad).T  # rows @ M.T: each sample turned onto the hook's axes
+    gyr, acc = np.asarray(gyr_rad_s, dtype=np.float64) @ m, np.asarray(acc_m_s2, dtype=np.float64) @ m
+    fit = fit_hook_mount(gyr, acc, dt_s, None if mag_uT is None else np.asarray(mag_uT, dtype=np.float64) @ m)
+    return [round(float(v), 3) for v in fit.bias_xy_m_s2]
+
+
 class TiltedHookFilter:
     """A hook filter fed in the hook's axes from an IMU tilted on the hook by `tilt_xy_rad` (`imu_tilt_deg`): every
     sample method turns its vectors by `tilt_matrix` and hands them on; everything else is the inner filter's (its

@@ -107,7 +107,8 @@ class HookKind(KindBase):
     def filter_options(self, th: Any) -> dict[str, Any]:
         if not isinstance(th, HookThresholds):
             return {}
-        return {"rope_length_m": th.rope_length_m, "imu_offset_m": th.imu_offset_m, "imu_tilt_deg": th.imu_tilt_deg}
+        return {"rope_length_m": th.rope_length_m, "imu_offset_m": th.imu_offset_m, "imu_tilt_deg": th.imu_tilt_deg,
+                "acc_bias_xy_m_s2": th.acc_bias_xy_m_s2}
 
     def new_state(self, ctx: KindContext, dev: FusedDevice, th: Any) -> HookState:
         st = HookState(HookAlarms(dev.device_id, th if isinstance(th, HookThresholds) else None))
@@ -126,6 +127,8 @@ class HookKind(KindBase):
             if getattr(fs, "imu_offset_told", None) != th.imu_offset_m:  # ... or the IMU's lever arm
                 return False
             if getattr(fs, "imu_tilt_told", None) != th.imu_tilt_deg:  # ... or its tilt on the hook
+                return False
+            if getattr(fs, "acc_bias_xy_told", None) != th.acc_bias_xy_m_s2:  # ... or its accelerometer's offset
                 return False
         st: HookState = dev.state
         st.rules.set_thresholds(th)
