@@ -640,8 +640,9 @@ const LABELS = {
   rope_length_m: "rope length (m, empty = estimated)", rest_heading_deg: "rest heading (°, empty = first fused)",
   imu_offset_m: "IMU offset from the rope axis (m: x, y, z; empty = assumed 0.1, 0, 0)",
   imu_tilt_deg: "IMU tilt on the hook (° about its x, y; empty = square to the rope)",
+  acc_bias_xy_m_s2: "accelerometer x/y offset on the hook (m/s²: x, y, as calibrate --hook-mount fits it; empty = not measured)",
 };
-const VECTOR_FIELDS = new Set(["imu_offset_m", "imu_tilt_deg"]); // lists of numbers: a text field "x, y, z"
+const VECTOR_FIELDS = new Set(["imu_offset_m", "imu_tilt_deg", "acc_bias_xy_m_s2"]); // lists of numbers: a text field "x, y, z"
 function vectorValue(text) { // "0.3, 0, 0.05" -> [0.3, 0, 0.05]; empty -> null; a bad entry goes to the API as is (its 422 says why)
   const t = text.trim();
   if (t === "") return null;

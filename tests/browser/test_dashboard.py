@@ -164,13 +164,25 @@ def test_hook_form_sets_the_imu_offset_as_three_numbers(system: System, browser:
     assert get_json(system.base + "/api/thresholds/hook")["imu_offset_m"] == [0.3, -0.02, 0.05]
     wait_js(page, "document.querySelector('[data-testid=th-hook-imu_offset_m]').value === '0.3, -0.02, 0.05'",
             timeout=5_000)
+    # the accelerometer's x/y offset on the hook is two numbers the same way (a number field would lose it)
+    page.get_by_test_id("th-hook-acc_bias_xy_m_s2").fill("0.03, -0.01")
+    page.get_by_test_id("th-hook").get_by_role("button").click()
+    deadline = time.monotonic() + 5.0
+    while get_json(system.base + "/api/thresholds/hook")["acc_bias_xy_m_s2"] is None and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert get_json(system.base + "/api/thresholds/hook")["acc_bias_xy_m_s2"] == [0.03, -0.01]
+    assert get_json(system.base + "/api/thresholds/hook")["imu_offset_m"] == [0.3, -0.02, 0.05], "kept"
+    wait_js(page, "document.querySelector('[data-testid=th-hook-acc_bias_xy_m_s2]').value === '0.03, -0.01'",
+            timeout=5_000)
     field.fill("")
+    page.get_by_test_id("th-hook-acc_bias_xy_m_s2").fill("")
     page.get_by_test_id("th-hook").get_by_role("button").click()
     # the first save's "saved" is still on the form: wait for the API to hold the cleared value, not for the note
     deadline = time.monotonic() + 5.0
     while get_json(system.base + "/api/thresholds/hook")["imu_offset_m"] is not None and time.monotonic() < deadline:
         time.sleep(0.1)
     assert get_json(system.base + "/api/thresholds/hook")["imu_offset_m"] is None
+    assert get_json(system.base + "/api/thresholds/hook")["acc_bias_xy_m_s2"] is None
     assert [e for e in browser.errors() if "status of 422" not in e] == [], browser.errors()
     browser.console.clear()
 
