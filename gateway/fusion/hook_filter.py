@@ -2034,7 +2034,9 @@ class HookFilter(AttitudeFilter):
     def _split_start_force(self, mean_m_s2: FloatArray) -> FloatArray | None:
         """Split the warm-up's mean x/y force (body, m/s²) into accelerometer bias and a steady force by their priors
         (`settings.start_wind_std_m_s2`): the bias gets `k = σ_b² / (σ_b² + σ_w²)` of it, with the posterior variance
-        `k σ_w²`; returns the force's share (None without a force prior), which `_lean` turns into the rope's lean."""
+        `k σ_w²`; returns the force's share (None without a force prior), which `_lean` turns into the rope's lean.
+        With the bias measured on the hook (`acc_bias_xy_told`) the bias prior is centred on it (σ
+        `acc_bias_told_std_m_s2`, the force's `told_wind_std_m_s2`) and what is split is the mean less it."""
         s = self.settings
         if s.acc_bias_xy_told is not None:  # the bias measured on the hook: the prior's centre, the force what is left
             told = np.array(s.acc_bias_xy_told)
