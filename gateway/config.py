@@ -149,8 +149,9 @@ class RodThresholds(_Thresholds):
 OffsetM = Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)]
 """One coordinate of a mounting offset, m: a hook's IMU sits within a metre of its rope axis."""
 TiltDeg = Annotated[float, Field(ge=-15.0, le=15.0, allow_inf_nan=False)]
-AccBiasM_S2 = Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)]
 """One angle of a mounting tilt, degrees: more than 15° off square is a mount to fix, not to correct."""
+AccBiasM_S2 = Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)]
+"""One axis of an accelerometer's offset, m/s²: a raw MPU-6050 is within ±80 mg; more is a broken board."""
 
 
 class HookThresholds(_Thresholds):
