@@ -108,7 +108,7 @@ from gateway.fusion.hook_filter import (
     HookFilter,
     HookFilterSettings,
 )
-from gateway.fusion.hook_mount import TiltedHookFilter, fit_hook_mount, hook_axes_bias, tilt_matrix
+from gateway.fusion.hook_mount import TiltedHookFilter, fit_hook_mount, hook_axes_fit, tilt_matrix
 
 RATE_HZ = 100.0  # the IMU's sampling rate unless `rate_hz` / `--rate-hz` says otherwise (the filters take dt from it)
 WARMUP_S = 0.5
@@ -469,11 +469,14 @@ def twist_bias(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw:
     """The accelerometer's x/y bias (m/s²) the `twist_session` of the seed's hook fits beside the offset
     (`MountFit.bias_xy_m_s2`), in the axes `tilt_rad` turns the IMU's to (the samples turned before the fit, as the
     filter sees them; None: the IMU's), plus a drift since the calibration drawn from the seed alone (`drift_m_s2`
-    std per axis: temperature); None when the fit refuses."""
+    std per axis: temperature); None when the fit refuses or leaves it out (`MountFit.bias_setting`), as
+    `calibrate --hook-mount` does."""
     _, gyr, acc, mag = twist_session(case, imu, rate_hz, sensor_draw)
     try:
-        bias = hook_axes_bias(gyr, acc, 1.0 / rate_hz, mag, (0.0, 0.0) if tilt_rad is None else tilt_rad)
+        bias = hook_axes_fit(gyr, acc, 1.0 / rate_hz, mag, (0.0, 0.0) if tilt_rad is None else tilt_rad).bias_setting()
     except ValueError:
+        return None
+    if bias is None:
         return None
     drift = np.random.default_rng(40_000 + case.seed).standard_normal(2) * drift_m_s2
     return bias[0] + float(drift[0]), bias[1] + float(drift[1])

@@ -26,7 +26,9 @@ The result (`DeviceCalibration`, JSON) is applied before fusion as `acc_cal = (a
 offset in the hook's axes (`gateway.fusion.hook_mount`), for the hook settings `imu_offset_m`, `imu_tilt_deg` and
 `acc_bias_xy_m_s2` (measure near the working temperature: the offset drifts with it). Record the hook hanging still
 on its rope, crane at rest, in calm air, for 30 s or more after you turned it by hand 45-90° and let go (turn it
-again when it settles). Prints the settings and the command that sets them.
+again when it settles). Prints the settings and the command that sets them. Samples where the gyroscope or
+accelerometer clipped are left out (refused without a magnetometer: turn it more gently), and the accelerometer's
+offset is left out, with a line saying why, when its fit is less certain than 0.01 m/s².
 """
 
 from __future__ import annotations
@@ -55,7 +57,7 @@ from gateway.fusion.calibration import (
     calibrate_mag_minmax,
     fit_accel_offset_scale,
 )
-from gateway.fusion.hook_mount import fit_hook_mount, hook_axes_bias
+from gateway.fusion.hook_mount import MAX_BIAS_STD_M_S2, fit_hook_mount, hook_axes_fit
 
 METHODS: tuple[str, ...] = ("fit", "paper")
 POSE_REST = RestSettings(gyr_th_rad_s=float(np.deg2rad(0.5)), acc_th_m_s2=0.1)
@@ -316,11 +318,20 @@ def hook_mount_report(imu: ImuSeries, mag_uT: FloatArray | None, z_m: float, api
     dt_s = 1.0 / imu.rate_hz
     fit = fit_hook_mount(imu.gyr_rad_s, imu.acc_m_s2, dt_s, mag_uT)
     tilt_deg = fit.tilt_setting()
-    bias = hook_axes_bias(imu.gyr_rad_s, imu.acc_m_s2, dt_s, mag_uT, [math.radians(a) for a in tilt_deg])
-    settings = {"imu_offset_m": fit.setting(z_m), "imu_tilt_deg": tilt_deg, "acc_bias_xy_m_s2": bias}
+    axes = hook_axes_fit(imu.gyr_rad_s, imu.acc_m_s2, dt_s, mag_uT, [math.radians(a) for a in tilt_deg])
+    bias = axes.bias_setting()
+    settings = {"imu_offset_m": fit.setting(z_m), "imu_tilt_deg": tilt_deg}
+    if bias is not None:
+        settings["acc_bias_xy_m_s2"] = bias
     text = json.dumps({"device_id": imu.device_id, **settings,
                        "std_m": round(fit.std_m, 4), "twist_accel_rms_rad_s2": round(fit.twist_accel_rms_rad_s2, 3),
-                       "residual_m_s2": round(fit.residual_m_s2, 4)}, indent=2)  # fmt: skip
+                       "residual_m_s2": round(fit.residual_m_s2, 4),
+                       "acc_bias_std_m_s2": round(axes.bias_std_m_s2, 4)}, indent=2)  # fmt: skip
+    if bias is None:
+        text += (f"\n# acc_bias_xy_m_s2 left out: the accelerometer's offset fits to "
+                 f"{np.round(axes.bias_xy_m_s2, 3).tolist()} ± {axes.bias_std_m_s2:.3f} m/s², less certain than "
+                 f"{MAX_BIAS_STD_M_S2:g} (the hook swung or was pushed while it twisted); told wrong it would lean the "
+                 "rope wrong. The offset and tilt stand. To have it, twist the hook again hanging still, in calm air")
     body = json.dumps({"kind": "hook", "thresholds": settings})
     return (f"{text}\n# set it (with the operator token):\n# curl -X PUT -H 'Authorization: Bearer $TOKEN' -H "
             f"'Content-Type: application/json' -d '{body}' {api.rstrip('/')}/api/devices/{imu.device_id}/settings")

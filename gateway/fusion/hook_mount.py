@@ -14,7 +14,9 @@ tension (wind) and the lever-arm terms, so per sample, body x/y (m/s²):
 with `b` the accelerometer's x/y bias (body), `w` a steady horizontal force (a steady wind, earth frame) seen
 through the twist `α` (from the magnetometer's horizontal field when there is one, else the z rate integrated with
 its mean taken as bias: a twist that dies away leaves that mean off by its net turn), and `r_xy` the offset. Linear in
-(b, w, r_xy): one least-squares fit. `ω'` is the gyro's central difference, smoothed over 50 ms. The z offset (along
+(b, w, r_xy): one least-squares fit. `ω'` is the gyro's central difference, smoothed over 50 ms. Samples where
+the gyroscope or accelerometer clipped (a hook twisted fast; `clipped`) are left out of every fit (with a
+magnetometer; without one the integrated twist is wrong after a clip and the fit is refused). The z offset (along
 the rope) needs a swing, not a twist, and is not fitted. The uncertainty is taken from the spread of the fits of
 `SEGMENTS` consecutive parts of the recording (the residual's gusts are correlated over seconds, so the formal
 least-squares error would be too small), and the fit is refused when the twist does not excite it.
@@ -33,7 +35,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from gateway.fusion.base import FloatArray
 from gateway.fusion.quaternion import from_rotvec, to_matrix
@@ -43,13 +45,22 @@ SEGMENTS = 4
 SMOOTH_S = 0.05
 MIN_TWIST_ACCEL_RAD_S2 = 0.2  # rms of ω'_z below this: not twisted enough for a centimetre
 MAX_STD_M = 0.01  # a fit less certain than this is refused (the setting's prior is 1 cm)
+# The accelerometer's x/y offset (`acc_bias_xy_m_s2`) is not given when its fit is less certain than this (the
+# segments' spread, as the offset's; the filter's prior about a told offset is 0.02 m/s²). Twist sessions of the
+# suite's hooks: at most 0.005 on tuning seeds 1-30 (calibrated and legacy boards), windy and short 1-12, and fresh
+# 2126-2165; fresh seed 2184, whose hook kept swinging and whose fit was off by 0.07 m/s², 0.023.
+MAX_BIAS_STD_M_S2 = 0.01
+CLIP_RUN = 3  # an axis held at its largest |value| for this many samples in a row has clipped (full scale) ...
+GYRO_MIN_FULL_SCALE_RAD_S = 4.3  # ... when that value is one a board's range can be (MPU-6050: ±250 °/s at least)
+ACC_MIN_FULL_SCALE_M_S2 = 19.0  # ±2 g at least
 
 
 @dataclass(frozen=True)
 class MountFit:
     """The IMU's x/y offset from the rope axis (m, body frame), its 1σ (m, from the segments' spread), its tilt on the
     hook (`fit_tilt`, rad), the accelerometer x/y bias and steady force fitted beside the offset (m/s²), the twist's
-    excitation (rms of ω'_z, rad/s²) and the residual rms (m/s²)."""
+    excitation (rms of ω'_z, rad/s²), the residual rms (m/s²), the bias's 1σ (m/s², from the segments' spread) and
+    how many samples were left out as clipped (`clipped`, with the smoothing's reach)."""
 
     offset_xy_m: FloatArray
     std_m: float
@@ -58,6 +69,8 @@ class MountFit:
     steady_force_m_s2: FloatArray
     twist_accel_rms_rad_s2: float
     residual_m_s2: float
+    bias_std_m_s2: float
+    clipped_samples: int = 0
 
     def setting(self, z_m: float = 0.0) -> list[float]:
         """`HookThresholds.imu_offset_m` from this fit: [x, y, z] m, rounded to the millimetre (z as measured)."""
@@ -67,12 +80,43 @@ class MountFit:
         """`HookThresholds.imu_tilt_deg` from this fit: [about x, about y] degrees, to 0.01°."""
         return [round(math.degrees(float(v)), 2) for v in self.tilt_xy_rad]
 
+    def bias_setting(self) -> list[float] | None:
+        """`HookThresholds.acc_bias_xy_m_s2` from this fit (made in the hook's axes: `hook_axes_fit`), m/s² to 1 mm/s²;
+        None when it is less certain than `MAX_BIAS_STD_M_S2` (told wrong it leans the rope wrong: leave it out)."""
+        if self.bias_std_m_s2 > MAX_BIAS_STD_M_S2:
+            return None
+        return [round(float(v), 3) for v in self.bias_xy_m_s2]
 
-def fit_tilt(gyr: FloatArray) -> FloatArray:
+
+def clipped(v: FloatArray, min_full_scale: float, pad: int = 0) -> NDArray[np.bool_]:
+    """The samples (N,) where any axis of `v` (N, 3) is at the sensor's full scale, and `pad` either side: an axis
+    reads its largest |value|, at least `min_full_scale`, for `CLIP_RUN` samples in a row (a clipped reading is held
+    at full scale; the range is the board's, not told). A hook twisted hard clips a ±500 °/s gyroscope (suite seed
+    2184: 8.73 rad/s read, 10.4 true), and the fit's model is then wrong there."""
+    mask = np.zeros(v.shape[0], dtype=bool)
+    for axis in np.abs(v).T:
+        top = axis.max()
+        if top < min_full_scale:
+            continue
+        at = axis >= top
+        runs = np.convolve(at.astype(np.int64), np.ones(CLIP_RUN, dtype=np.int64), mode="valid")
+        if runs.size and runs.max() >= CLIP_RUN:
+            mask |= at
+    if pad > 0 and mask.any():
+        mask = np.convolve(mask.astype(np.int64), np.ones(2 * pad + 1, dtype=np.int64), mode="same") > 0
+    return mask
+
+
+def _clipped_samples(gyr: FloatArray, acc: FloatArray, pad: int) -> NDArray[np.bool_]:
+    return clipped(gyr, GYRO_MIN_FULL_SCALE_RAD_S, pad) | clipped(acc, ACC_MIN_FULL_SCALE_M_S2, pad)
+
+
+def fit_tilt(gyr: FloatArray, keep: NDArray[np.bool_] | None = None) -> FloatArray:
     """The rotation (about x, y; rad, small) taking the IMU's axes onto the hook's, from the gyroscope's x/y read in
-    proportion to its z on a twisting hook (see the module docstring)."""
-    a = np.column_stack([gyr[:, 2], np.ones(gyr.shape[0])])
-    s_x, s_y = (float(v) for v in np.linalg.lstsq(a, gyr[:, :2], rcond=None)[0][0])
+    proportion to its z on a twisting hook (see the module docstring), over the samples `keep` (default all)."""
+    g = gyr if keep is None else gyr[keep]
+    a = np.column_stack([g[:, 2], np.ones(g.shape[0])])
+    s_x, s_y = (float(v) for v in np.linalg.lstsq(a, g[:, :2], rcond=None)[0][0])
     slope = math.hypot(s_x, s_y)  # the hook's z in the IMU's axes is (s_x, s_y, 1): tilted by atan(|s|)
     scale = 1.0 if slope == 0.0 else math.atan(slope) / slope
     return np.array([s_y * scale, -s_x * scale])
@@ -117,12 +161,13 @@ def _solve(a: FloatArray, f_xy: FloatArray) -> tuple[FloatArray, float]:
     return sol, float(np.sqrt(np.mean(res * res)))
 
 
-def fit_hook_mount(gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float, mag_uT: ArrayLike | None = None
-                   ) -> MountFit:  # fmt: skip
+def fit_hook_mount(gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float, mag_uT: ArrayLike | None = None, *,
+                   clip: NDArray[np.bool_] | None = None) -> MountFit:  # fmt: skip
     """The IMU's offset from the rope axis from a hook hanging still and twisted (see the module docstring).
 
     Raises ValueError with what to do when the recording cannot give it within `MAX_STD_M`: too short, not
-    twisted enough, or too disturbed (a swinging hook, gusts, a hand pushing it sideways)."""
+    twisted enough, or too disturbed (a swinging hook, gusts, a hand pushing it sideways). `clip`: the samples to
+    leave out as clipped (default: `clipped` of these samples; given when they were turned off the sensor's axes)."""
     gyr, acc = np.asarray(gyr_rad_s, dtype=np.float64), np.asarray(acc_m_s2, dtype=np.float64)
     if gyr.ndim != 2 or gyr.shape[1] != 3 or acc.shape != gyr.shape:
         raise ValueError(f"need gyr and acc of the same shape (N, 3), got {gyr.shape} and {acc.shape}")
@@ -136,33 +181,47 @@ def fit_hook_mount(gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float, mag_u
         raise ValueError(f"need mag of the shape of gyr {gyr.shape}, got {mag.shape}")
     if not (np.isfinite(gyr).all() and np.isfinite(acc).all() and (mag is None or np.isfinite(mag).all())):
         raise ValueError("the samples are not all finite")
-    a, dwz = _design(gyr, mag, dt_s)
     edge = max(1, int(round(SMOOTH_S / dt_s)))  # the smoothed difference is cut at the ends
-    a, f_xy, dwz = a[edge:-edge], acc[edge:-edge, :2], dwz[edge:-edge]
+    if clip is None:  # ω' is smoothed over `edge` samples either side
+        clip = _clipped_samples(gyr, acc, edge + 1)
+    if clip.any() and mag is None:  # the twist is the z rate integrated: wrong after a clip, not only there
+        raise ValueError(f"the gyroscope or accelerometer clipped (at full scale in {int(clip.sum())} samples) and "
+                         "there is no magnetometer to follow the twist: twist the hook more gently")  # fmt: skip
+    a, dwz = _design(gyr, mag, dt_s)
+    keep = ~clip[edge:-edge]
+    a, f_xy, dwz = a[edge:-edge][keep], acc[edge:-edge, :2][keep], dwz[edge:-edge][keep]
+    if a.shape[0] < int(round(MIN_RECORDING_S / dt_s)) - 2 * edge:
+        raise ValueError(f"{a.shape[0] * dt_s:.0f} s of samples below full scale (the gyroscope or accelerometer "
+                         f"clipped in {int(clip.sum())}): twist the hook more gently, for {MIN_RECORDING_S:g} s or "
+                         "more")
     excitation = float(np.sqrt(np.mean(dwz * dwz)))
     if excitation < MIN_TWIST_ACCEL_RAD_S2:
         raise ValueError(f"the hook hardly twists (rms twist acceleration {excitation:.2f} rad/s², need "
                          f"{MIN_TWIST_ACCEL_RAD_S2:g}): turn it by hand 45-90° and let it twist back, a few times")
     sol, resid = _solve(a, f_xy)
     parts = np.array_split(np.arange(a.shape[0]), SEGMENTS)
-    seg = np.array([_solve(a[p], f_xy[p])[0][4:6] for p in parts])
-    std = float(np.sqrt(np.mean(np.var(seg, axis=0, ddof=1)) / SEGMENTS))
-    fit = MountFit(sol[4:6].copy(), std, fit_tilt(gyr), sol[0:2].copy(), sol[2:4].copy(), excitation, resid)
+    seg = np.array([_solve(a[p], f_xy[p])[0] for p in parts])
+    std, bias_std = (float(np.sqrt(np.mean(np.var(seg[:, c], axis=0, ddof=1)) / SEGMENTS)) for c in (slice(4, 6),
+                                                                                                    slice(0, 2)))
+    fit = MountFit(sol[4:6].copy(), std, fit_tilt(gyr, ~clip), sol[0:2].copy(), sol[2:4].copy(), excitation, resid,
+                   bias_std, int(clip.sum()))
     if std > MAX_STD_M:
         raise ValueError(f"the offset is uncertain by {100 * std:.1f} cm (fit {np.round(fit.offset_xy_m, 3).tolist()} "
                          "m): hold the crane still, twist the hook more and longer, in calmer air")  # fmt: skip
     return fit
 
 
-def hook_axes_bias(gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float, mag_uT: ArrayLike | None,
-                   tilt_xy_rad: ArrayLike) -> list[float]:  # fmt: skip
-    """`HookThresholds.acc_bias_xy_m_s2`: the accelerometer's x/y offset (m/s², to 1 mm/s²) in the hook's axes, i.e.
-    the fit again on the samples turned by the IMU's tilt `tilt_xy_rad` as the hook filter sees them (a tilt moves
-    part of the tension onto x/y). ValueError as `fit_hook_mount`."""
+def hook_axes_fit(gyr_rad_s: ArrayLike, acc_m_s2: ArrayLike, dt_s: float, mag_uT: ArrayLike | None,
+                  tilt_xy_rad: ArrayLike) -> MountFit:  # fmt: skip
+    """The fit again on the samples turned by the IMU's tilt `tilt_xy_rad` as the hook filter sees them (a tilt moves
+    part of the tension onto x/y): its `bias_setting` is `HookThresholds.acc_bias_xy_m_s2`, the accelerometer's x/y
+    offset in the hook's axes. ValueError as `fit_hook_mount`."""
     m = tilt_matrix(tilt_xy_rad).T  # rows @ M.T: each sample turned onto the hook's axes
-    gyr, acc = np.asarray(gyr_rad_s, dtype=np.float64) @ m, np.asarray(acc_m_s2, dtype=np.float64) @ m
-    fit = fit_hook_mount(gyr, acc, dt_s, None if mag_uT is None else np.asarray(mag_uT, dtype=np.float64) @ m)
-    return [round(float(v), 3) for v in fit.bias_xy_m_s2]
+    gyr, acc = np.asarray(gyr_rad_s, dtype=np.float64), np.asarray(acc_m_s2, dtype=np.float64)
+    pad = max(1, int(round(SMOOTH_S / dt_s))) + 1
+    clip = _clipped_samples(gyr, acc, pad) if gyr.ndim == 2 and gyr.shape[1] == 3 and acc.shape == gyr.shape else None
+    return fit_hook_mount(gyr @ m, acc @ m, dt_s, None if mag_uT is None else np.asarray(mag_uT, dtype=np.float64) @ m,
+                          clip=clip)  # the sensor's full scale is on its own axes
 
 
 class TiltedHookFilter:
