@@ -86,6 +86,7 @@ from devices.hook_physics import (
     suspension_acceleration,
     trolley_traverse,
 )
+from gateway.calibrate import DeviceCalibration
 from gateway.fusion import hook
 from gateway.fusion.hook_filter import (
     COMPASS_ROUND,
@@ -108,7 +109,7 @@ from gateway.fusion.hook_filter import (
     HookFilter,
     HookFilterSettings,
 )
-from gateway.fusion.hook_mount import TiltedHookFilter, fit_hook_mount, hook_axes_fit, tilt_matrix
+from gateway.fusion.hook_mount import TiltedHookFilter, fit_hard_iron, fit_hook_mount, hook_axes_fit, tilt_matrix
 
 RATE_HZ = 100.0  # the IMU's sampling rate unless `rate_hz` / `--rate-hz` says otherwise (the filters take dt from it)
 WARMUP_S = 0.5
@@ -384,7 +385,7 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
              rate_hz: float = RATE_HZ, length_factor: float = 1.0, suite_version: int = SUITE_VERSION,
              sensor_draw: int = 0, told_m: float | None = None, lever_x_m: float | None = None,
              offset_told: float | str | None = None, mount_tilt_deg: float = 0.0, feed: str | None = None,
-             feed_bearing_error_deg: float = 0.0, bias_told: float | None = None
+             feed_bearing_error_deg: float = 0.0, bias_told: float | None = None, iron_told: bool = False
              ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`; the filter is told
     `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1), or `told_m` whatever
@@ -394,9 +395,14 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
     fits (`twist_offset`; not told when the fit refuses); None: not told. `feed`: the crane tells the boom tip's
     acceleration (`crane_feed`: exact or drive; its North `feed_bearing_error_deg` off), None: it does not.
     `bias_told`: the accelerometer's x/y bias told as the twist fits it, drifted since by this std (m/s², per axis;
-    `twist_bias`; with `offset_told="twist"`, in the axes its tilt turns to); None: not told."""
+    `twist_bias`; with `offset_told="twist"`, in the axes its tilt turns to); None: not told. `iron_told`: the
+    magnetometer's offset the twist fits taken out of its samples before fusion, as the device calibration
+    `calibrate --hook-mount` prints does in the gateway (`twist_iron`), for VQF too (the same samples)."""
     case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz, suite_version,
                                                sensor_draw, lever_x_m, mount_tilt_deg)  # fmt: skip
+    cal = twist_iron(case, imu, rate_hz, sensor_draw) if iron_told and mag is not None else None
+    if cal is not None:
+        acc, mag = DeviceCalibration.from_json(cal).apply(acc, mag)
     out: dict[str, dict[str, dict[str, float]]] = {}
     told = case.physics.rope_length_m * length_factor if tell_length else None
     if tell_length and told_m is not None:
@@ -480,6 +486,18 @@ def twist_bias(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw:
         return None
     drift = np.random.default_rng(40_000 + case.seed).standard_normal(2) * drift_m_s2
     return bias[0] + float(drift[0]), bias[1] + float(drift[1])
+
+
+def twist_iron(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw: int = 0) -> dict[str, object] | None:
+    """The device calibration `calibrate --hook-mount` prints from the seed's `twist_session`: the magnetometer's
+    offset (`fit_hard_iron` in the axes the twist's tilt turns to, `IronFit.calibration`); None when a fit refuses or
+    leaves it out."""
+    _, gyr, acc, mag = twist_session(case, imu, rate_hz, sensor_draw)
+    try:
+        tilt = fit_hook_mount(gyr, acc, 1.0 / rate_hz, mag).tilt_xy_rad
+        return fit_hard_iron(mag, tilt).calibration(tilt)
+    except ValueError:
+        return None
 
 
 def simulate_seed(seed: int, duration_s: float, imu: str, use_mag: bool, family: str = "crane",
@@ -623,6 +641,9 @@ def main(argv: list[str] | None = None) -> int:
                    "per axis, or 'twist': the offset and the tilt as `gateway.calibrate --hook-mount` fits them from "
                    "the seed's hook twisted by hand for 40 s (HookThresholds.imu_offset_m, imu_tilt_deg; default: "
                    "not told)")
+    p.add_argument("--iron-told", action="store_true",
+                   help="take the magnetometer's offset that the twist by hand fits (the device calibration `calibrate "
+                   "--hook-mount` prints) out of its samples before fusion, for VQF too")
     p.add_argument("--bias-told", type=float, default=None, metavar="DRIFT_M_S2",
                    help="tell the filter the accelerometer's x/y bias as the twist of --offset-told twist fits it "
                    "(HookThresholds.acc_bias_xy_m_s2), drifted since by DRIFT_M_S2 (std per axis, drawn per seed; "
@@ -651,6 +672,7 @@ def main(argv: list[str] | None = None) -> int:
     elif args.offset_told == "twist":
         board += ", its offset told as a 40-s twist by hand fits it"
     board += "" if args.bias_told is None else f", its x/y bias told as the twist fits it ± {args.bias_told:g} m/s²"
+    board += ", the magnetometer's offset from the twist taken out" if args.iron_told else ""
     board += "" if args.crane_feed is None else f", crane feed {args.crane_feed}"
     board += f" {args.crane_bearing_error:g}° off North" if args.crane_feed and args.crane_bearing_error else ""
     print(f"hook suite v{args.suite_version} ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}{board}, "
@@ -667,7 +689,7 @@ def main(argv: list[str] | None = None) -> int:
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
                      args.tracking, parse_settings(args.settings), args.rate_hz, args.length_factor,
                      args.suite_version, args.sensor_draw, args.told_m, args.lever_x, args.offset_told,
-                     args.mount_tilt, args.crane_feed, args.crane_bearing_error, args.bias_told)
+                     args.mount_tilt, args.crane_feed, args.crane_bearing_error, args.bias_told, args.iron_told)
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]

@@ -28,7 +28,10 @@ offset in the hook's axes (`gateway.fusion.hook_mount`), for the hook settings `
 on its rope, crane at rest, in calm air, for 30 s or more after you turned it by hand 45-90° and let go (turn it
 again when it settles). Prints the settings and the command that sets them. Samples where the gyroscope or
 accelerometer clipped are left out (refused without a magnetometer: turn it more gently), and the accelerometer's
-offset is left out, with a line saying why, when its fit is less certain than 0.01 m/s².
+offset is left out, with a line saying why, when its fit is less certain than 0.01 m/s². With a magnetometer it
+also prints a device `calibration` that takes the magnetometer's offset in the hook's plane (its hard iron, from
+the circle its x/y trace as the hook turns) out before fusion: an uncalibrated compass's 5 µT read the torsion 2-3°
+off, 0.7-0.9° with it (docs/fusion.md). It replaces a pose calibration the device may have.
 """
 
 from __future__ import annotations
@@ -57,7 +60,7 @@ from gateway.fusion.calibration import (
     calibrate_mag_minmax,
     fit_accel_offset_scale,
 )
-from gateway.fusion.hook_mount import MAX_BIAS_STD_M_S2, fit_hook_mount, hook_axes_fit
+from gateway.fusion.hook_mount import MAX_BIAS_STD_M_S2, MAX_IRON_STD_UT, fit_hard_iron, fit_hook_mount, hook_axes_fit
 
 METHODS: tuple[str, ...] = ("fit", "paper")
 POSE_REST = RestSettings(gyr_th_rad_s=float(np.deg2rad(0.5)), acc_th_m_s2=0.1)
@@ -323,16 +326,35 @@ def hook_mount_report(imu: ImuSeries, mag_uT: FloatArray | None, z_m: float, api
     settings = {"imu_offset_m": fit.setting(z_m), "imu_tilt_deg": tilt_deg}
     if bias is not None:
         settings["acc_bias_xy_m_s2"] = bias
-    text = json.dumps({"device_id": imu.device_id, **settings,
-                       "std_m": round(fit.std_m, 4), "twist_accel_rms_rad_s2": round(fit.twist_accel_rms_rad_s2, 3),
-                       "residual_m_s2": round(fit.residual_m_s2, 4),
-                       "acc_bias_std_m_s2": round(axes.bias_std_m_s2, 4)}, indent=2)  # fmt: skip
+    iron, cal, iron_note = None, None, ""
+    if mag_uT is not None:
+        try:
+            iron = fit_hard_iron(mag_uT, [math.radians(a) for a in tilt_deg])
+            cal = iron.calibration([math.radians(a) for a in tilt_deg])
+        except ValueError as exc:
+            iron_note = f"\n# calibration left out: {exc}"
+    figures = {"std_m": round(fit.std_m, 4), "twist_accel_rms_rad_s2": round(fit.twist_accel_rms_rad_s2, 3),
+               "residual_m_s2": round(fit.residual_m_s2, 4), "acc_bias_std_m_s2": round(axes.bias_std_m_s2, 4)}
+    if iron is not None:
+        figures |= {"mag_offset_std_uT": round(iron.std_uT, 3), "mag_turned_deg": round(math.degrees(iron.span_rad)),
+                    "mag_horizontal_uT": round(iron.radius_uT, 2)}  # fmt: skip
+        if cal is None:
+            iron_note = (f"\n# calibration left out: the magnetometer's offset fits to "
+                         f"{np.round(iron.offset_xy_uT, 2).tolist()} ± {iron.std_uT:.2f} µT, less certain than "
+                         f"{MAX_IRON_STD_UT:g} (steel moving near it, or a swinging hook)")
+    text = json.dumps({"device_id": imu.device_id, **settings, **({"calibration": cal} if cal else {}), **figures},
+                      indent=2)  # fmt: skip
     if bias is None:
         text += (f"\n# acc_bias_xy_m_s2 left out: the accelerometer's offset fits to "
                  f"{np.round(axes.bias_xy_m_s2, 3).tolist()} ± {axes.bias_std_m_s2:.3f} m/s², less certain than "
                  f"{MAX_BIAS_STD_M_S2:g} (the hook swung or was pushed while it twisted); told wrong it would lean the "
                  "rope wrong. The offset and tilt stand. To have it, twist the hook again hanging still, in calm air")
-    body = json.dumps({"kind": "hook", "thresholds": settings})
+    text += iron_note
+    if cal is not None:
+        text += ("\n# calibration: the magnetometer's offset in the hook's plane (hard iron), taken out before fusion."
+                 " It replaces the device's calibration: if it has one from poses (`python -m gateway.calibrate REC`),"
+                 " leave `calibration` out of the body")
+    body = json.dumps({"kind": "hook", "thresholds": settings, **({"calibration": cal} if cal else {})})
     return (f"{text}\n# set it (with the operator token):\n# curl -X PUT -H 'Authorization: Bearer $TOKEN' -H "
             f"'Content-Type: application/json' -d '{body}' {api.rstrip('/')}/api/devices/{imu.device_id}/settings")
 
