@@ -19,6 +19,8 @@ Scenarios (the hook hangs still for `--still` s first; the gateway warms up on t
   rope length is set with `PUT /api/thresholds/hook` first, as a user would, unless `--no-length`); `--still`
   does not apply.
   `suite:SEED:1`: the same from the suite's generator version 1 (before its hoist fix; default: its default, 2).
+  `--imu` picks the board's preset; `--iron-told` sets the compass calibration a twist by hand of that hook with the
+  device's board gives (`calibrate --hook-mount`, docs/calibration.md) over REST first.
 
 Windows, in scenario time (device time since its first sample): *free swing* from the end of the excitation plus
 `--settle` s (default 12 s, as bench.hook_accuracy) to the end; *all* from 1 s after the first swing message.
@@ -36,6 +38,7 @@ into `gateway.pipeline.Pipeline`), and prints the pipeline's cost per hook packe
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 import tempfile
@@ -78,10 +81,16 @@ def physics() -> HookPhysicsSettings:
                                swing_damping_1_s=0.002)  # fmt: skip
 
 
-def make_case(name: str, duration_s: float, still_s: float, seed: int, twist_torque_n_m: float | None) -> Case:
+def make_case(name: str, duration_s: float, still_s: float, seed: int, twist_torque_n_m: float | None,
+              imu: str | None = None) -> Case:  # fmt: skip
     """The scenario `name` (see the module docstring); `twist_torque_n_m` overrides its gust torque. `suite:SEED` is
     bench.hook_suite's crane of that seed (`still_s` and the torque are ignored), `suite:SEED:VERSION` from that
-    version of its generator."""
+    version of its generator. `imu`: the board's error preset instead of the scenario's."""
+    case = _make_case(name, duration_s, still_s, seed, twist_torque_n_m)
+    return case if imu is None else dataclasses.replace(case, imu=imu)
+
+
+def _make_case(name: str, duration_s: float, still_s: float, seed: int, twist_torque_n_m: float | None) -> Case:
     if name.startswith("suite:"):
         from bench.hook_suite import SUITE_VERSION
         from bench.hook_suite import make_case as suite_case
@@ -269,8 +278,10 @@ def _vqf(packets: list[schemas.ImuPacket]) -> np.ndarray[Any, Any]:
 
 
 def device_args(case_name: str, duration_s: float, still_s: float, seed: int, twist: float | None,
-                link: common.LinkModel | None = None, crane_feed: bool = False) -> list[str]:  # fmt: skip
+                link: common.LinkModel | None = None, crane_feed: bool = False, imu: str | None = None
+                ) -> list[str]:  # fmt: skip
     args = ["--scenario", case_name, "--duration", str(duration_s), "--still", str(still_s), "--seed", str(seed)]
+    args += [] if imu is None else ["--imu", imu]
     args += ["--crane-feed"] if crane_feed else []
     args += [] if link is None else ["--loss", str(link.loss_prob), "--burst", str(link.burst_len)]
     return args + ([] if twist is None else ["--twist-torque", str(twist)])
@@ -278,11 +289,13 @@ def device_args(case_name: str, duration_s: float, still_s: float, seed: int, tw
 
 def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenario: str = "free",
                 twist_torque_n_m: float | None = None, record_imu: bool = False,
-                link: common.LinkModel | None = None, tell_length: bool = True, crane_feed: bool = False
-                ) -> tuple[Recorder, int]:  # fmt: skip
+                link: common.LinkModel | None = None, tell_length: bool = True, crane_feed: bool = False,
+                imu: str | None = None, iron_told: bool = False) -> tuple[Recorder, int]:  # fmt: skip
     """Gateway + hook processes with an observer session; returns what it saw and the device's exit code
     (`tell_length` False: a suite crane's rope length is not set, the gateway's default; `crane_feed`: the device
-    process also plays the crane, `rig/hook/{id}/crane`)."""
+    process also plays the crane, `rig/hook/{id}/crane`; `imu`: the board's preset instead of the scenario's;
+    `iron_told`: a suite crane's compass calibration from its twist by hand (`twist_calibration`) is set over REST
+    first, as a user would after `calibrate --hook-mount`)."""
     import subprocess
 
     zport, hport = free_port(), free_port()
@@ -292,15 +305,21 @@ def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenar
     selectors += ["rig/hook/*/imu"] if record_imu else []
     try:
         wait_http(hport)
-        case = make_case(scenario, duration_s, still_s, seed, twist_torque_n_m)
+        case = make_case(scenario, duration_s, still_s, seed, twist_torque_n_m, imu)
         if case.physics is not None and tell_length:  # a suite crane: its rope length, as a user would set it
             set_rope_length(hport, work / "data", case.physics.rope_length_m)
+        if iron_told:
+            cal = twist_calibration(scenario, duration_s, case.imu, seed)
+            if cal is None:
+                raise RuntimeError(f"{scenario}: the twist by hand gives no calibration")
+            put_device_settings(hport, work / "data", fleet_settings(duration_s, seed).ids[0],
+                                {"kind": "hook", "calibration": cal})
         with zenoh.open(observer_config(zport)) as session:
             subs = [session.declare_subscriber(sel, rec) for sel in selectors]
             time.sleep(0.5)
             dev = subprocess.run(
                 [sys.executable, "-m", "bench.hook_e2e", "--device", "--port", str(zport),
-                 *device_args(scenario, duration_s, still_s, seed, twist_torque_n_m, link, crane_feed)],
+                 *device_args(scenario, duration_s, still_s, seed, twist_torque_n_m, link, crane_feed, imu)],
                 cwd=REPO, capture_output=True, timeout=duration_s + 120,
             )  # fmt: skip
             rec.wait_quiet()
@@ -313,6 +332,27 @@ def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenar
     return rec, dev.returncode
 
 
+def twist_calibration(scenario: str, duration_s: float, imu: str, seed: int) -> dict[str, object] | None:
+    """A suite crane's device calibration as `calibrate --hook-mount` prints it from a twist by hand of that hook with
+    the device process's board (`bench.hook_suite.twist_iron`); None when the fit refuses or leaves it out."""
+    from bench.hook_suite import SUITE_VERSION, twist_iron
+    from bench.hook_suite import make_case as suite_case
+
+    _, seed_text, *version = scenario.split(":")
+    sc = suite_case(int(seed_text), duration_s + 1.0, suite_version=int(version[0]) if version else SUITE_VERSION)
+    return twist_iron(sc, imu, RATE_HZ, board_seed=seed)
+
+
+def put_device_settings(http_port: int, data_dir: Path, device_id: str, body: dict[str, object]) -> None:
+    """`PUT /api/devices/{id}/settings` (the bearer token from the gateway's data directory)."""
+    import httpx
+
+    token = (data_dir / "api_token").read_text().strip()
+    r = httpx.put(f"http://127.0.0.1:{http_port}/api/devices/{device_id}/settings", json=body,
+                  headers={"Authorization": f"Bearer {token}"}, timeout=10.0)  # fmt: skip
+    r.raise_for_status()
+
+
 def set_rope_length(http_port: int, data_dir: Path, rope_length_m: float) -> None:
     """`PUT /api/thresholds/hook` with the rope length (the bearer token from the gateway's data directory)."""
     import httpx
@@ -323,10 +363,11 @@ def set_rope_length(http_port: int, data_dir: Path, rope_length_m: float) -> Non
     r.raise_for_status()
 
 
-def run_in_process(case: Case, duration_s: float, seed: int, tell_length: bool = True, crane_feed: bool = False
-                   ) -> tuple[Recorder, float, int]:  # fmt: skip
-    """The same packets straight into a `Pipeline` (no zenoh, no processes): recorder, pipeline CPU seconds, packets."""
-    from gateway.config import HookThresholds
+def run_in_process(case: Case, duration_s: float, seed: int, tell_length: bool = True, crane_feed: bool = False,
+                   calibration: dict[str, object] | None = None) -> tuple[Recorder, float, int]:  # fmt: skip
+    """The same packets straight into a `Pipeline` (no zenoh, no processes): recorder, pipeline CPU seconds, packets.
+    `calibration`: the device's IMU calibration (`twist_calibration`), as `PUT /api/devices/{id}/settings` sets it."""
+    from gateway.config import DeviceSettings, HookThresholds
     from gateway.pipeline import Pipeline
 
     fleet = fleet_settings(duration_s, seed)
@@ -334,6 +375,8 @@ def run_in_process(case: Case, duration_s: float, seed: int, tell_length: bool =
     pipe = Pipeline()
     if case.physics is not None and tell_length:
         pipe.set_defaults("hook", HookThresholds(rope_length_m=case.physics.rope_length_m))
+    if calibration is not None:
+        pipe.set_device_settings(fleet.ids[0], "hook", DeviceSettings(calibration=calibration))
     pipe.warm_up()
     rec = Recorder()
     busy_s, n_packets = 0.0, int(round(duration_s * RATE_HZ / SAMPLES_PER_PACKET))
@@ -386,10 +429,17 @@ def main(argv: list[str] | None = None) -> int:
                    help="suite:SEED: do not set the rope length (the gateway's default: the filter finds it)")
     p.add_argument("--crane-feed", action="store_true",
                    help="the device also plays the crane: its boom tip's acceleration on rig/hook/{id}/crane")
+    p.add_argument("--imu", default=None, help="the board's error preset (calibrated, uncalibrated, legacy, ideal; "
+                   "default: legacy, calibrated for suite:SEED)")
+    p.add_argument("--iron-told", action="store_true",
+                   help="suite:SEED: set the compass calibration a twist by hand of that hook gives (`calibrate "
+                   "--hook-mount`) over REST first")
     p.add_argument("--device", action="store_true", help="(internal) run the hook device process")
     p.add_argument("--port", type=int, default=7447, help="(with --device) gateway zenoh port")
     args = p.parse_args(argv)
-    case = make_case(args.scenario, args.duration, args.still, args.seed, args.twist_torque)
+    case = make_case(args.scenario, args.duration, args.still, args.seed, args.twist_torque, args.imu)
+    if args.iron_told and (case.physics is None or args.in_process):
+        p.error("--iron-told needs a suite:SEED scenario through zenoh")
     link = common.LinkModel(args.loss, args.burst) if args.loss > 0 else None
     if args.device:
         run_device(args.port, case, args.duration, args.seed, link, args.crane_feed)
@@ -406,7 +456,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"running {args.duration:g} s of hook data through zenoh and the gateway ...", file=sys.stderr)
             rec, code = run_session(args.duration, args.still, args.seed, Path(tmp), args.scenario,
                                     args.twist_torque, record_imu=args.compare, link=link,
-                                    tell_length=not args.no_length, crane_feed=args.crane_feed)  # fmt: skip
+                                    tell_length=not args.no_length, crane_feed=args.crane_feed, imu=args.imu,
+                                    iron_told=args.iron_told)  # fmt: skip
     if not args.compare:
         rec.samples = [s for s in rec.samples if not s[1].endswith("/imu")]
     r = analyse(rec, case.excitation_end_s, args.settle)

@@ -436,10 +436,11 @@ def measured_offset(case: SuiteCase, std_m: float) -> tuple[float, float, float]
 TWIST_SESSION_S = 40.0
 
 
-def twist_session(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw: int = 0
-                  ) -> tuple[HookTruth, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+def twist_session(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw: int = 0,
+                  board_seed: int | None = None) -> tuple[HookTruth, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """What `python -m gateway.calibrate --hook-mount` is given for the seed's hook (its rope and IMU mount, the
-    suite's board for the seed): the hook unloaded, hanging still for `TWIST_SESSION_S` and twisted by hand (turned
+    suite's board for the seed, or the board `SensorModel` draws first from `default_rng(board_seed)`: a device
+    process's, bench.hook_e2e): the hook unloaded, hanging still for `TWIST_SESSION_S` and twisted by hand (turned
     45-90° at the start and by random torques after: a couple, no sideways force) in calm air. Truth, gyr, acc, mag."""
     rng = np.random.default_rng(30_000 + case.seed)
     inertia = 20.0  # the hook unloaded, as it hangs between lifts (`make_case`: 20 kg m² per 500 kg)
@@ -450,8 +451,9 @@ def twist_session(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_dr
                       initial_torsion_rad=math.radians(rng.uniform(45.0, 90.0)) * float(rng.choice([-1.0, 1.0])),
                       wind_torque_std_n_m=0.5 * stiffness, wind_tau_s=2.0, seed=30_000 + case.seed)  # fmt: skip
     truth = simulate(ph, sc)
-    sensor = SensorModel(ImuErrorModel.preset(imu), 1, np.random.default_rng(10_000 + case.seed
-                                                                             + SENSOR_DRAW_STRIDE * sensor_draw))
+    board_rng = np.random.default_rng(10_000 + case.seed + SENSOR_DRAW_STRIDE * sensor_draw if board_seed is None
+                                      else board_seed)  # fmt: skip
+    sensor = SensorModel(ImuErrorModel.preset(imu), 1, board_rng)
     gyr, acc, mag = sensor.measure(*mounted(case, truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT), 1.0 / rate_hz)
     return truth, gyr, acc, mag
 
@@ -488,11 +490,12 @@ def twist_bias(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw:
     return bias[0] + float(drift[0]), bias[1] + float(drift[1])
 
 
-def twist_iron(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw: int = 0) -> dict[str, object] | None:
+def twist_iron(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw: int = 0,
+               board_seed: int | None = None) -> dict[str, object] | None:  # fmt: skip
     """The device calibration `calibrate --hook-mount` prints from the seed's `twist_session`: the magnetometer's
     offset (`fit_hard_iron` in the axes the twist's tilt turns to, `IronFit.calibration`); None when a fit refuses or
     leaves it out."""
-    _, gyr, acc, mag = twist_session(case, imu, rate_hz, sensor_draw)
+    _, gyr, acc, mag = twist_session(case, imu, rate_hz, sensor_draw, board_seed)
     try:
         tilt = fit_hook_mount(gyr, acc, 1.0 / rate_hz, mag).tilt_xy_rad
         return fit_hard_iron(mag, tilt).calibration(tilt)

@@ -30,8 +30,9 @@ again when it settles). Prints the settings and the command that sets them. Samp
 accelerometer clipped are left out (refused without a magnetometer: turn it more gently), and the accelerometer's
 offset is left out, with a line saying why, when its fit is less certain than 0.01 m/s². With a magnetometer it
 also prints a device `calibration` that takes the magnetometer's offset in the hook's plane (its hard iron, from
-the circle its x/y trace as the hook turns) out before fusion: an uncalibrated compass's 5 µT read the torsion 2-3°
-off, 0.7-0.9° with it (docs/fusion.md). It replaces a pose calibration the device may have.
+the circle its x/y trace as the hook turns; turned 180° or more, the soft iron's ellipse too) out before fusion: an
+uncalibrated compass read the suite's torsion 2.3° off, 1.0° with it (docs/fusion.md). It replaces a pose calibration
+the device may have.
 """
 
 from __future__ import annotations

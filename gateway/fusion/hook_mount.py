@@ -29,13 +29,15 @@ is the rotation that takes the IMU's axes onto the hook's (`imu_tilt_deg`).
 
 And the magnetometer's offset in the hook's horizontal plane (`fit_hard_iron`): on a hook hanging plumb and turning
 about the rope, the magnetometer's x/y (in the hook's axes) trace a circle about that offset (its hard iron, plus
-the vertical field its soft iron leans onto x/y). A circle fit gives it; `IronFit.calibration` is the device
-calibration (`gateway.calibrate.DeviceCalibration`) that takes it out before fusion. An MPU-6050/HMC5883L-class board
-left with 5 µT of hard iron read the suite's torsion 4.8° RMS; with the twist's offset taken out, 1.0° (docs/fusion.md).
+the vertical field its soft iron leans onto x/y); the soft iron's in-plane part makes it an ellipse. A circle fit
+gives it, an ellipse fit when the field turned far enough; `IronFit.calibration` is the device calibration
+(`gateway.calibrate.DeviceCalibration`) that takes it out before fusion. An MPU-6050/HMC5883L-class board read the
+suite's torsion 2.3° RMS on fresh seeds; with the twist's calibration, 1.0° (docs/fusion.md).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -61,7 +63,9 @@ GYRO_MIN_FULL_SCALE_RAD_S = 4.3  # ... when that value is one a board's range ca
 ACC_MIN_FULL_SCALE_M_S2 = 19.0  # ±2 g at least
 
 
-MIN_IRON_SPAN_RAD = math.radians(90.0)  # the field must turn this far for the circle's centre
+MIN_IRON_SPAN_RAD = math.radians(90.0)  # the field must turn this far for the circle's centre ...
+MIN_SHAPE_SPAN_RAD = math.radians(180.0)  # ... and this far for the ellipse the soft iron makes of it
+MAX_SHAPE_STRETCH = 1.25  # an ellipse longer than this over its width is not a board's soft iron: the circle stands
 # A centre less certain than this (the segments' spread) is not given: the parts disagree by several µT, steel moved
 # near the hook. The twist sessions of the suite's legacy boards: up to 0.66 (tuning 1-30), 0.88 (2106-2125), 0.33
 # µT (2196-2215); against 5-14 µT of hard iron left in when it is not given.
@@ -71,14 +75,17 @@ MAX_IRON_STD_UT = 2.0
 @dataclass(frozen=True)
 class IronFit:
     """The magnetometer's x/y offset in the hook's axes (µT), the circle's radius (the horizontal field, µT), the rms
-    of the samples' distance from it (µT), how far the field turned (rad) and the offset's 1σ (µT, the segments'
-    spread, as the mount's)."""
+    of the samples' distance from it (µT), how far the field turned (rad), the offset's 1σ (µT, the segments'
+    spread of the circle's centre, as the mount's) and the in-plane soft-iron correction `shape_xy` (2 × 2,
+    symmetric: it turns the ellipse the samples trace back into a circle; the identity when the field turned less
+    than `MIN_SHAPE_SPAN_RAD`)."""
 
     offset_xy_uT: FloatArray
     radius_uT: float
     residual_uT: float
     span_rad: float
     std_uT: float
+    shape_xy: FloatArray = dataclasses.field(default_factory=lambda: np.eye(2))
 
     def calibration(self, tilt_xy_rad: ArrayLike) -> dict[str, object] | None:
         """The device calibration JSON (`DeviceCalibration.to_json`'s form) that takes the offset out of the
@@ -87,9 +94,14 @@ class IronFit:
         `MAX_IRON_STD_UT`."""
         if self.std_uT > MAX_IRON_STD_UT:
             return None
-        offset = tilt_matrix(tilt_xy_rad).T @ np.array([self.offset_xy_uT[0], self.offset_xy_uT[1], 0.0])
+        turn = tilt_matrix(tilt_xy_rad)  # hook = turn @ IMU
+        offset = turn.T @ np.array([self.offset_xy_uT[0], self.offset_xy_uT[1], 0.0])
+        shape = np.eye(3)
+        shape[:2, :2] = self.shape_xy
+        soft = turn.T @ shape @ turn  # in the hook's axes: x/y reshaped, z as it is
         return {"acc_offset_m_s2": [0.0, 0.0, 0.0], "acc_scale": [1.0, 1.0, 1.0],
-                "mag_offset_uT": [round(float(v), 2) for v in offset], "mag_soft_iron": np.eye(3).tolist(),
+                "mag_offset_uT": [round(float(v), 2) for v in offset],
+                "mag_soft_iron": np.round(soft, 5).tolist(),
                 "n_poses": 0, "acc_fit_rms_m_s2": 0.0, "mag_fit_rms_uT": round(self.residual_uT, 3)}  # fmt: skip
 
 
@@ -278,9 +290,28 @@ def _circle(xy: FloatArray) -> tuple[FloatArray, float, FloatArray]:
     return centre, radius, np.hypot(d[:, 0], d[:, 1]) - radius
 
 
+def _ellipse(xy: FloatArray, centre: FloatArray, iterations: int = 20) -> tuple[FloatArray, FloatArray]:
+    """Centre (2,) and matrix `A` (2, 2) of `xy ≈ centre + A (cos θ, sin θ)`, each sample's θ read back through `A`
+    in turn (from the circle about `centre` at first): the ellipse a field turning in the plane traces through a
+    soft iron, found by linear least squares at each step (it converges for the few % of a board's soft iron)."""
+    d = xy - centre
+    theta = np.arctan2(d[:, 1], d[:, 0])
+    a = np.eye(2)
+    for _ in range(iterations):
+        basis = np.column_stack([np.ones(xy.shape[0]), np.cos(theta), np.sin(theta)])
+        sol = np.linalg.lstsq(basis, xy, rcond=None)[0]
+        centre, a = sol[0], sol[1:].T
+        u = np.linalg.solve(a, (xy - centre).T)
+        theta = np.arctan2(u[1], u[0])
+    return centre.astype(np.float64), a.astype(np.float64)
+
+
 def fit_hard_iron(mag_uT: ArrayLike, tilt_xy_rad: ArrayLike = (0.0, 0.0)) -> IronFit:
     """The magnetometer's x/y offset in the hook's axes from the twist session (the module docstring): the samples
-    turned by the IMU's tilt `tilt_xy_rad` (`MountFit.tilt_xy_rad`), a circle fitted to their x/y.
+    turned by the IMU's tilt `tilt_xy_rad` (`MountFit.tilt_xy_rad`), a circle fitted to their x/y; when the field
+    turned `MIN_SHAPE_SPAN_RAD` or more, an ellipse (`_ellipse`) for the centre and the soft iron's in-plane shape.
+    On a circle's part an MPU-6050/HMC5883L-class board's 3 % of soft iron moved the centre 1-3 µT (the suite's twist
+    sessions); over 200° and more, the ellipse's centre was within 0.8 µT.
 
     Raises ValueError with what to do when the field did not turn `MIN_IRON_SPAN_RAD` about the centre or the
     samples are not finite."""
@@ -297,7 +328,16 @@ def fit_hard_iron(mag_uT: ArrayLike, tilt_xy_rad: ArrayLike = (0.0, 0.0)) -> Iro
                          f"{math.degrees(MIN_IRON_SPAN_RAD):.0f}° or more for the magnetometer's offset")
     seg = np.array([_circle(xy[p])[0] for p in np.array_split(np.arange(xy.shape[0]), SEGMENTS)])
     std = float(np.sqrt(np.mean(np.var(seg, axis=0, ddof=1)) / SEGMENTS))
-    return IronFit(centre, radius, float(np.sqrt(np.mean(dist * dist))), span, std)
+    shape = np.eye(2)
+    if span >= MIN_SHAPE_SPAN_RAD:
+        e_centre, a = _ellipse(xy, centre)
+        u, sv, _ = np.linalg.svd(a)
+        if np.isfinite(a).all() and sv[1] > 0.0 and sv[0] / sv[1] <= MAX_SHAPE_STRETCH:
+            radius = float(np.sqrt(sv[0] * sv[1]))  # A = P R, P = U Σ Uᵀ: the correction r P⁻¹ keeps the area
+            centre, shape = e_centre, radius * (u / sv) @ u.T
+            d = (xy - centre) @ shape.T
+            dist = np.hypot(d[:, 0], d[:, 1]) - radius
+    return IronFit(centre, radius, float(np.sqrt(np.mean(dist * dist))), span, std, shape)
 
 
 class TiltedHookFilter:

@@ -422,6 +422,34 @@ def test_the_field_turning_with_the_hook_gives_the_circles_centre(hx: float, hy:
     assert np.abs(centre).max() < 0.05, centre
 
 
+@settings(max_examples=25, deadline=None)
+@given(sxx=st.floats(-0.04, 0.04), syy=st.floats(-0.04, 0.04), sxy=st.floats(-0.04, 0.04),
+       turn_deg=st.floats(240.0, 360.0), hx=st.floats(-15.0, 15.0))  # fmt: skip
+def test_a_soft_iron_ellipse_turned_far_enough_is_made_a_circle_again(sxx: float, syy: float, sxy: float,
+                                                                      turn_deg: float, hx: float) -> None:
+    """A board's soft iron (up to 4 % in the plane) makes an ellipse of the turning field. Turned 240° or more, the
+    fit finds its centre within 0.15 µT (a circle's fit: up to 0.56 µT at 240-300°, 1.1 at 200-240°; the ellipse
+    there up to 0.43, and 0.9 with every term at 4 %) and a shape that makes it a circle again: the calibrated
+    samples lie within 0.15 µT rms of one about 0 (the noise alone is 0.1), as large as the ellipse's area. Turned
+    150°, the shape is left as the identity (too little of the ellipse to tell it)."""
+    rng = np.random.default_rng(2)
+    soft = np.array([[1.0 + sxx, sxy], [sxy, 1.0 + syy]])
+    a = np.radians(turn_deg * 0.5 * (1.0 - np.cos(np.linspace(0.0, 3.0 * math.pi, 4000))))
+    xy = np.column_stack([20.0 * np.cos(a), 20.0 * np.sin(a)]) @ soft.T + [hx, -4.0]
+    mag = np.column_stack([xy, np.full(a.shape, -40.0)]) + rng.normal(0.0, 0.1, (a.size, 3))
+    fit = fit_hard_iron(mag)
+    assert np.allclose(fit.offset_xy_uT, [hx, -4.0], atol=0.15), fit
+    cal = fit.calibration((0.0, 0.0))
+    assert cal is not None
+    _, fixed = calibrate.DeviceCalibration.from_json(cal).apply(np.zeros_like(mag), mag)
+    assert fixed is not None
+    r = np.hypot(fixed[:, 0], fixed[:, 1])
+    area_radius = 20.0 * math.sqrt(np.linalg.det(soft))  # a scale alike in every direction stays (the field's size)
+    assert np.sqrt(np.mean((r - r.mean()) ** 2)) < 0.15 and abs(r.mean() - area_radius) < 0.1, (r.mean(), r.std())
+    part = fit_hard_iron(mag[: np.searchsorted(np.degrees(a[: a.size // 6]), 150.0)])
+    assert np.array_equal(part.shape_xy, np.eye(2))
+
+
 def test_a_hook_turned_less_than_90_degrees_gives_no_magnetometer_offset() -> None:
     a = np.radians(np.linspace(0.0, 60.0, 3000))
     mag = np.column_stack([20 * np.cos(a) + 3.0, 20 * np.sin(a), np.full_like(a, -40.0)])
@@ -436,8 +464,8 @@ def test_an_uncalibrated_compass_calibrated_by_the_twist_reads_the_torsion_withi
     """Tuning seed 1 on the MPU-6050/HMC5883L-class board (14 µT of hard iron in the hook's plane, 3 % soft iron),
     120 s, rope told: its twist session's circle (`twist_iron`, the calibration `calibrate --hook-mount` prints)
     taken out of the magnetometer before fusion, as the gateway applies a device calibration. Measured: torsion
-    7.96 → 0.86° RMS, Θ 0.099 → 0.098°; with the true hard iron taken out instead, 0.92° (docs/fusion.md, "An
-    uncalibrated compass on the hook")."""
+    7.96 → 0.47° RMS (0.86° with the circle's centre alone, before the ellipse), Θ 0.099 → 0.098°; with the true
+    hard iron taken out instead, 0.92° (docs/fusion.md, "An uncalibrated compass on the hook")."""
     case, truth, gyr, acc, mag = hs.simulate_seed(1, 120.0, "legacy", True)
     assert mag is not None
     cal = hs.twist_iron(case, "legacy")
@@ -449,6 +477,6 @@ def test_an_uncalibrated_compass_calibrated_by_the_twist_reads_the_torsion_withi
     for name, m in (("as is", mag), ("calibrated", mag_cal)):
         q, _ = hs.hook_estimate(gyr, acc, m, case.physics.rope_length_m)
         scores[name] = hs.score(q, truth, keep, True)
-    assert scores["calibrated"]["torsion_rmse"] < 1.0, scores
-    assert scores["as is"]["torsion_rmse"] > 4.0 * scores["calibrated"]["torsion_rmse"], scores
+    assert scores["calibrated"]["torsion_rmse"] < 0.7, scores
+    assert scores["as is"]["torsion_rmse"] > 8.0 * scores["calibrated"]["torsion_rmse"], scores
     assert scores["calibrated"]["swing_rmse"] < 1.1 * scores["as is"]["swing_rmse"], scores
