@@ -66,6 +66,7 @@ ACC_MIN_FULL_SCALE_M_S2 = 19.0  # ±2 g at least
 MIN_IRON_SPAN_RAD = math.radians(90.0)  # the field must turn this far for the circle's centre ...
 MIN_SHAPE_SPAN_RAD = math.radians(180.0)  # ... and this far for the ellipse the soft iron makes of it
 MAX_SHAPE_STRETCH = 1.25  # an ellipse longer than this over its width is not a board's soft iron: the circle stands
+MAX_IRON_SCATTER = 0.1  # samples further from the circle than this share of its radius (rms) do not trace one
 # A centre less certain than this (the segments' spread) is not given: the parts disagree by several µT, steel moved
 # near the hook. The twist sessions of the suite's legacy boards: up to 0.66 (tuning 1-30), 0.88 (2106-2125), 0.33
 # µT (2196-2215); against 5-14 µT of hard iron left in when it is not given.
@@ -313,8 +314,8 @@ def fit_hard_iron(mag_uT: ArrayLike, tilt_xy_rad: ArrayLike = (0.0, 0.0)) -> Iro
     On a circle's part an MPU-6050/HMC5883L-class board's 3 % of soft iron moved the centre 1-3 µT (the suite's twist
     sessions); over 200° and more, the ellipse's centre was within 0.8 µT.
 
-    Raises ValueError with what to do when the field did not turn `MIN_IRON_SPAN_RAD` about the centre or the
-    samples are not finite."""
+    Raises ValueError with what to do when the field did not turn `MIN_IRON_SPAN_RAD` about the centre, the samples
+    do not trace a circle (`MAX_IRON_SCATTER`) or are not finite."""
     mag = np.asarray(mag_uT, dtype=np.float64)
     if mag.ndim != 2 or mag.shape[1] != 3 or mag.shape[0] < 3 * SEGMENTS:
         raise ValueError(f"need magnetometer samples (N, 3), N ≥ {3 * SEGMENTS}, got {mag.shape}")
@@ -322,6 +323,10 @@ def fit_hard_iron(mag_uT: ArrayLike, tilt_xy_rad: ArrayLike = (0.0, 0.0)) -> Iro
         raise ValueError("the magnetometer samples are not all finite")
     xy = (mag @ tilt_matrix(tilt_xy_rad).T)[:, :2]
     centre, radius, dist = _circle(xy)
+    scatter = float(np.sqrt(np.mean(dist * dist)))
+    if not (radius > 1.0 and scatter <= MAX_IRON_SCATTER * radius):
+        raise ValueError(f"the magnetometer's x/y do not trace a circle as the hook turns ({scatter:.1f} µT rms about "
+                         f"one of {radius:.1f} µT): steel moving near it, or a hook that did not turn")
     span = float(np.ptp(np.unwrap(np.arctan2(xy[:, 1] - centre[1], xy[:, 0] - centre[0]))))
     if span < MIN_IRON_SPAN_RAD:
         raise ValueError(f"the hook turned {math.degrees(span):.0f}° in all; turn it "

@@ -450,7 +450,7 @@ def test_a_soft_iron_ellipse_turned_far_enough_is_made_a_circle_again(sxx: float
     assert np.array_equal(part.shape_xy, np.eye(2))
 
 
-def test_a_hook_turned_less_than_90_degrees_gives_no_magnetometer_offset() -> None:
+def test_a_hook_turned_less_than_90_degrees_or_a_field_that_traces_no_circle_gives_no_offset() -> None:
     a = np.radians(np.linspace(0.0, 60.0, 3000))
     mag = np.column_stack([20 * np.cos(a) + 3.0, 20 * np.sin(a), np.full_like(a, -40.0)])
     with pytest.raises(ValueError, match="turned 60°.*90° or more"):
@@ -458,6 +458,12 @@ def test_a_hook_turned_less_than_90_degrees_gives_no_magnetometer_offset() -> No
     assert MIN_IRON_SPAN_RAD == pytest.approx(math.radians(90.0))
     with pytest.raises(ValueError, match="finite"):
         fit_hard_iron(np.full((100, 3), math.nan))
+    t = np.linspace(-1.0, 1.0, 3000)
+    back_and_forth = np.column_stack([10 * np.sin(7 * t), 5 * np.sin(7 * t), np.full_like(t, -40.0)])
+    noise = np.column_stack([np.random.default_rng(1).normal(0.0, 1.0, (3000, 2)), np.full(3000, -40.0)])
+    for mag in (back_and_forth, noise):  # no circle: refused, not a made-up centre
+        with pytest.raises(ValueError, match="do not trace a circle"):
+            fit_hard_iron(mag)
 
 
 def test_an_uncalibrated_compass_calibrated_by_the_twist_reads_the_torsion_within_a_degree() -> None:
