@@ -30,9 +30,9 @@ again when it settles). Prints the settings and the command that sets them. Samp
 accelerometer clipped are left out (refused without a magnetometer: turn it more gently), and the accelerometer's
 offset is left out, with a line saying why, when its fit is less certain than 0.01 m/s². With a magnetometer it
 also prints a device `calibration` that takes the magnetometer's offset in the hook's plane (its hard iron, from
-the circle its x/y trace as the hook turns; turned 180° or more, the soft iron's ellipse too) out before fusion: an
-uncalibrated compass read the suite's torsion 2.3° off, 1.0° with it (docs/fusion.md). It replaces a pose calibration
-the device may have.
+the ellipse its x/y trace as the hook turns, along the twist the gyroscope integrates; the soft iron's in-plane part
+too) out before fusion: an uncalibrated compass read the suite's torsion 2.2° off, 0.6° with it (docs/fusion.md). It
+replaces a pose calibration the device may have.
 """
 
 from __future__ import annotations
@@ -330,7 +330,7 @@ def hook_mount_report(imu: ImuSeries, mag_uT: FloatArray | None, z_m: float, api
     iron, cal, iron_note = None, None, ""
     if mag_uT is not None:
         try:
-            iron = fit_hard_iron(mag_uT, [math.radians(a) for a in tilt_deg])
+            iron = fit_hard_iron(mag_uT, [math.radians(a) for a in tilt_deg], imu.gyr_rad_s, dt_s)
             cal = iron.calibration([math.radians(a) for a in tilt_deg])
         except ValueError as exc:
             iron_note = f"\n# calibration left out: {exc}"

@@ -29,10 +29,10 @@ is the rotation that takes the IMU's axes onto the hook's (`imu_tilt_deg`).
 
 And the magnetometer's offset in the hook's horizontal plane (`fit_hard_iron`): on a hook hanging plumb and turning
 about the rope, the magnetometer's x/y (in the hook's axes) trace a circle about that offset (its hard iron, plus
-the vertical field its soft iron leans onto x/y); the soft iron's in-plane part makes it an ellipse. A circle fit
-gives it, an ellipse fit when the field turned far enough; `IronFit.calibration` is the device calibration
-(`gateway.calibrate.DeviceCalibration`) that takes it out before fusion. An MPU-6050/HMC5883L-class board read the
-suite's torsion 2.3° RMS on fresh seeds; with the twist's calibration, 1.0° (docs/fusion.md).
+the vertical field its soft iron leans onto x/y); the soft iron's in-plane part makes it an ellipse, fitted along the
+twist the gyroscope integrates; `IronFit.calibration` is the device calibration (`gateway.calibrate.DeviceCalibration`)
+that takes it out before fusion. An MPU-6050/HMC5883L-class board read the suite's torsion 2.2° RMS on fresh seeds;
+with the twist's calibration, 0.6° (docs/fusion.md).
 """
 
 from __future__ import annotations
@@ -67,6 +67,8 @@ MIN_IRON_SPAN_RAD = math.radians(90.0)  # the field must turn this far for the c
 MIN_SHAPE_SPAN_RAD = math.radians(180.0)  # ... and this far for the ellipse the soft iron makes of it
 MAX_SHAPE_STRETCH = 1.25  # an ellipse longer than this over its width is not a board's soft iron: the circle stands
 MAX_IRON_SCATTER = 0.1  # samples further from the circle than this share of its radius (rms) do not trace one
+GYRO_BIAS_SEARCH_RAD_S = 0.1  # `_gyro_ellipse`: the gyroscope's z bias is searched within ± this (5.7 °/s) ...
+GYRO_SCALE_SEARCH = 0.04  # ... and its scale within 1 ± this
 # A centre less certain than this (the segments' spread) is not given: the parts disagree by several µT, steel moved
 # near the hook. The twist sessions of the suite's legacy boards: up to 0.66 (tuning 1-30), 0.88 (2106-2125), 0.33
 # µT (2196-2215); against 5-14 µT of hard iron left in when it is not given.
@@ -307,12 +309,42 @@ def _ellipse(xy: FloatArray, centre: FloatArray, iterations: int = 20) -> tuple[
     return centre.astype(np.float64), a.astype(np.float64)
 
 
-def fit_hard_iron(mag_uT: ArrayLike, tilt_xy_rad: ArrayLike = (0.0, 0.0)) -> IronFit:
+def _gyro_ellipse(xy: FloatArray, wz: FloatArray, dt_s: float) -> tuple[FloatArray, FloatArray, float]:
+    """Centre, `A` and rms residual (µT) of `xy ≈ centre + A (cos α, sin α)` with the twist α the gyroscope's z rate
+    integrated, less a bias and times a scale found by search (`GYRO_BIAS_SEARCH_RAD_S`, then `GYRO_SCALE_SEARCH`
+    about the best): linear in the centre and `A` for each. With the twist known the ellipse is found on any part of
+    its arc (a circle's or ellipse's fit on 125-170° of an MPU-6050/HMC5883L-class board's: 0.2-3.4 µT off; this,
+    0.03-0.65 µT on the suite's twist sessions)."""
+    best: tuple[float, float, float] = (math.inf, 0.0, 1.0)
+
+    def residual(bias: float, scale: float) -> float:
+        alpha = np.cumsum(wz - bias) * (dt_s * scale)
+        basis = np.column_stack([np.ones(xy.shape[0]), np.cos(alpha), np.sin(alpha)])
+        res = xy - basis @ np.linalg.lstsq(basis, xy, rcond=None)[0]
+        return float(np.sqrt(np.mean(res * res)))
+
+    for bias in np.linspace(-GYRO_BIAS_SEARCH_RAD_S, GYRO_BIAS_SEARCH_RAD_S, 201):
+        best = min(best, (residual(float(bias), 1.0), float(bias), 1.0))
+    step = 2.0 * GYRO_BIAS_SEARCH_RAD_S / 200.0
+    b0 = best[1]
+    for scale in np.linspace(1.0 - GYRO_SCALE_SEARCH, 1.0 + GYRO_SCALE_SEARCH, 33):
+        for bias in np.linspace(b0 - step, b0 + step, 11):
+            best = min(best, (residual(float(bias), float(scale)), float(bias), float(scale)))
+    alpha = np.cumsum(wz - best[1]) * (dt_s * best[2])
+    basis = np.column_stack([np.ones(xy.shape[0]), np.cos(alpha), np.sin(alpha)])
+    sol = np.linalg.lstsq(basis, xy, rcond=None)[0]
+    return sol[0].astype(np.float64), sol[1:].T.astype(np.float64), best[0]
+
+
+def fit_hard_iron(mag_uT: ArrayLike, tilt_xy_rad: ArrayLike = (0.0, 0.0), gyr_rad_s: ArrayLike | None = None,
+                  dt_s: float | None = None) -> IronFit:  # fmt: skip
     """The magnetometer's x/y offset in the hook's axes from the twist session (the module docstring): the samples
     turned by the IMU's tilt `tilt_xy_rad` (`MountFit.tilt_xy_rad`), a circle fitted to their x/y; when the field
     turned `MIN_SHAPE_SPAN_RAD` or more, an ellipse (`_ellipse`) for the centre and the soft iron's in-plane shape.
     On a circle's part an MPU-6050/HMC5883L-class board's 3 % of soft iron moved the centre 1-3 µT (the suite's twist
-    sessions); over 200° and more, the ellipse's centre was within 0.8 µT.
+    sessions); over 200° and more, the ellipse's centre was within 0.8 µT. Given the gyroscope (`gyr_rad_s`, `dt_s`,
+    the same samples) and no sample of it clipped, the ellipse is fitted along the twist it integrates
+    (`_gyro_ellipse`) whatever the turn.
 
     Raises ValueError with what to do when the field did not turn `MIN_IRON_SPAN_RAD` about the centre, the samples
     do not trace a circle (`MAX_IRON_SCATTER`) or are not finite."""
@@ -334,8 +366,19 @@ def fit_hard_iron(mag_uT: ArrayLike, tilt_xy_rad: ArrayLike = (0.0, 0.0)) -> Iro
     seg = np.array([_circle(xy[p])[0] for p in np.array_split(np.arange(xy.shape[0]), SEGMENTS)])
     std = float(np.sqrt(np.mean(np.var(seg, axis=0, ddof=1)) / SEGMENTS))
     shape = np.eye(2)
-    if span >= MIN_SHAPE_SPAN_RAD:
-        e_centre, a = _ellipse(xy, centre)
+    gyr = None if gyr_rad_s is None else np.asarray(gyr_rad_s, dtype=np.float64)
+    by_gyro = (gyr is not None and dt_s is not None and gyr.shape == mag.shape and bool(np.isfinite(gyr).all())
+               and not clipped(gyr, GYRO_MIN_FULL_SCALE_RAD_S).any())  # fmt: skip
+    ellipse = None
+    if by_gyro:
+        assert gyr is not None and dt_s is not None
+        e_centre, a, res = _gyro_ellipse(xy, (gyr @ tilt_matrix(tilt_xy_rad).T)[:, 2], dt_s)
+        if res <= 2.0 * scatter:  # else the twist it integrates is not the field's (a bias beyond the search)
+            ellipse = e_centre, a
+    if ellipse is None and span >= MIN_SHAPE_SPAN_RAD:
+        ellipse = _ellipse(xy, centre)
+    if ellipse is not None:
+        e_centre, a = ellipse
         u, sv, _ = np.linalg.svd(a)
         if np.isfinite(a).all() and sv[1] > 0.0 and sv[0] / sv[1] <= MAX_SHAPE_STRETCH:
             radius = float(np.sqrt(sv[0] * sv[1]))  # A = P R, P = U Σ Uᵀ: the correction r P⁻¹ keeps the area
