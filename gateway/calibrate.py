@@ -348,8 +348,9 @@ def hook_mount_report(imu: ImuSeries, mag_uT: FloatArray | None, z_m: float, api
     if bias is None:
         text += (f"\n# acc_bias_xy_m_s2 left out: the accelerometer's offset fits to "
                  f"{np.round(axes.bias_xy_m_s2, 3).tolist()} ± {axes.bias_std_m_s2:.3f} m/s², less certain than "
-                 f"{MAX_BIAS_STD_M_S2:g} (the hook swung or was pushed while it twisted); told wrong it would lean the "
-                 "rope wrong. The offset and tilt stand. To have it, twist the hook again hanging still, in calm air")
+                 f"{MAX_BIAS_STD_M_S2:g} (a twist too fast, or the hook swung or was pushed while it twisted); told "
+                 "wrong it would lean the rope wrong. The offset and tilt stand. To have it, twist the hook again, "
+                 "less hard, hanging still in calm air")
     text += iron_note
     if cal is not None:
         text += ("\n# calibration: the magnetometer's offset in the hook's plane (hard iron), taken out before fusion."

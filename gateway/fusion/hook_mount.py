@@ -56,7 +56,8 @@ MAX_STD_M = 0.01  # a fit less certain than this is refused (the setting's prior
 # The accelerometer's x/y offset (`acc_bias_xy_m_s2`) is not given when its fit is less certain than this (the
 # segments' spread, as the offset's; the filter's prior about a told offset is 0.02 m/s²). Twist sessions of the
 # suite's hooks: at most 0.005 on tuning seeds 1-30 (calibrated and legacy boards), windy and short 1-12, and fresh
-# 2126-2165; fresh seed 2184, whose hook kept swinging and whose fit was off by 0.07 m/s², 0.023.
+# 2126-2165; fresh seed 2184, whose stiff swivel twisted past its gyroscope's range and whose fit was off by 0.07
+# m/s², 0.023.
 MAX_BIAS_STD_M_S2 = 0.01
 CLIP_RUN = 3  # an axis held at its largest |value| for this many samples in a row has clipped (full scale) ...
 GYRO_MIN_FULL_SCALE_RAD_S = 4.3  # ... when that value is one a board's range can be (MPU-6050: ±250 °/s at least)
@@ -80,8 +81,8 @@ class IronFit:
     """The magnetometer's x/y offset in the hook's axes (µT), the circle's radius (the horizontal field, µT), the rms
     of the samples' distance from it (µT), how far the field turned (rad), the offset's 1σ (µT, the segments'
     spread of the circle's centre, as the mount's) and the in-plane soft-iron correction `shape_xy` (2 × 2,
-    symmetric: it turns the ellipse the samples trace back into a circle; the identity when the field turned less
-    than `MIN_SHAPE_SPAN_RAD`)."""
+    symmetric: it turns the ellipse the samples trace back into a circle; the identity when no ellipse was fitted:
+    no usable gyroscope and a turn under `MIN_SHAPE_SPAN_RAD`, or one stretched past `MAX_SHAPE_STRETCH`)."""
 
     offset_xy_uT: FloatArray
     radius_uT: float
@@ -314,7 +315,7 @@ def _gyro_ellipse(xy: FloatArray, wz: FloatArray, dt_s: float) -> tuple[FloatArr
     integrated, less a bias and times a scale found by search (`GYRO_BIAS_SEARCH_RAD_S`, then `GYRO_SCALE_SEARCH`
     about the best): linear in the centre and `A` for each. With the twist known the ellipse is found on any part of
     its arc (a circle's or ellipse's fit on 125-170° of an MPU-6050/HMC5883L-class board's: 0.2-3.4 µT off; this,
-    0.03-0.65 µT on the suite's twist sessions)."""
+    0.03-0.72 µT on the suite's twist sessions)."""
     best: tuple[float, float, float] = (math.inf, 0.0, 1.0)
 
     def residual(bias: float, scale: float) -> float:
