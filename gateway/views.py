@@ -43,6 +43,9 @@ def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dic
             out["height"] = dev.height.model_dump()
         if kind == "rod":
             out["auto_reel"] = pl.auto_reel.get(device_id, False)
+    if kind != "ball":  # an IMU calibration applied before fusion (`python -m gateway.calibrate`, the hook's twist)
+        entry = pl.device_settings.get(device_id)
+        out["imu_calibration"] = entry is not None and entry[1].calibration is not None
     feed_view = getattr(pl.handlers.get(kind), "feed_view", None)  # a hook's crane feed (docs/protocol.md 3.7)
     if feed_view is not None:
         out["crane_feed"] = feed_view(device_id, time.time())

@@ -398,6 +398,7 @@ function updateDevice(d, c) {
     const cf = c.crane_feed;
     facts.push(["crane feed", cf ? (cf.in_use ? "in use" : `quiet ${fmt(cf.newest_age_s, 0)} s`) : "none"]);
   }
+  if (c.imu_calibration != null) facts.push(["IMU calibration", c.imu_calibration ? "applied" : "none"]); // docs/calibration.md
   if (c.height) facts.push(["height / Vz", `${fmt(c.height.height_m, 2)} m / ${fmt(c.height.vz_m_s, 2)} m/s${c.height.at_rest ? " (rest)" : ""}`]);
   if (c.readings) facts.push(["spot", c.readings.spot], ["water", `${fmt(c.readings.water_temp_c)} °C`], ["O₂", `${fmt(c.readings.oxygen_mg_l, 2)} mg/l`]);
   if (c.reel) facts.push(["reel", `${c.reel.mode} / ${c.reel.motor}`], ["line out", `${fmt(c.reel.line_out_m)} m`]);

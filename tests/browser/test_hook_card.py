@@ -125,3 +125,27 @@ def test_hook_cards_show_the_angles_the_rope_and_the_crane_feed(hooks: System, p
         assert not get_json(hooks.base + f"/api/devices/{device}")["swing"].get("provisional"), device
     page.shot("dashboard_hooks")
     assert not page.errors(), page.errors()
+
+
+def test_a_calibration_set_over_rest_shows_on_the_hook_card(hooks: System, page: Browser) -> None:
+    """The compass calibration `calibrate --hook-mount` prints, set with `PUT /api/devices/{id}/settings`: the card
+    says "IMU calibration: applied" and REST's card `imu_calibration` true; the other hook's says "none". (Its fusion
+    restarts on the change, so this runs last.)"""
+    import httpx
+
+    p = page.page
+    p.goto(hooks.base + "/")
+    p.get_by_test_id(f"fleet-{UNFED}").wait_for(timeout=15_000)
+    wait_js(p, f"""[...document.querySelectorAll('[data-testid="facts-{UNFED}"] [data-field="IMU calibration"] b')]
+            .some((b) => b.textContent === 'none')""", timeout=15_000)  # fmt: skip
+    token = (hooks.data_dir / "api_token").read_text().strip()
+    cal = {"acc_offset_m_s2": [0.0, 0.0, 0.0], "acc_scale": [1.0, 1.0, 1.0], "mag_offset_uT": [1.5, -2.0, 0.0],
+           "mag_soft_iron": [[1.01, 0.0, 0.0], [0.0, 0.99, 0.0], [0.0, 0.0, 1.0]]}  # fmt: skip
+    r = httpx.put(f"{hooks.base}/api/devices/{UNFED}/settings", json={"kind": "hook", "calibration": cal},
+                  headers={"Authorization": f"Bearer {token}"}, timeout=10.0)  # fmt: skip
+    assert r.status_code == 200, r.text
+    wait_js(p, f"""[...document.querySelectorAll('[data-testid="facts-{UNFED}"] [data-field="IMU calibration"] b')]
+            .some((b) => b.textContent === 'applied')""", timeout=15_000)  # fmt: skip
+    assert get_json(hooks.base + f"/api/devices/{UNFED}")["imu_calibration"] is True
+    assert _facts(page, FED)["IMU calibration"] == "none"
+    assert get_json(hooks.base + f"/api/devices/{FED}")["imu_calibration"] is False
