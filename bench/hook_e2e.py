@@ -344,22 +344,22 @@ def twist_calibration(scenario: str, duration_s: float, imu: str, seed: int) -> 
 
 
 def put_device_settings(http_port: int, data_dir: Path, device_id: str, body: dict[str, object]) -> None:
-    """`PUT /api/devices/{id}/settings` (the bearer token from the gateway's data directory)."""
-    import httpx
-
-    token = (data_dir / "api_token").read_text().strip()
-    r = httpx.put(f"http://127.0.0.1:{http_port}/api/devices/{device_id}/settings", json=body,
-                  headers={"Authorization": f"Bearer {token}"}, timeout=10.0)  # fmt: skip
-    r.raise_for_status()
+    """`PUT /api/devices/{id}/settings`."""
+    _put(http_port, data_dir, f"/api/devices/{device_id}/settings", body)
 
 
 def set_rope_length(http_port: int, data_dir: Path, rope_length_m: float) -> None:
-    """`PUT /api/thresholds/hook` with the rope length (the bearer token from the gateway's data directory)."""
+    """`PUT /api/thresholds/hook` with the rope length."""
+    _put(http_port, data_dir, "/api/thresholds/hook", {"rope_length_m": rope_length_m})
+
+
+def _put(http_port: int, data_dir: Path, path: str, body: dict[str, object]) -> None:
+    """A PUT to the gateway's REST API with the bearer token from its data directory; raises on an error status."""
     import httpx
 
     token = (data_dir / "api_token").read_text().strip()
-    r = httpx.put(f"http://127.0.0.1:{http_port}/api/thresholds/hook", json={"rope_length_m": rope_length_m},
-                  headers={"Authorization": f"Bearer {token}"}, timeout=10.0)  # fmt: skip
+    r = httpx.put(f"http://127.0.0.1:{http_port}{path}", json=body, headers={"Authorization": f"Bearer {token}"},
+                  timeout=10.0)  # fmt: skip
     r.raise_for_status()
 
 

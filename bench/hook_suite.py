@@ -86,7 +86,7 @@ from devices.hook_physics import (
     suspension_acceleration,
     trolley_traverse,
 )
-from gateway.calibrate import DeviceCalibration
+from gateway.calibrate import DeviceCalibration, hook_compass_calibration
 from gateway.fusion import hook
 from gateway.fusion.hook_filter import (
     COMPASS_ROUND,
@@ -498,7 +498,7 @@ def twist_iron(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw:
     _, gyr, acc, mag = twist_session(case, imu, rate_hz, sensor_draw, board_seed)
     try:
         tilt = fit_hook_mount(gyr, acc, 1.0 / rate_hz, mag).tilt_xy_rad
-        return fit_hard_iron(mag, tilt, gyr, 1.0 / rate_hz).calibration(tilt)
+        return hook_compass_calibration(fit_hard_iron(mag, tilt, gyr, 1.0 / rate_hz), tilt)
     except ValueError:
         return None
 

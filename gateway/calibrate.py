@@ -61,7 +61,14 @@ from gateway.fusion.calibration import (
     calibrate_mag_minmax,
     fit_accel_offset_scale,
 )
-from gateway.fusion.hook_mount import MAX_BIAS_STD_M_S2, MAX_IRON_STD_UT, fit_hard_iron, fit_hook_mount, hook_axes_fit
+from gateway.fusion.hook_mount import (
+    MAX_BIAS_STD_M_S2,
+    MAX_IRON_STD_UT,
+    IronFit,
+    fit_hard_iron,
+    fit_hook_mount,
+    hook_axes_fit,
+)
 
 METHODS: tuple[str, ...] = ("fit", "paper")
 POSE_REST = RestSettings(gyr_th_rad_s=float(np.deg2rad(0.5)), acc_th_m_s2=0.1)
@@ -316,13 +323,26 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def hook_compass_calibration(iron: IronFit, tilt_xy_rad: Sequence[float]) -> dict[str, Any] | None:
+    """The device calibration (`DeviceCalibration.to_json`) that takes a hook's compass offset and in-plane soft iron
+    (`IronFit.mag_correction`) out before fusion, the accelerometer as it is; None when the fit is too uncertain."""
+    correction = iron.mag_correction(tilt_xy_rad)
+    if correction is None:
+        return None
+    offset, soft = correction
+    # to 0.01 µT and 1e-5 (far below the fit's own error), so the tilt's trace on z reads 0
+    return DeviceCalibration(np.zeros(3), np.ones(3), np.round(offset, 2), np.round(soft, 5),
+                             mag_fit_rms_uT=iron.residual_uT).to_json()
+
+
 def hook_mount_report(imu: ImuSeries, mag_uT: FloatArray | None, z_m: float, api: str = "http://127.0.0.1:8000"
                       ) -> str:  # fmt: skip
     """`--hook-mount`: the fit as JSON (the `imu_offset_m` setting first) and how to set it; ValueError if it cannot."""
     dt_s = 1.0 / imu.rate_hz
     fit = fit_hook_mount(imu.gyr_rad_s, imu.acc_m_s2, dt_s, mag_uT)
     tilt_deg = fit.tilt_setting()
-    axes = hook_axes_fit(imu.gyr_rad_s, imu.acc_m_s2, dt_s, mag_uT, [math.radians(a) for a in tilt_deg])
+    tilt_rad = [math.radians(a) for a in tilt_deg]  # as the filter will turn the samples: the setting, rounded
+    axes = hook_axes_fit(imu.gyr_rad_s, imu.acc_m_s2, dt_s, mag_uT, tilt_rad)
     bias = axes.bias_setting()
     settings = {"imu_offset_m": fit.setting(z_m), "imu_tilt_deg": tilt_deg}
     if bias is not None:
@@ -330,8 +350,8 @@ def hook_mount_report(imu: ImuSeries, mag_uT: FloatArray | None, z_m: float, api
     iron, cal, iron_note = None, None, ""
     if mag_uT is not None:
         try:
-            iron = fit_hard_iron(mag_uT, [math.radians(a) for a in tilt_deg], imu.gyr_rad_s, dt_s)
-            cal = iron.calibration([math.radians(a) for a in tilt_deg])
+            iron = fit_hard_iron(mag_uT, tilt_rad, imu.gyr_rad_s, dt_s)
+            cal = hook_compass_calibration(iron, tilt_rad)
         except ValueError as exc:
             iron_note = f"\n# calibration left out: {exc}"
     figures = {"std_m": round(fit.std_m, 4), "twist_accel_rms_rad_s2": round(fit.twist_accel_rms_rad_s2, 3),

@@ -91,22 +91,17 @@ class IronFit:
     std_uT: float
     shape_xy: FloatArray = dataclasses.field(default_factory=lambda: np.eye(2))
 
-    def calibration(self, tilt_xy_rad: ArrayLike) -> dict[str, object] | None:
-        """The device calibration JSON (`DeviceCalibration.to_json`'s form) that takes the offset out of the
-        magnetometer before fusion, in the IMU's own axes (the calibration is applied before the tilt turns the
-        samples onto the hook's): the accelerometer as it is; None when the fit is less certain than
-        `MAX_IRON_STD_UT`."""
+    def mag_correction(self, tilt_xy_rad: ArrayLike) -> tuple[FloatArray, FloatArray] | None:
+        """The magnetometer's offset (3,) and soft-iron matrix (3, 3) in the IMU's own axes (a calibration is applied
+        before the tilt turns the samples onto the hook's) that take this fit out before fusion, for
+        `gateway.calibrate.hook_compass_calibration`; None when the fit is less certain than `MAX_IRON_STD_UT`."""
         if self.std_uT > MAX_IRON_STD_UT:
             return None
         turn = tilt_matrix(tilt_xy_rad)  # hook = turn @ IMU
         offset = turn.T @ np.array([self.offset_xy_uT[0], self.offset_xy_uT[1], 0.0])
         shape = np.eye(3)
         shape[:2, :2] = self.shape_xy
-        soft = turn.T @ shape @ turn  # in the hook's axes: x/y reshaped, z as it is
-        return {"acc_offset_m_s2": [0.0, 0.0, 0.0], "acc_scale": [1.0, 1.0, 1.0],
-                "mag_offset_uT": [round(float(v), 2) for v in offset],
-                "mag_soft_iron": np.round(soft, 5).tolist(),
-                "n_poses": 0, "acc_fit_rms_m_s2": 0.0, "mag_fit_rms_uT": round(self.residual_uT, 3)}  # fmt: skip
+        return offset, turn.T @ shape @ turn  # in the hook's axes: x/y reshaped, z as it is
 
 
 @dataclass(frozen=True)
@@ -310,31 +305,33 @@ def _ellipse(xy: FloatArray, centre: FloatArray, iterations: int = 20) -> tuple[
     return centre.astype(np.float64), a.astype(np.float64)
 
 
+def _along(xy: FloatArray, alpha: FloatArray) -> tuple[FloatArray, float]:
+    """`[centre; Aᵀ]` (3, 2) of `xy ≈ centre + A (cos α, sin α)` by linear least squares, and the rms residual (µT)."""
+    basis = np.column_stack([np.ones(xy.shape[0]), np.cos(alpha), np.sin(alpha)])
+    sol = np.linalg.lstsq(basis, xy, rcond=None)[0]
+    res = xy - basis @ sol
+    return sol.astype(np.float64), float(np.sqrt(np.mean(res * res)))
+
+
 def _gyro_ellipse(xy: FloatArray, wz: FloatArray, dt_s: float) -> tuple[FloatArray, FloatArray, float]:
     """Centre, `A` and rms residual (µT) of `xy ≈ centre + A (cos α, sin α)` with the twist α the gyroscope's z rate
     integrated, less a bias and times a scale found by search (`GYRO_BIAS_SEARCH_RAD_S`, then `GYRO_SCALE_SEARCH`
-    about the best): linear in the centre and `A` for each. With the twist known the ellipse is found on any part of
-    its arc (a circle's or ellipse's fit on 125-170° of an MPU-6050/HMC5883L-class board's: 0.2-3.4 µT off; this,
-    0.03-0.72 µT on the suite's twist sessions)."""
-    best: tuple[float, float, float] = (math.inf, 0.0, 1.0)
+    about the best): linear in the centre and `A` for each (`_along`). With the twist known the ellipse is found on
+    any part of its arc (a circle's or ellipse's fit on 125-170° of an MPU-6050/HMC5883L-class board's: 0.2-3.4 µT
+    off; this, 0.03-0.72 µT on the suite's twist sessions)."""
 
-    def residual(bias: float, scale: float) -> float:
-        alpha = np.cumsum(wz - bias) * (dt_s * scale)
-        basis = np.column_stack([np.ones(xy.shape[0]), np.cos(alpha), np.sin(alpha)])
-        res = xy - basis @ np.linalg.lstsq(basis, xy, rcond=None)[0]
-        return float(np.sqrt(np.mean(res * res)))
+    def twist(bias: float, scale: float) -> FloatArray:
+        out: FloatArray = np.cumsum(wz - bias) * (dt_s * scale)
+        return out
 
-    for bias in np.linspace(-GYRO_BIAS_SEARCH_RAD_S, GYRO_BIAS_SEARCH_RAD_S, 201):
-        best = min(best, (residual(float(bias), 1.0), float(bias), 1.0))
+    best = min((_along(xy, twist(float(b), 1.0))[1], float(b), 1.0)
+               for b in np.linspace(-GYRO_BIAS_SEARCH_RAD_S, GYRO_BIAS_SEARCH_RAD_S, 201))  # fmt: skip
     step = 2.0 * GYRO_BIAS_SEARCH_RAD_S / 200.0
-    b0 = best[1]
-    for scale in np.linspace(1.0 - GYRO_SCALE_SEARCH, 1.0 + GYRO_SCALE_SEARCH, 33):
-        for bias in np.linspace(b0 - step, b0 + step, 11):
-            best = min(best, (residual(float(bias), float(scale)), float(bias), float(scale)))
-    alpha = np.cumsum(wz - best[1]) * (dt_s * best[2])
-    basis = np.column_stack([np.ones(xy.shape[0]), np.cos(alpha), np.sin(alpha)])
-    sol = np.linalg.lstsq(basis, xy, rcond=None)[0]
-    return sol[0].astype(np.float64), sol[1:].T.astype(np.float64), best[0]
+    best = min([best, *((_along(xy, twist(float(b), float(k)))[1], float(b), float(k))
+                        for k in np.linspace(1.0 - GYRO_SCALE_SEARCH, 1.0 + GYRO_SCALE_SEARCH, 33)
+                        for b in np.linspace(best[1] - step, best[1] + step, 11))])  # fmt: skip
+    sol, res = _along(xy, twist(best[1], best[2]))
+    return sol[0], sol[1:].T, res
 
 
 def fit_hard_iron(mag_uT: ArrayLike, tilt_xy_rad: ArrayLike = (0.0, 0.0), gyr_rad_s: ArrayLike | None = None,

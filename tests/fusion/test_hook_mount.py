@@ -414,7 +414,7 @@ def test_the_field_turning_with_the_hook_gives_the_circles_centre(hx: float, hy:
     fit = fit_hard_iron(imu, tilt)
     assert np.allclose(fit.offset_xy_uT, [hx, hy], atol=0.15), fit
     assert abs(fit.radius_uT - radius) < 0.1 and fit.span_rad >= math.radians(turn_deg) - 0.05, fit
-    cal = fit.calibration(tilt)
+    cal = calibrate.hook_compass_calibration(fit, tilt)
     assert cal is not None
     _, fixed = calibrate.DeviceCalibration.from_json(cal).apply(np.zeros_like(imu), imu)
     assert fixed is not None
@@ -439,7 +439,7 @@ def test_a_soft_iron_ellipse_turned_far_enough_is_made_a_circle_again(sxx: float
     mag = np.column_stack([xy, np.full(a.shape, -40.0)]) + rng.normal(0.0, 0.1, (a.size, 3))
     fit = fit_hard_iron(mag)
     assert np.allclose(fit.offset_xy_uT, [hx, -4.0], atol=0.15), fit
-    cal = fit.calibration((0.0, 0.0))
+    cal = calibrate.hook_compass_calibration(fit, (0.0, 0.0))
     assert cal is not None
     _, fixed = calibrate.DeviceCalibration.from_json(cal).apply(np.zeros_like(mag), mag)
     assert fixed is not None
