@@ -388,8 +388,10 @@ class HookFilterSettings:
     compass_check_early_excess: float = 600.0
     # ... and the twin stops (its cost, a second filter, ends) once the compass has been trusted through this many
     # seconds of swinging (`monitor[13]`: a mean swing amplitude above `compass_check_swing_rad`); 0: it never stops.
-    # A compass that turns bad later is then not caught (`hook-6d` for that).
-    compass_check_evidence_s: float = 120.0
+    # A compass that turns bad later is then not caught (`hook-6d` for that). 60 s since 2026-12-05 (120 before): every
+    # drop of the raw and legacy boards' surveys came before 60 s of swinging (the latest, raw seed 1611, at 81 s of
+    # time but under 40 s of swinging), and the twin is a second filter's cost on every hook of a fleet's start.
+    compass_check_evidence_s: float = 60.0
     compass_check_swing_rad: float = 0.0087  # 0.5°
     # ... and the twin pauses (its cost, a second filter, with it) once the hook has hung this many seconds with its
     # swing under `compass_check_swing_rad` (a still hook is no evidence either way), then starts again from this
