@@ -406,6 +406,13 @@ class HookFilterSettings:
     # along by the z rate) and the swing carried back to the window's start to second order; False: the start heading
     # held and first order, the filter before issue 11's start-swing round (a hook twisting 34°/s read 0.3-0.5° short)
     start_swing_turns: bool = True
+    # `start()` with a magnetometer: the warm-up's mean z rate is not taken for the gyroscope's z bias (x/y still are,
+    # at rest). A hanging hook twists slowly (its torsion spring, gusts), and 0.5 s of a slow twist is as quiet as a
+    # bias: crane 2196 twisted at 0.89 °/s with 0.51 °/s of spread and the seed took it, so the compass spent 20 s
+    # taking it back (torsion -2.5° at 9 s on an error-free board, 0.0° without the seed). The compass finds the z bias
+    # as the hook turns. False (`ZSEED_ROUND`, the filter before 2026-12-05): seeded when quiet, as in 6D, where no
+    # compass finds it.
+    start_z_bias_from_compass: bool = True
     start_mag_levelled: bool = True  # `start()`: the magnetometer reference and start heading from the window's field
     # turned to ENU by the start tilt and the twist (`level_mag_reference`); False: the body-frame mean (the filter
     # before the fifth round: a 5° swing put 4 µT of the vertical field into the heading, 11°, and the z gyro bias
@@ -462,6 +469,9 @@ START_ROUND: dict[str, float] = {"start_swing_turns": False}
 
 # A dropped compass before issue 11's drop-heading round (`compass_drop_keeps_heading`): the twin's own heading.
 DROP_ROUND: dict[str, float] = {"compass_drop_keeps_heading": False}
+
+# The z gyro bias seeded from a quiet warm-up with a magnetometer too (`start_z_bias_from_compass`), before 2026-12-05.
+ZSEED_ROUND: dict[str, float] = {"start_z_bias_from_compass": False}
 
 # The defaults before issue 11's compass round (no twin without the magnetometer): `HookFilterSettings(**COMPASS_ROUND)`
 COMPASS_ROUND: dict[str, float] = {"compass_check_excess": 0.0}
@@ -2012,7 +2022,8 @@ class HookFilter(AttitudeFilter):
         rest = level and quiet[0] and quiet[1] and swing is None
         if rest:
             if seed_bias:
-                self.seed_gyro_bias(gyr.mean(axis=0), axes=(0, 1, 2) if quiet[2] else (0, 1))
+                z = quiet[2] and not (s.start_z_bias_from_compass and self.use_mag and mag_uT is not None)
+                self.seed_gyro_bias(gyr.mean(axis=0), axes=(0, 1, 2) if z else (0, 1))
         else:
             self.assume_moving()
         swinging = not rest and self._set_start_swing(swing)
