@@ -389,7 +389,7 @@ class HookFilterSettings:
     # ... and the twin stops (its cost, a second filter, ends) once the compass has been trusted through this many
     # seconds of swinging (`monitor[13]`: a mean swing amplitude above `compass_check_swing_rad`); 0: it never stops.
     # A compass that turns bad later is then not caught (`hook-6d` for that). 60 s since 2026-12-05 (120 before): every
-    # drop of the raw and legacy boards' surveys came before 60 s of swinging (the latest, raw seed 1611, at 81 s of
+    # drop of the raw and legacy boards' surveys came before 60 s of swinging (the latest, raw seed 1611, at 81-83 s of
     # time but under 40 s of swinging), and the twin is a second filter's cost on every hook of a fleet's start.
     compass_check_evidence_s: float = 60.0
     compass_check_swing_rad: float = 0.0087  # 0.5°
@@ -409,7 +409,7 @@ class HookFilterSettings:
     # `start()` with a magnetometer: the warm-up's mean z rate is not taken for the gyroscope's z bias (x/y still are,
     # at rest). A hanging hook twists slowly (its torsion spring, gusts), and 0.5 s of a slow twist is as quiet as a
     # bias: crane 2196 twisted at 0.89 °/s with 0.51 °/s of spread and the seed took it, so the compass spent 20 s
-    # taking it back (torsion -2.5° at 9 s on an error-free board, 0.0° without the seed). The compass finds the z bias
+    # taking it back (torsion -2.5° at 9 s on an error-free board, at most 0.1° without the seed). The compass finds the z bias
     # as the hook turns. False (`ZSEED_ROUND`, the filter before 2026-12-05): seeded when quiet, as in 6D, where no
     # compass finds it.
     start_z_bias_from_compass: bool = True
