@@ -409,9 +409,9 @@ class HookFilterSettings:
     # `start()` with a magnetometer: the warm-up's mean z rate is not taken for the gyroscope's z bias (x/y still are,
     # at rest). A hanging hook twists slowly (its torsion spring, gusts), and 0.5 s of a slow twist is as quiet as a
     # bias: crane 2196 twisted at 0.89 °/s with 0.51 °/s of spread and the seed took it, so the compass spent 20 s
-    # taking it back (torsion -2.5° at 9 s on an error-free board, at most 0.1° without the seed). The compass finds the z bias
-    # as the hook turns. False (`ZSEED_ROUND`, the filter before 2026-12-05): seeded when quiet, as in 6D, where no
-    # compass finds it.
+    # taking it back (torsion -2.5° at 9 s on an error-free board, at most 0.1° without the seed). The compass finds
+    # the z bias as the hook turns. False (`ZSEED_ROUND`, the filter before 2026-12-05): seeded when quiet, as in 6D,
+    # where no compass finds it.
     start_z_bias_from_compass: bool = True
     start_mag_levelled: bool = True  # `start()`: the magnetometer reference and start heading from the window's field
     # turned to ENU by the start tilt and the twist (`level_mag_reference`); False: the body-frame mean (the filter
