@@ -402,6 +402,12 @@ class HookFilterSettings:
     # carried by the gyroscope alone, off by its z bias times the time since the start (legacy board 1740: 60° after
     # 23 s). False: the twin's heading, the filter before issue 11's drop-heading round.
     compass_drop_keeps_heading: bool = True
+    # ... but not while the field's magnitude holds steady: the std of its 1-s means over the test window under this
+    # (µT). A hard iron that turns with the hook (what the test is for) moves |m| as the hook twists (raw boards'
+    # drops: 0.6-11 µT), a calibrated compass's does not (0.01-0.28 µT); there the twin's better likelihood was its free
+    # heading absorbing the gyroscope's errors (fresh crane 2371: its z bias learnt -2.5 °/s for a true 0.14, then
+    # torsion drifted 30° after the drop). 0: no such check (`STEADY_ROUND`, the filter before 2026-12-06).
+    compass_steady_field_uT: float = 0.5
     # `swing_from_window`: the warm-up's gyroscope x/y turned by the heading at each sample (the start heading carried
     # along by the z rate) and the swing carried back to the window's start to second order; False: the start heading
     # held and first order, the filter before issue 11's start-swing round (a hook twisting 34°/s read 0.3-0.5° short)
@@ -469,6 +475,8 @@ START_ROUND: dict[str, float] = {"start_swing_turns": False}
 
 # A dropped compass before issue 11's drop-heading round (`compass_drop_keeps_heading`): the twin's own heading.
 DROP_ROUND: dict[str, float] = {"compass_drop_keeps_heading": False}
+# A compass dropped whatever its field's magnitude did (`compass_steady_field_uT`), before 2026-12-06.
+STEADY_ROUND: dict[str, float] = {"compass_steady_field_uT": 0.0}
 
 # The z gyro bias seeded from a quiet warm-up with a magnetometer too (`start_z_bias_from_compass`), before 2026-12-05.
 ZSEED_ROUND: dict[str, float] = {"start_z_bias_from_compass": False}
@@ -1723,6 +1731,15 @@ def _onset_rerun(x: FloatArray, p: FloatArray, mon: FloatArray, back_s: float, h
 
 
 @njit
+def _norm_sum(v: FloatArray) -> float:
+    """Σ |v_i| over the rows of `v` (N, 3): the compass test's field magnitudes (`HookFilter._check_compass`)."""
+    total = 0.0
+    for i in range(v.shape[0]):
+        total += math.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
+    return total
+
+
+@njit
 def ekf_run(
     x0: FloatArray, p0: FloatArray, z: FloatArray, u: FloatArray, dt_s: float, params: FloatArray,
     q_psd: FloatArray, r_diag: FloatArray, monitor: FloatArray, hist_x: FloatArray, hist_p: FloatArray,
@@ -1886,6 +1903,8 @@ class HookFilter(AttitudeFilter):
         self._twin_t_s = 0.0
         self._twin_evidence_s = 0.0  # seconds of swinging the twin has been compared through
         self._twin_still_s = 0.0  # seconds the hook has hung still since it last swang (`compass_check_still_s`)
+        self._field_sum, self._field_n = 0.0, 0  # |m| (µT) summed over the compass test's current piece of samples
+        self._field_means: collections.deque[tuple[float, float]] = collections.deque()  # (t s, its mean) per piece
         self._twin_paused = False  # the twin is not stepped while the hook hangs still
         self._to_check = 1  # samples until the compass test runs next (`_check_compass`; set by `start()`)
         self._replay: _Replay | None = None  # `start()`'s window and the samples since, while a re-start may come
@@ -2112,7 +2131,7 @@ class HookFilter(AttitudeFilter):
             return None
         return "tested" if self._twin is not None else "trusted"
 
-    def _check_compass(self, gyr: FloatArray, acc: FloatArray, dt_s: float, r_scale: float,
+    def _check_compass(self, gyr: FloatArray, acc: FloatArray, mag: FloatArray, dt_s: float, r_scale: float,
                        out: tuple[FloatArray, FloatArray], tip: FloatArray | None = None
                        ) -> tuple[FloatArray, FloatArray]:  # fmt: skip
         """Step the twin without the magnetometer on the same samples and compare the two swing-rate -2 log-likelihoods
@@ -2123,16 +2142,23 @@ class HookFilter(AttitudeFilter):
         `COMPASS_CHECK_S` of samples counted from the start (`run_with_length` cuts calls where it falls), so its
         decisions are the same whatever the packet size. A hook that has hung still for `compass_check_still_s`
         pauses the twin (nothing to compare, half the cost); when it swings again the twin starts over from this
-        filter's state (`_start_twin`)."""
+        filter's state (`_start_twin`). Not dropped while the field's magnitude holds steady
+        (`compass_steady_field_uT`)."""
         twin, s = self._twin, self.settings
         assert twin is not None
         twin_out = out if self._twin_paused else twin._run(gyr, acc, None, dt_s, r_scale, tip)  # the same frame
         self._to_check -= gyr.shape[0]
+        self._field_sum += _norm_sum(mag)
+        self._field_n += mag.shape[0]
         if self._to_check > 0:
             return out
         piece = max(1, round(COMPASS_CHECK_S / dt_s))
         self._to_check, step_s = piece, piece * dt_s
         self._twin_t_s += step_s
+        self._field_means.append((self._twin_t_s, self._field_sum / max(1, self._field_n)))
+        self._field_sum, self._field_n = 0.0, 0
+        while self._field_means[0][0] <= self._twin_t_s - s.compass_check_window_s:
+            self._field_means.popleft()
         if self._monitor[13] > s.compass_check_swing_rad**2:
             self._twin_evidence_s += step_s
             self._twin_still_s = 0.0
@@ -2150,7 +2176,7 @@ class HookFilter(AttitudeFilter):
         while len(marks) > 1 and marks[1][0] <= now - window:
             marks.popleft()
         if diff - marks[0][1] <= (s.compass_check_early_excess if now < s.compass_check_after_s
-                                  else s.compass_check_excess):  # fmt: skip
+                                  else s.compass_check_excess) or self._field_steady():  # fmt: skip
             if 0.0 < s.compass_check_evidence_s <= self._twin_evidence_s:
                 self._twin = None  # trusted through enough swinging: the compass is kept, the twin's cost ends
             return out
@@ -2165,6 +2191,14 @@ class HookFilter(AttitudeFilter):
             self._turn_state(turn_rad)
             return multiply(from_axis_angle([0.0, 0.0, 1.0], -turn_rad), twin_out[0]), twin_out[1]
         return twin_out
+
+    def _field_steady(self) -> bool:
+        """Whether the field's magnitude held steady over the compass test's window: the std of its 1-s means
+        (`_check_compass`; at least 2 of them) under `compass_steady_field_uT`."""
+        limit = self.settings.compass_steady_field_uT
+        if limit <= 0.0 or len(self._field_means) < 2:
+            return False
+        return float(np.std([m for _, m in self._field_means])) < limit
 
     def _turn_state(self, turn_rad: float) -> None:
         """Turn the filter's frame about the vertical by -`turn_rad`: the rope direction, its rate and the boom tip's
@@ -2305,7 +2339,8 @@ class HookFilter(AttitudeFilter):
                                        self._q_psd, self._r_diag(zv.shape[0]), self._monitor,
                                        *self._rings(dt_s))  # fmt: skip
         if self._twin is not None and use_mag:
-            self._check_compass(gyr[None, :], acc[None, :], dt_s, 1.0, (np.zeros((1, 4)), np.zeros(1)))
+            self._check_compass(gyr[None, :], acc[None, :], np.asarray(mag_uT, dtype=np.float64)[None, :], dt_s, 1.0,
+                                (np.zeros((1, 4)), np.zeros(1)))  # fmt: skip
         return self.quaternion
 
     def run_with_length(self, gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray | None, dt_s: float,
@@ -2365,7 +2400,8 @@ class HookFilter(AttitudeFilter):
             if redone is not None:  # started again: the re-started filter ran these samples, its compass test too
                 return redone
         if self._twin is not None and use_mag:
-            return self._check_compass(gyr, acc, dt_s, r_scale, (quats, lengths), tip)
+            return self._check_compass(gyr, acc, np.asarray(mag_uT, dtype=np.float64), dt_s, r_scale, (quats, lengths),
+                                       tip)  # fmt: skip
         return quats, lengths
 
     def _replay_start(self, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, dt_s: float,
