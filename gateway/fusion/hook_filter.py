@@ -402,11 +402,14 @@ class HookFilterSettings:
     # carried by the gyroscope alone, off by its z bias times the time since the start (legacy board 1740: 60° after
     # 23 s). False: the twin's heading, the filter before issue 11's drop-heading round.
     compass_drop_keeps_heading: bool = True
-    # ... but not while the field's magnitude holds steady: the std of its 1-s means over the test window under this
-    # (µT). A hard iron that turns with the hook (what the test is for) moves |m| as the hook twists (raw boards'
-    # drops: 0.6-11 µT), a calibrated compass's does not (0.01-0.28 µT); there the twin's better likelihood was its free
-    # heading absorbing the gyroscope's errors (fresh crane 2371: its z bias learnt -2.5 °/s for a true 0.14, then
-    # torsion drifted 30° after the drop). 0: no such check (`STEADY_ROUND`, the filter before 2026-12-06).
+    # While the field's magnitude holds steady (the std of its 1-s means over the test window under this, µT) the bar
+    # stays `compass_check_early_excess` after `compass_check_after_s` too. A hard iron that turns with the hook moves
+    # |m| as the hook twists (raw boards' drops: 0.6-11 µT), a calibrated compass's does not (0.01-0.28 µT); there
+    # an excess of 113-159 was the twin's free heading absorbing the gyroscope's errors (fresh crane 2371: its z bias
+    # learnt -2.5 °/s for a true 0.14, torsion drifted 30° after the drop). A steady field's compass can still
+    # mislead through a wrong reference (not told the rope, a swinging start levelled as plumb: fresh 2413, 663 at 3 s
+    # and rising, 66° Θ RMSE when a steady field blocked every drop), hence a higher bar, not none. 0: no such check
+    # (`STEADY_ROUND`, the filter before 2026-12-06).
     compass_steady_field_uT: float = 0.5
     # `swing_from_window`: the warm-up's gyroscope x/y turned by the heading at each sample (the start heading carried
     # along by the z rate) and the swing carried back to the window's start to second order; False: the start heading
@@ -2142,8 +2145,8 @@ class HookFilter(AttitudeFilter):
         `COMPASS_CHECK_S` of samples counted from the start (`run_with_length` cuts calls where it falls), so its
         decisions are the same whatever the packet size. A hook that has hung still for `compass_check_still_s`
         pauses the twin (nothing to compare, half the cost); when it swings again the twin starts over from this
-        filter's state (`_start_twin`). Not dropped while the field's magnitude holds steady
-        (`compass_steady_field_uT`)."""
+        filter's state (`_start_twin`). While the field's magnitude holds steady (`compass_steady_field_uT`) the
+        bar stays the first seconds' higher one."""
         twin, s = self._twin, self.settings
         assert twin is not None
         twin_out = out if self._twin_paused else twin._run(gyr, acc, None, dt_s, r_scale, tip)  # the same frame
@@ -2175,8 +2178,8 @@ class HookFilter(AttitudeFilter):
         marks.append((now, diff))
         while len(marks) > 1 and marks[1][0] <= now - window:
             marks.popleft()
-        if diff - marks[0][1] <= (s.compass_check_early_excess if now < s.compass_check_after_s
-                                  else s.compass_check_excess) or self._field_steady():  # fmt: skip
+        if diff - marks[0][1] <= (s.compass_check_early_excess if now < s.compass_check_after_s or self._field_steady()
+                                  else s.compass_check_excess):  # fmt: skip
             if 0.0 < s.compass_check_evidence_s <= self._twin_evidence_s:
                 self._twin = None  # trusted through enough swinging: the compass is kept, the twin's cost ends
             return out
