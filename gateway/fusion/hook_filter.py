@@ -405,7 +405,7 @@ class HookFilterSettings:
     # While the field's magnitude holds steady (the std of its 1-s means over the test window under this, µT) the bar
     # stays `compass_check_early_excess` after `compass_check_after_s` too. A hard iron that turns with the hook moves
     # |m| as the hook twists (raw boards' drops: 0.6-11 µT), a calibrated compass's does not (0.01-0.28 µT); there
-    # an excess of 113-159 was the twin's free heading absorbing the gyroscope's errors (fresh crane 2371: its z bias
+    # an excess just over 120 was the twin's free heading absorbing the gyroscope's errors (fresh crane 2371: its z bias
     # learnt -2.5 °/s for a true 0.14, torsion drifted 30° after the drop). A steady field's compass can still
     # mislead through a wrong reference (not told the rope, a swinging start levelled as plumb: fresh 2413, 663 at 3 s
     # and rising, 66° Θ RMSE when a steady field blocked every drop), hence a higher bar, not none. 0: no such check
@@ -1907,7 +1907,8 @@ class HookFilter(AttitudeFilter):
         self._twin_evidence_s = 0.0  # seconds of swinging the twin has been compared through
         self._twin_still_s = 0.0  # seconds the hook has hung still since it last swang (`compass_check_still_s`)
         self._field_sum, self._field_n = 0.0, 0  # |m| (µT) summed over the compass test's current piece of samples
-        self._field_means: collections.deque[tuple[float, float]] = collections.deque()  # (t s, its mean) per piece
+        self._field_means: collections.deque[float] = collections.deque(  # its mean per piece, over the test window
+            maxlen=max(2, round(self.settings.compass_check_window_s / COMPASS_CHECK_S)))
         self._twin_paused = False  # the twin is not stepped while the hook hangs still
         self._to_check = 1  # samples until the compass test runs next (`_check_compass`; set by `start()`)
         self._replay: _Replay | None = None  # `start()`'s window and the samples since, while a re-start may come
@@ -2158,10 +2159,8 @@ class HookFilter(AttitudeFilter):
         piece = max(1, round(COMPASS_CHECK_S / dt_s))
         self._to_check, step_s = piece, piece * dt_s
         self._twin_t_s += step_s
-        self._field_means.append((self._twin_t_s, self._field_sum / max(1, self._field_n)))
+        self._field_means.append(self._field_sum / max(1, self._field_n))
         self._field_sum, self._field_n = 0.0, 0
-        while self._field_means[0][0] <= self._twin_t_s - s.compass_check_window_s:
-            self._field_means.popleft()
         if self._monitor[13] > s.compass_check_swing_rad**2:
             self._twin_evidence_s += step_s
             self._twin_still_s = 0.0
@@ -2201,7 +2200,7 @@ class HookFilter(AttitudeFilter):
         limit = self.settings.compass_steady_field_uT
         if limit <= 0.0 or len(self._field_means) < 2:
             return False
-        return float(np.std([m for _, m in self._field_means])) < limit
+        return float(np.std(self._field_means)) < limit
 
     def _turn_state(self, turn_rad: float) -> None:
         """Turn the filter's frame about the vertical by -`turn_rad`: the rope direction, its rate and the boom tip's
@@ -2389,8 +2388,8 @@ class HookFilter(AttitudeFilter):
                                        None if tip is None else tip[a:a + k]))  # fmt: skip
                 a += k
             return _joined(parts)
-        z, u = _packet_rows(gyr, acc, np.asarray(mag_uT, dtype=np.float64) if use_mag else gyr, 7 if use_mag else 4,
-                            self.acc_z_offset_m_s2, self._gyr_before(gyr), dt_s)  # fmt: skip
+        mag = np.asarray(mag_uT, dtype=np.float64) if use_mag else gyr  # (gyr: a placeholder the 6D rows ignore)
+        z, u = _packet_rows(gyr, acc, mag, 7 if use_mag else 4, self.acc_z_offset_m_s2, self._gyr_before(gyr), dt_s)
         if tip is not None:
             u[:, 8:10] = tip
         params, r_diag = self._kernel_constants(use_mag, z.shape[1])
@@ -2403,8 +2402,7 @@ class HookFilter(AttitudeFilter):
             if redone is not None:  # started again: the re-started filter ran these samples, its compass test too
                 return redone
         if self._twin is not None and use_mag:
-            return self._check_compass(gyr, acc, np.asarray(mag_uT, dtype=np.float64), dt_s, r_scale, (quats, lengths),
-                                       tip)  # fmt: skip
+            return self._check_compass(gyr, acc, mag, dt_s, r_scale, (quats, lengths), tip)
         return quats, lengths
 
     def _replay_start(self, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, dt_s: float,
