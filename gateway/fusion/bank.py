@@ -544,8 +544,13 @@ class FusionBank:
             return None
         # within a packet the times are exact; between packets, see JITTER_TOL_S
         tol = np.full(t_s.shape[0], gap_tol_s(dev.dt_s, False))
-        starts = np.cumsum([0, *(p.n for p in pkts[:-1])])
-        tol[starts[np.array(dev.follows, dtype=np.bool_)]] = gap_tol_s(dev.dt_s, True)
+        start, follow_starts = 0, []
+        for pkt, follows in zip(pkts, dev.follows, strict=False):
+            if follows:
+                follow_starts.append(start)
+            start += pkt.n
+        if follow_starts:
+            tol[follow_starts] = gap_tol_s(dev.dt_s, True)
         return bridge_block(gyr, acc, mag, t_s, dev.dt_s, prev, self.max_bridge_s,
                             max(1, round(self.bridge_average_s / dev.dt_s)), self.gyro_taper_s.get(dev.kind, 0.0), tol)
 
@@ -562,31 +567,37 @@ class FusionBank:
         g, at = shared
         for n, ids in by_len.items():
             n_dev = len(batch)
-            gyr_a, acc_a, mag_a = np.zeros((n_dev, n, 3)), np.zeros((n_dev, n, 3)), np.zeros((n_dev, n, 3))
             rows = batch.rows(ids)
-            active = np.zeros(n_dev, dtype=np.bool_)
-            active[rows] = True
+            few = 4 * len(ids) < n_dev  # a length few devices have (lost packets): step those rows alone
+            slots = list(range(len(ids))) if few else rows  # where each device's inputs go
+            size = len(ids) if few else n_dev
+            gyr_a, acc_a, mag_a = np.zeros((size, n, 3)), np.zeros((size, n, 3)), np.zeros((size, n, 3))
             fast: list[int] = []  # input: the device's rows of the shared arrays
             own: list[int] = []  # input: a block of its own (bridged, just started, gathered alone)
             for k, d in enumerate(ids):
                 (fast if g is not None and d in at and d not in inputs else own).append(k)
             for k in own:
                 gyr, acc, mag, _ = inputs.get(ids[k]) or items[ids[k]][2]
-                r = rows[k]
+                r = slots[k]
                 gyr_a[r], acc_a[r] = gyr, acc
                 if mag is not None:
                     mag_a[r] = mag
             if fast:
                 assert g is not None
-                to = np.array([rows[k] for k in fast], dtype=np.int64)
+                to = np.array([slots[k] for k in fast], dtype=np.int64)
                 src = np.array([g.start[at[ids[k]]] for k in fast], dtype=np.int64)[:, None] + np.arange(n)
                 gyr_a[to], acc_a[to] = g.gyr[src], g.acc[src]
                 on = np.array([items[ids[k]][2][2] is not None for k in fast], dtype=np.bool_)
                 if on.any():
                     assert g.mag is not None
                     mag_a[to[on]] = g.mag[src[on]]
-            q_all = batch.step(gyr_a, acc_a, mag_a, active)
-            quats.update(zip(ids, q_all[rows], strict=True))
+            if few:
+                q_all = batch.step_rows(np.array(rows, dtype=np.int64), gyr_a, acc_a, mag_a)
+            else:
+                active = np.zeros(n_dev, dtype=np.bool_)
+                active[rows] = True
+                q_all = batch.step(gyr_a, acc_a, mag_a, active)
+            quats.update(zip(ids, q_all[slots], strict=True))
             if fast:
                 ok = np.isfinite(q_all[to]).all(axis=(1, 2))
                 finite.update(ids[fast[j]] for j in np.flatnonzero(ok).tolist())

@@ -140,5 +140,19 @@ class DefaultFilterBatch:
         self._kernel(out.shape[1])(self._ctx, gyr, acc, mag, mag_on, out)
         return out
 
+    def step_rows(self, rows: NDArray[np.int64], gyr_rad_s: FloatArray, acc_m_s2: FloatArray, mag_uT: FloatArray
+                  ) -> FloatArray:  # fmt: skip
+        """Advance only the devices in `rows` (k,) by n samples: inputs (k, n, 3) float64, C-contiguous, in that
+        order (`mag_uT` read where a row is 9D); returns their quaternions (k, n, 4). The other rows are neither
+        stepped nor copied, so a block length few devices share (after lost packets) costs those few, not N."""
+        sub = self._ctx[rows]
+        sub[:, K.X_ACTIVE] = 1.0
+        out = np.empty((sub.shape[0], gyr_rad_s.shape[1], 4))
+        kernel = self._parallel if sub.shape[0] * out.shape[1] >= PARALLEL_MIN_SAMPLES else self._serial
+        kernel(sub, gyr_rad_s, acc_m_s2, mag_uT, True, out)
+        self._ctx[rows] = sub
+        self._all_active = False
+        return out
+
     def _kernel(self, n_samples: int) -> Any:
         return self._parallel if len(self.device_ids) * n_samples >= PARALLEL_MIN_SAMPLES else self._serial

@@ -48,6 +48,8 @@ def gap_tol_s(dt_s: Any, none_lost: Any) -> Any:
     """Spacing past a period that counts as a gap, s: (GAP_FACTOR - 1) periods, but at least JITTER_TOL_S after a
     packet whose seq follows on (`none_lost`); elementwise for arrays, a float for floats."""
     strict = (GAP_FACTOR - 1.0) * dt_s
+    if isinstance(dt_s, float) and isinstance(none_lost, bool):  # a device's own block: no numpy on scalars
+        return max(strict, JITTER_TOL_S) if none_lost else strict
     tol = np.where(none_lost, np.maximum(strict, JITTER_TOL_S), strict)
     return float(tol) if tol.ndim == 0 else tol
 
@@ -191,6 +193,8 @@ def coast_mask(n_rows: int, keep: NDArray[np.int64], min_run: int) -> NDArray[np
     with a model of its own (`run_bridged`) carries across on that model rather than on the interpolation."""
     inserted = np.ones(n_rows, dtype=np.bool_)
     inserted[keep] = False
+    if min_run <= 1:  # every inserted run (the default, `COAST_MIN_S` 0)
+        return inserted
     edges = np.flatnonzero(np.diff(np.r_[0, inserted.astype(np.int8), 0]))
     out = np.zeros(n_rows, dtype=np.bool_)
     for a, b in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):

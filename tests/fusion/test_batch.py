@@ -121,3 +121,31 @@ def test_strided_and_contiguous_rounds_agree_and_bad_shapes_are_refused():
             batches[0].step(gyr, acc)
     with pytest.raises(ValueError):
         batches[0].step(g, g, active=np.ones(2, dtype=bool))
+
+
+def test_stepping_some_rows_alone_equals_a_masked_step_and_leaves_the_others():
+    """`step_rows` (the bank's path for a block length few devices have) gives the masked full step's quaternions
+    and states bit for bit, and neither steps nor changes the rows it was not given."""
+    data = _devices(5, seconds=6.0)
+    twins = [DefaultFilterBatch(), DefaultFilterBatch()]
+    for b in twins:
+        for i, d in enumerate(data):
+            b.add(f"dev{i}", dt_s=d["dt_s"], use_mag=i != 3, acc_m_s2=d["acc"][0], mag_uT=d["mag"][0])
+    full, alone = twins
+    rows = np.array([3, 1], dtype=np.int64)  # out of order, one of them 6D
+    for start in range(0, 200, 20):
+        s = np.s_[start : start + 20]
+        gyr = np.stack([d["gyr"][s] for d in data])
+        acc = np.stack([d["acc"][s] for d in data])
+        mag = np.stack([d["mag"][s] for d in data])
+        active = np.zeros(5, dtype=np.bool_)
+        active[rows] = True
+        before = alone.states.copy()
+        q_full = full.step(gyr, acc, mag, active)
+        q_alone = alone.step_rows(rows, np.ascontiguousarray(gyr[rows]), np.ascontiguousarray(acc[rows]),
+                                  np.ascontiguousarray(mag[rows]))
+        np.testing.assert_array_equal(q_alone, q_full[rows])
+        np.testing.assert_array_equal(alone.states, full.states)
+        others = [0, 2, 4]
+        np.testing.assert_array_equal(alone.states[others], before[others])
+    assert np.isfinite(q_alone).all() and np.abs(q_alone[:, -1] - q_alone[:, 0]).max() > 1e-3  # they turned
