@@ -7,6 +7,7 @@
     python -m bench.pipeline_cost --stage ingest --rods 300 --profile /tmp/ingest.prof        # where it goes
     python -m bench.pipeline_cost --stage ingest --rods 300 --encoding binary --compare <tree>  # protocol v2 packets
     python -m bench.pipeline_cost --stage ingest --rods 1000 --encoding binary --gil-threads 2   # with GIL pressure
+    python -m bench.pipeline_cost --stage ingest --rods 1000 --encoding binary --drop 0.5 --compare <tree>  # overload
 
 `--stage ingest`: 80 % rods / 20 % hooks, JSON packets as `bench.fleet` sends them (its pooled simulator streams,
 `--spp` samples per packet), one batch per packet period holding every device's packet, through the service
@@ -174,11 +175,14 @@ class _BatchReaderBus(_CountingBus):
 
 def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 10, hook_share: float = 0.2,
                    profile: Path | None = None, encoding: str = "json", gil_threads: int = 0,
-                   subscribed: str = "all", batch_size: int = 0) -> dict[str, Any]:  # fmt: skip
+                   subscribed: str = "all", batch_size: int = 0, drop: float = 0.0) -> dict[str, Any]:  # fmt: skip
     """CPU seconds per packet of `GatewayService.handle` at `n` devices, with the sinks `create_app` wires (dashboard
     history, live stream without clients, metrics) and the blocking-put thread; the bus only digests the puts.
     `batch_size`: each packet period's packets handed over in batches of at most this many (0: one batch), as a
     gateway that keeps up takes what arrived since its last batch.
+    `drop`: after the untimed start, each packet is left out with this probability (seeded), as a gateway's full
+    inbox drops packets under overload; `ms_per_offered` is then the CPU per packet sent, which a gateway that sheds
+    load must lower (each dropped packet's filter work shed with it), not raise.
     `encoding="binary"`: the packets in the binary IMU encoding (protocol v2, as `bench.fleet --encoding binary`).
     `gil_threads`: that many threads each take the GIL 1000 times a second for a moment (ten deque appends), as
     zenoh's receive threads do when they call a subscriber callback per packet: what that costs the ingest thread.
@@ -205,6 +209,13 @@ def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 
                     for key, payload in batch] for batch in batches]  # fmt: skip
     period_s = spp / RATE_HZ
     skip = int(round(skip_s / period_s))
+    offered = sum(len(b) for b in batches[skip:])
+    if drop > 0.0:
+        import numpy as np
+
+        rng = np.random.default_rng(seed + 1)
+        batches = batches[:skip] + [[it for it, x in zip(b, rng.random(len(b)).tolist(), strict=True) if x >= drop]
+                                    for b in batches[skip:]]  # fmt: skip
 
     import collections
     import threading
@@ -265,6 +276,7 @@ def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 
             await hist.stop()
             store.close()
         return {"devices": n, "packets": packets, "cpu_s": cpu, "ms_per_packet": 1e3 * cpu / packets,
+                "offered": offered, "ms_per_offered": 1e3 * cpu / offered,
                 "handle_ms_per_packet": 1e3 * handle_s / packets, "puts": bus.puts,
                 "digest": f"{bus.digest:016x}"}  # fmt: skip
 
@@ -295,7 +307,7 @@ def _child(tree: Path, rods: int, args: argparse.Namespace) -> dict[str, Any]:
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", str(rods), "--seconds", str(args.seconds),
            "--skip-s", str(args.skip_s), "--seed", str(args.seed), "--stage", args.stage, "--spp", str(args.spp),
            "--encoding", args.encoding, "--gil-threads", str(args.gil_threads), "--subscribed", args.subscribed,
-           "--batch-size", str(args.batch_size)]
+           "--batch-size", str(args.batch_size), "--drop", str(args.drop)]
     here = Path(__file__).resolve().parents[1]
     env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{here}" if args.stage == "ingest" else str(tree))
     res = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True)
@@ -326,6 +338,8 @@ def main(argv: list[str] | None = None) -> int:
                         "attitudes (bench.fleet's observer), or only gw/attitudes (bench.fleet --observe batch)")
     p.add_argument("--batch-size", type=int, default=0, help="with --stage ingest: hand each packet period's packets "
                    "over in batches of at most this many (default 0: one batch per period)")
+    p.add_argument("--drop", type=float, default=0.0, help="with --stage ingest: leave out this share of the timed "
+                   "packets at random, as a full inbox drops them (default 0); the CPU per packet offered is shown")
     p.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
 
@@ -333,7 +347,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.stage == "ingest":
             return measure_ingest(n, args.seconds, args.skip_s, args.seed, args.spp, profile=args.profile,
                                   encoding=args.encoding, gil_threads=args.gil_threads, subscribed=args.subscribed,
-                                  batch_size=args.batch_size)
+                                  batch_size=args.batch_size, drop=args.drop)
         return measure(n, args.seconds, args.skip_s, args.seed)
 
     if args.child is not None:
@@ -344,7 +358,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"GatewayService.handle all-in CPU per packet (process CPU incl. the blocking-put thread; handle = the "
               f"ingest thread): 80 % rods / 20 % hooks at 100 Hz, {args.spp} samples/packet, {args.encoding}, one "
               f"batch per packet period, {args.seconds:g} s (first {args.skip_s:g} s untimed), seed {args.seed}"
-              + (f", {args.gil_threads} GIL-taking threads" if args.gil_threads else ""))
+              + (f", {args.gil_threads} GIL-taking threads" if args.gil_threads else "")
+              + (f", {args.drop:.0%} of the timed packets dropped" if args.drop else ""))
     else:
         print(f"Pipeline.process CPU per packet: rods at 100 Hz, 5 samples/packet, {args.seconds:g} s simulated "
               f"(first {args.skip_s:g} s untimed), seed {args.seed}")
@@ -352,6 +367,8 @@ def main(argv: list[str] | None = None) -> int:
         for n in args.rods:
             r = run(n)
             extra = f", handle {r['handle_ms_per_packet']:.4f} ms, {r['puts']} puts" if "puts" in r else ""
+            if args.drop:
+                extra += f"; {r['ms_per_offered']:.4f} ms per packet offered ({r['offered']})"
             print(f"{n:5d} devices: {r['ms_per_packet']:.4f} ms/packet ({r['packets']} packets, {r['cpu_s']:.2f} CPU s"
                   f"{extra})")
         return 0
@@ -368,7 +385,9 @@ def main(argv: list[str] | None = None) -> int:
             handle = f"; handle thread {hb:.4f} -> {ha:.4f} ms ({hb / ha:.2f}x)"
         print(f"{n:5d}  {before['ms_per_packet']:13.4f}  {after['ms_per_packet']:12.4f}  "
               f"{before['ms_per_packet'] / after['ms_per_packet']:12.2f}   "
-              f"({after['packets']} packets; {same_outputs(before, after)}{handle})")
+              f"({after['packets']} packets; {same_outputs(before, after)}{handle}"
+              + (f"; per packet offered {before['ms_per_offered']:.4f} -> {after['ms_per_offered']:.4f} ms"
+                 if args.drop else "") + ")")
     return 0
 
 
