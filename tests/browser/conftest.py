@@ -144,9 +144,12 @@ def system(request: pytest.FixtureRequest, chromium_path: Path,
         sysm.procs.append(dev)
         sysm.started_s = time.monotonic()
         wait_online(sysm, {"rod-1", "ball-1"}, [tmp / "devices.log"])
-        if shards == 2:  # the devices really are the other shard's
+        if shards == 2:  # the devices really are the other shard's (a child that joins late takes them over)
             me = get_json(sysm.base + "/api/shards")["me"]
-            assert {d["shard"] for d in get_json(sysm.base + "/api/devices")} == {f"{me}-1"}
+            deadline = time.monotonic() + 60.0
+            while (served := {d["shard"] for d in get_json(sysm.base + "/api/devices")}) != {f"{me}-1"}:
+                assert time.monotonic() < deadline, f"devices served by {served}, not by the child {me}-1"
+                time.sleep(0.5)
         yield sysm
     finally:
         for p in reversed(sysm.procs):
