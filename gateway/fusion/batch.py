@@ -148,11 +148,12 @@ class DefaultFilterBatch:
         sub = self._ctx[rows]
         sub[:, K.X_ACTIVE] = 1.0
         out = np.empty((sub.shape[0], gyr_rad_s.shape[1], 4))
-        kernel = self._parallel if sub.shape[0] * out.shape[1] >= PARALLEL_MIN_SAMPLES else self._serial
-        kernel(sub, gyr_rad_s, acc_m_s2, mag_uT, True, out)
+        self._kernel(out.shape[1], sub.shape[0])(sub, gyr_rad_s, acc_m_s2, mag_uT, True, out)
         self._ctx[rows] = sub
         self._all_active = False
         return out
 
-    def _kernel(self, n_samples: int) -> Any:
-        return self._parallel if len(self.device_ids) * n_samples >= PARALLEL_MIN_SAMPLES else self._serial
+    def _kernel(self, n_samples: int, n_rows: int | None = None) -> Any:
+        """The parallel kernel for `n_rows` (default: every device) × `n_samples` of work, else the serial one."""
+        rows = len(self.device_ids) if n_rows is None else n_rows
+        return self._parallel if rows * n_samples >= PARALLEL_MIN_SAMPLES else self._serial

@@ -2389,22 +2389,32 @@ class HookFilter(AttitudeFilter):
                                        None if tip is None else tip[a:a + k]))  # fmt: skip
                 a += k
             return _joined(parts)
-        mag = np.asarray(mag_uT, dtype=np.float64) if use_mag else gyr  # (gyr: a placeholder the 6D rows ignore)
-        z, u = _packet_rows(gyr, acc, mag, 7 if use_mag else 4, self.acc_z_offset_m_s2, self._gyr_before(gyr), dt_s)
-        if tip is not None:
-            u[:, 8:10] = tip
-        params, r_diag = self._kernel_constants(use_mag, z.shape[1])
-        if r_scale != 1.0:
-            r_diag = r_diag * r_scale
-        quats, lengths, self.x, self.P = ekf_run(self.x, self.P, z, u, dt_s, params, self._q_psd, r_diag,
-                                                 self._monitor, *self._rings(dt_s))  # fmt: skip
+        mag = np.asarray(mag_uT, dtype=np.float64) if use_mag else None
+        quats, lengths, u = self._ekf_rows(gyr, acc, mag, dt_s, r_scale, tip, dt_s)
         if self._replay is not None:
             redone = self._replay_start(gyr, acc, mag_uT if use_mag else None, dt_s, r_scale, u[:, 8:10])
             if redone is not None:  # started again: the re-started filter ran these samples, its compass test too
                 return redone
-        if self._twin is not None and use_mag:
+        if self._twin is not None and mag is not None:
             return self._check_compass(gyr, acc, mag, dt_s, r_scale, (quats, lengths), tip)
         return quats, lengths
+
+    def _ekf_rows(self, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, dt_s: float, r_scale: float,
+                  tip: FloatArray | None, step_s: float) -> tuple[FloatArray, FloatArray, FloatArray]:  # fmt: skip
+        """`ekf_run` over rows stepped `step_s` apart (`dt_s`, the sample period, sizes the rollback history; a coast
+        steps several periods at once), `mag` None: 6D; measurement variances × `r_scale`. Returns quaternions,
+        rope lengths and the process inputs (their boom-tip columns: `tip` in the filter's frame, or zeros)."""
+        m = 4 if mag is None else 7  # 6D rows ignore the magnetometer columns: gyr stands in for them
+        z, u = _packet_rows(gyr, acc, gyr if mag is None else mag, m, self.acc_z_offset_m_s2, self._gyr_before(gyr),
+                            step_s)  # fmt: skip
+        if tip is not None:
+            u[:, 8:10] = tip
+        params, r_diag = self._kernel_constants(mag is not None, m)
+        if r_scale != 1.0:
+            r_diag = r_diag * r_scale
+        quats, lengths, self.x, self.P = ekf_run(self.x, self.P, z, u, step_s, params, self._q_psd, r_diag,
+                                                 self._monitor, *self._rings(dt_s))  # fmt: skip
+        return quats, lengths, u
 
     def _replay_start(self, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, dt_s: float,
                       r_scale: float, tip: FloatArray) -> tuple[FloatArray, FloatArray] | None:  # fmt: skip
@@ -2527,16 +2537,8 @@ class HookFilter(AttitudeFilter):
                      tip: FloatArray | None, gyr_last: FloatArray) -> FloatArray:  # fmt: skip
         """`ekf_run` over coast steps of `m` rows each (`gyr`, `acc`, `mag` their means; `mag` None: 6D), unmeasured;
         the next measured row's gyroscope difference is taken from `gyr_last`, the coast's last row."""
-        use_mag = mag is not None
-        z, u = _packet_rows(gyr, acc, mag if mag is not None else gyr, 7 if use_mag else 4, self.acc_z_offset_m_s2,
-                            self._gyr_before(gyr), dt_s * m)  # fmt: skip
-        if tip is not None:
-            u[:, 8:10] = tip
-        params, r_diag = self._kernel_constants(use_mag, z.shape[1])
-        rings = self._rings(dt_s)
-        quats, _, self.x, self.P = ekf_run(self.x, self.P, z, u, dt_s * m, params, self._q_psd,
-                                           r_diag * COAST_R_SCALE, self._monitor, *rings)  # fmt: skip
-        rings[5][0] = 0  # the history holds coarse steps: no rollback reaches back into them
+        quats, _, _ = self._ekf_rows(gyr, acc, mag, dt_s, COAST_R_SCALE, tip, dt_s * m)
+        self._rings(dt_s)[5][0] = 0  # the history holds coarse steps: no rollback reaches back into them
         self._gyr_prev = np.array(gyr_last, dtype=np.float64)
         return quats
 
