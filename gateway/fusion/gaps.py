@@ -164,6 +164,10 @@ def _taper_inserted(rows: FloatArray, keep: NDArray[np.int64], dt_s: float, tau_
     return out
 
 
+_NO_ROWS = np.empty((0, 3))
+_NO_TIMES = np.empty(0)
+
+
 def bridge_block(gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, t_s: FloatArray, dt_s: float,
                  prev: tuple[FloatArray, FloatArray, FloatArray | None, FloatArray] | None,
                  max_gap_s: float = MAX_BRIDGE_S, average_n: int = 1, gyro_taper_s: float = 0.0,
@@ -172,20 +176,60 @@ def bridge_block(gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, t_s: 
     """`fill_gaps` of one device's block (gyr, acc, mag or None; (n, 3) each; times `t_s`) after its previous block
     `prev` (gyr, acc, mag, t_s; None: none; its mag must be there as this one's is, or it is not used): the filled
     gyr (inserted rates tapered with `gyro_taper_s`, `taper_inserted`), acc, mag and `keep`, or None when nothing
-    was missing; `tol_s` as in `fill_gaps`."""
-    cols = [gyr, acc] if mag is None else [gyr, acc, mag]
-    rows = np.hstack(cols)
-    prev_rows = prev_t = None
-    if prev is not None and (prev[2] is None) == (mag is None):
-        tail = slice(-max(1, average_n), None)
-        prev_rows = np.hstack([c[tail] for c in prev[:3] if c is not None])
-        prev_t = prev[3][tail]
-    filled = fill_gaps(t_s, rows, dt_s, prev_t, prev_rows, max_gap_s, average_n, tol_s)
-    if filled is None:
+    was missing; `tol_s` as in `fill_gaps`. One numba call (`_bridge_rows`): under overload every device that lost
+    a packet comes here each batch, and the numpy stitching around `_fill_gaps` cost more than the fill."""
+    n = t_s.shape[0]
+    if n == 0:
         return None
-    out, keep = filled
-    gyr_out = taper_inserted(out[:, :3], keep, dt_s, gyro_taper_s)
-    return gyr_out, out[:, 3:6], None if mag is None else out[:, 6:9], keep
+    use_mag, rows_mag = (True, mag) if mag is not None else (False, _NO_ROWS)
+    w = max(1, average_n)
+    p_gyr, p_acc, p_mag, p_t = _NO_ROWS, _NO_ROWS, _NO_ROWS, _NO_TIMES
+    if prev is not None and (prev[2] is not None) == use_mag:  # else the previous block is not used
+        p_gyr, p_acc, p_t = prev[0][-w:], prev[1][-w:], prev[3][-w:]
+        if use_mag:
+            p_mag = prev[2][-w:]  # type: ignore[index]
+    tol = np.full(n, (GAP_FACTOR - 1.0) * dt_s) if tol_s is None else np.ascontiguousarray(tol_s, dtype=np.float64)
+    out, keep = _bridge_rows(gyr, acc, rows_mag, use_mag, t_s, p_gyr, p_acc, p_mag, p_t,
+                             dt_s, max_gap_s, w, gyro_taper_s, tol)  # fmt: skip
+    if out.shape[0] == n:
+        return None
+    return out[:, :3], out[:, 3:6], out[:, 6:9] if use_mag else None, keep
+
+
+@njit
+def _bridge_rows(gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: bool, t_s: FloatArray,
+                 p_gyr: FloatArray, p_acc: FloatArray, p_mag: FloatArray, p_t: FloatArray, dt_s: float,
+                 max_gap_s: float, w: int, taper_s: float, tol_s: FloatArray) -> tuple[FloatArray, NDArray[np.int64]]:
+    """`bridge_block` in one call: the previous block's tail (`p_*`, p rows; none: 0 rows) and the block stitched
+    as `np.hstack` / `np.concatenate` would, `_fill_gaps`, and the inserted gyroscope rows tapered as
+    `_taper_inserted` does (the same operations in the same order, so the same floats)."""
+    p, n = p_t.shape[0], t_s.shape[0]
+    k = 9 if use_mag else 6
+    times = np.empty(p + n)
+    stitched = np.empty((p + n, k))
+    for i in range(p + n):
+        src, gy, ac, mg = (i, p_gyr, p_acc, p_mag) if i < p else (i - p, gyr, acc, mag)
+        times[i] = p_t[src] if i < p else t_s[src]
+        for c in range(3):
+            stitched[i, c] = gy[src, c]
+            stitched[i, 3 + c] = ac[src, c]
+            if use_mag:
+                stitched[i, 6 + c] = mg[src, c]
+    out, keep = _fill_gaps(times, stitched, p, dt_s, max_gap_s, w, tol_s)
+    if taper_s > 0.0 and out.shape[0] > n:
+        left = -1  # as `_taper_inserted`
+        at = 0
+        for r in range(out.shape[0]):
+            if at < n and keep[at] == r:
+                left = r
+                at += 1
+                continue
+            right = keep[min(at, n - 1)]
+            d = min(r - left, right - r)
+            f = np.exp(-d * dt_s / taper_s)
+            for c in range(3):
+                out[r, c] *= f
+    return out, keep
 
 
 def coast_mask(n_rows: int, keep: NDArray[np.int64], min_run: int) -> NDArray[np.bool_]:

@@ -418,3 +418,55 @@ def test_has_gaps_is_has_gap_of_each_block(blocks: list[tuple[int, float, float,
         want.append(has_gap(t, prev, dt, tol))
     first_s, last_s, n_s, prev_s, dt_s, tol_s = (np.array(c) for c in zip(*rows, strict=True))
     assert has_gaps(first_s, last_s, n_s.astype(np.int64), prev_s, dt_s, tol_s).tolist() == want
+
+
+def _bridge_by_parts(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, t_s: np.ndarray,
+                     prev: tuple | None, w: int, taper_s: float, tol: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray] | None:  # fmt: skip
+    """`bridge_block` as it was composed before its one numba call: hstack, `fill_gaps`, `taper_inserted`."""
+    rows = np.hstack([gyr, acc] if mag is None else [gyr, acc, mag])
+    prev_rows = prev_t = None
+    if prev is not None and (prev[2] is None) == (mag is None):
+        prev_rows = np.hstack([c[-w:] for c in prev[:3] if c is not None])
+        prev_t = prev[3][-w:]
+    filled = fill_gaps(t_s, rows, DT, prev_t, prev_rows, MAX_BRIDGE_S, w, tol)
+    if filled is None:
+        return None
+    out, keep = filled
+    return taper_inserted(out[:, :3], keep, DT, taper_s), out[:, 3:6], None if mag is None else out[:, 6:9], keep
+
+
+@settings(max_examples=120, deadline=None)
+@given(lost=st.lists(st.booleans(), min_size=2, max_size=40), n_prev=st.integers(0, 6), w=st.integers(1, 4),
+       with_mag=st.booleans(), prev_mag=st.booleans(), taper_s=st.sampled_from([0.0, 0.02, 0.05]),
+       jitter=st.booleans(), seed=st.integers(0, 2**31))  # fmt: skip
+def test_the_one_call_bridge_gives_the_floats_of_its_parts(lost: list[bool], n_prev: int, w: int, with_mag: bool,
+                                                            prev_mag: bool, taper_s: float, jitter: bool,
+                                                            seed: int) -> None:  # fmt: skip
+    """`bridge_block` (stitching, fill and taper in one numba call, for the load it takes under overload) against
+    the numpy composition it replaced: the same rows to the last bit, with and without a magnetometer, a previous
+    block with or without one (then unused), any averaging window, taper and per-row tolerance; None alike."""
+    rng = np.random.default_rng(seed)
+    arrived = ~np.array(lost)
+    arrived[-1] = True
+    t = ((np.arange(len(lost)) + n_prev + 1) * DT)[arrived]
+    if jitter:
+        t = t + rng.uniform(-0.2, 0.2, t.shape[0]) * DT
+    gyr, acc = rng.normal(size=(t.shape[0], 3)), rng.normal(size=(t.shape[0], 3))
+    mag = rng.normal(size=(t.shape[0], 3)) if with_mag else None
+    prev = None
+    if n_prev:
+        prev = (rng.normal(size=(n_prev, 3)), rng.normal(size=(n_prev, 3)),
+                rng.normal(size=(n_prev, 3)) if prev_mag else None, np.arange(n_prev) * DT)  # fmt: skip
+    tol = rng.choice([(GAP_FACTOR - 1.0) * DT, JITTER_TOL_S], size=t.shape[0])
+    expected = _bridge_by_parts(gyr, acc, mag, t, prev, w, taper_s, tol)
+    got = bridge_block(gyr, acc, mag, t, DT, prev, MAX_BRIDGE_S, w, taper_s, tol)
+    if expected is None:
+        assert got is None
+        return
+    assert got is not None
+    for a, b in zip(got, expected, strict=True):
+        if b is None:
+            assert a is None
+        else:
+            np.testing.assert_array_equal(a, b)
