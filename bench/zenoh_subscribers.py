@@ -45,7 +45,8 @@ from bench.bite_latency import free_port
 from devices.common import zenoh_config
 
 CASES = ("catch-all", "catch-all-direct", "catch-all-fifo", "half-wildcard", "half-per-device",
-         "half-per-device-threads", "catch-all+tokens", "catch-all+tokens+keys")
+         "half-per-device-threads", "catch-all+tokens", "catch-all+tokens+keys", "half-per-device+tokens",
+         "half-per-device+tokens+keys", "half-buckets+tokens+keys", "half-buckets-threads+tokens+keys")
 
 
 def _cpu_s() -> float:
@@ -112,11 +113,18 @@ def subscriber(ep: str, case: str, devices: int, seconds: float, out: Any, start
             keys = [s.declare_keyexpr(_key(i)) for i in range(devices)] if "+keys" in case else []  # noqa: F841
         elif case == "half-wildcard":
             subs = [s.declare_subscriber("rig/*/a$*/imu", on_sample)]
-        elif case == "half-per-device":
+        elif case.startswith("half-per-device") and case != "half-per-device-threads":
             subs = [s.declare_subscriber(_key(i), zenoh.handlers.Callback(on_sample, indirect=False))
                     for i in range(0, devices, 2)]  # fmt: skip
+        elif case.startswith("half-buckets"):  # ids ending in an even digit: the even i, the `a` half
+            subs = [s.declare_subscriber(f"rig/*/$*{d}/imu", on_sample if "-threads" in case else
+                                         zenoh.handlers.Callback(on_sample, indirect=False)) for d in range(0, 10, 2)]
         else:
             subs = [s.declare_subscriber(_key(i), on_sample) for i in range(0, devices, 2)]
+        if case.startswith("half") and "+tokens" in case:
+            subs.append(s.liveliness().declare_subscriber("rig/*/*", lambda sample: None, history=True))
+        if case.startswith("half") and "+keys" in case:
+            keys = [s.declare_keyexpr(_key(i)) for i in range(0, devices, 2)]  # noqa: F841
         time.sleep(1.0)
         start.set()
         time.sleep(1.0)
@@ -155,11 +163,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rate", type=int, default=10000, help="samples per second, all devices (default 10000)")
     p.add_argument("--seconds", type=float, default=8.0, help="measured seconds per case (default 8)")
     p.add_argument("--rounds", type=int, default=2, help="cases alternate this many times (default 2)")
+    p.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES), help="which cases (default: all)")
     args = p.parse_args(argv)
     print(f"{args.devices} devices, {args.rate} samples/s of 1 KB, {args.seconds:g} s per case")
     print("case                     subscribers  received/s  subscriber CPU  ms/sample  router CPU")
     for _ in range(args.rounds):
-        for case in CASES:
+        for case in args.cases:
             r = run_case(case, args.devices, args.rate, args.seconds)
             print(f"{case:24s} {r['subscribers']:11.0f} {r['received_per_s']:11.0f} {r['sub_cpu']:14.1%} "
                   f"{r['sub_ms_per_sample']:10.4f} {r['router_cpu']:11.1%}", flush=True)  # fmt: skip
