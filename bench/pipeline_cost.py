@@ -9,14 +9,14 @@
     python -m bench.pipeline_cost --stage ingest --rods 1000 --encoding binary --gil-threads 2   # with GIL pressure
     python -m bench.pipeline_cost --stage ingest --rods 1000 --encoding binary --drop 0.5 --compare <tree>  # overload
 
-`--stage ingest`: 80 % rods / 20 % hooks, JSON packets as `bench.fleet` sends them (its pooled simulator streams,
-`--spp` samples per packet), one batch per packet period holding every device's packet, through the service
-`gateway.app.compose` builds (decode, sequence and time checks, pipeline, hub with its blocking-put thread) with
-the sinks `create_app` wires (dashboard history, live stream without clients, metrics), `runner.tune_gc` and
-`runner.collect_between_batches` as the ingest task calls them. The bus only digests what is put, so zenoh's own
-cost is not in it (`bench.fleet` has it). The figure is process CPU (all threads) per packet over the timed
-batches; "handle" is the calling thread's. With `--compare` it also says whether both trees published the same
-messages, byte for byte (alarm ids made deterministic, the hub's clock set to the batch's time).
+`--stage ingest`: 80 % rods / 20 % hooks (`--hook-share`), JSON packets as `bench.fleet` sends them (its pooled
+simulator streams, `--spp` samples per packet), one batch per packet period holding every device's packet, through
+the service `gateway.app.compose` builds (decode, sequence and time checks, pipeline, hub with its blocking-put
+thread) with the sinks `create_app` wires (dashboard history, live stream without clients, metrics),
+`runner.tune_gc` and `runner.collect_between_batches` as the ingest task calls them. The bus only digests what is
+put, so zenoh's own cost is not in it (`bench.fleet` has it). The figure is process CPU (all threads) per packet
+over the timed batches; "handle" is the calling thread's. With `--compare` it also says whether both trees published
+the same messages, byte for byte (alarm ids made deterministic, the hub's clock set to the batch's time).
 
 Packets come from the rod simulator (`devices.sim_rod.RodFleet`, 5 samples per packet at 100 Hz, reel status at
 10 Hz, random bites/fights/wind on), are decoded once before timing, and go to the pipeline in batches as the
@@ -307,7 +307,7 @@ def _child(tree: Path, rods: int, args: argparse.Namespace) -> dict[str, Any]:
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", str(rods), "--seconds", str(args.seconds),
            "--skip-s", str(args.skip_s), "--seed", str(args.seed), "--stage", args.stage, "--spp", str(args.spp),
            "--encoding", args.encoding, "--gil-threads", str(args.gil_threads), "--subscribed", args.subscribed,
-           "--batch-size", str(args.batch_size), "--drop", str(args.drop)]
+           "--batch-size", str(args.batch_size), "--drop", str(args.drop), "--hook-share", str(args.hook_share)]
     here = Path(__file__).resolve().parents[1]
     env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{here}" if args.stage == "ingest" else str(tree))
     res = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True)
@@ -340,12 +340,14 @@ def main(argv: list[str] | None = None) -> int:
                    "over in batches of at most this many (default 0: one batch per period)")
     p.add_argument("--drop", type=float, default=0.0, help="with --stage ingest: leave out this share of the timed "
                    "packets at random, as a full inbox drops them (default 0); the CPU per packet offered is shown")
+    p.add_argument("--hook-share", type=float, default=0.2, help="with --stage ingest: share of the devices that are "
+                   "hooks (default 0.2; 1: hooks only, e.g. to see whether their lost packets shed work)")
     p.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
 
     def run(n: int) -> dict[str, Any]:
         if args.stage == "ingest":
-            return measure_ingest(n, args.seconds, args.skip_s, args.seed, args.spp, profile=args.profile,
+            return measure_ingest(n, args.seconds, args.skip_s, args.seed, args.spp, args.hook_share, args.profile,
                                   encoding=args.encoding, gil_threads=args.gil_threads, subscribed=args.subscribed,
                                   batch_size=args.batch_size, drop=args.drop)
         return measure(n, args.seconds, args.skip_s, args.seed)
@@ -356,7 +358,8 @@ def main(argv: list[str] | None = None) -> int:
     here = Path(__file__).resolve().parents[1]
     if args.stage == "ingest":
         print(f"GatewayService.handle all-in CPU per packet (process CPU incl. the blocking-put thread; handle = the "
-              f"ingest thread): 80 % rods / 20 % hooks at 100 Hz, {args.spp} samples/packet, {args.encoding}, one "
+              f"ingest thread): {100 - round(100 * args.hook_share)} % rods / {round(100 * args.hook_share)} % hooks "
+              f"at 100 Hz, {args.spp} samples/packet, {args.encoding}, one "
               f"batch per packet period, {args.seconds:g} s (first {args.skip_s:g} s untimed), seed {args.seed}"
               + (f", {args.gil_threads} GIL-taking threads" if args.gil_threads else "")
               + (f", {args.drop:.0%} of the timed packets dropped" if args.drop else ""))

@@ -1744,6 +1744,30 @@ def _norm_sum(v: FloatArray) -> float:
 
 
 @njit
+def block_means(v: FloatArray, a: int, k: int, m: int) -> FloatArray:
+    """Rows `a:` of `v` (N, c) as `k` means of `m` consecutive rows (k, c): the floats of numpy's
+    `v[a:].reshape(k, m, c).mean(axis=1)` (the rows summed in order, then divided by m), in one call."""
+    out = np.empty((k, v.shape[1]))
+    for i in range(k):
+        r0 = a + i * m
+        for c in range(v.shape[1]):
+            total = v[r0, c]
+            for j in range(1, m):
+                total += v[r0 + j, c]
+            out[i, c] = total / m
+    return out
+
+
+@njit
+def _coast_means(gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: bool, a: int, k: int, m: int
+                 ) -> tuple[FloatArray, FloatArray, FloatArray]:  # fmt: skip
+    """`block_means` of a coast's gyroscope, accelerometer and (`use_mag`; else an empty array) magnetometer rows:
+    one numba call where numpy took three of ~10 µs each, on every bridged call of a gateway that drops packets."""
+    return block_means(gyr, a, k, m), block_means(acc, a, k, m), (block_means(mag, a, k, m) if use_mag
+                                                                   else np.empty((0, 3)))  # fmt: skip
+
+
+@njit
 def ekf_run(
     x0: FloatArray, p0: FloatArray, z: FloatArray, u: FloatArray, dt_s: float, params: FloatArray,
     q_psd: FloatArray, r_diag: FloatArray, monitor: FloatArray, hist_x: FloatArray, hist_p: FloatArray,
@@ -2517,17 +2541,15 @@ class HookFilter(AttitudeFilter):
                                     None if tip_enu is None else tip_enu[:a])[0]  # fmt: skip
         if not self._initialised:
             self.initialise(acc[a], None if mag is None else mag[a])
-
-        def means(v: FloatArray) -> FloatArray:
-            out_v: FloatArray = np.ascontiguousarray(v[a:], dtype=np.float64).reshape(k, m, v.shape[1]).mean(axis=1)
-            return out_v
-
-        g, f = means(gyr), means(acc)
         use_mag = self.use_mag and mag is not None and self.mag_ref_uT is not None
-        tip = None if tip_enu is None or self.mag_ref_uT is None else self._tip_in_frame(means(tip_enu))
+        gyr64, acc64 = np.asarray(gyr, dtype=np.float64), np.asarray(acc, dtype=np.float64)
+        mag64 = np.asarray(mag, dtype=np.float64) if use_mag and mag is not None else gyr64
+        g, f, mg = _coast_means(gyr64, acc64, mag64, use_mag, a, k, m)
+        tip = None if tip_enu is None or self.mag_ref_uT is None else self._tip_in_frame(
+            block_means(np.asarray(tip_enu, dtype=np.float64), a, k, m))  # fmt: skip
         self._replay = None  # as any bridged call: the start is not redone
         self._samples_run += n - a
-        q = self._coast_steps(g, f, means(mag) if use_mag and mag is not None else None, dt_s, m, tip, gyr[-1])
+        q = self._coast_steps(g, f, mg if use_mag else None, dt_s, m, tip, gyr[-1])
         if self._twin is not None and use_mag and not self._twin_paused:
             self._twin._coast_steps(g, f, None, dt_s, m, tip, gyr[-1])
         out[a:] = np.repeat(q, m, axis=0)

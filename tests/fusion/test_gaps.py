@@ -470,3 +470,20 @@ def test_the_one_call_bridge_gives_the_floats_of_its_parts(lost: list[bool], n_p
             assert a is None
         else:
             np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=150, deadline=None)
+@given(k=st.integers(1, 30), m=st.integers(2, 10), a=st.integers(0, 4), cols=st.sampled_from([2, 3]),
+       strided=st.booleans(), seed=st.integers(0, 2**31))  # fmt: skip
+def test_block_means_are_numpys_reshaped_means_to_the_bit(k: int, m: int, a: int, cols: int, strided: bool,
+                                                          seed: int) -> None:  # fmt: skip
+    """The hook's coast inputs (`hook_filter.block_means`, one numba call per bridged call) against the numpy they
+    replaced, `v[a:].reshape(k, m, c).mean(axis=1)`: the same floats, for contiguous rows and for column views of a
+    wider array (as a bridged block's are)."""
+    from gateway.fusion.hook_filter import block_means
+
+    rng = np.random.default_rng(seed)
+    wide = rng.normal(scale=rng.uniform(0.01, 100.0), size=(a + k * m, 9))
+    v = wide[:, 3:3 + cols] if strided else np.ascontiguousarray(wide[:, :cols])
+    expected = np.ascontiguousarray(v[a:], dtype=np.float64).reshape(k, m, cols).mean(axis=1)
+    np.testing.assert_array_equal(block_means(v, a, k, m), expected)
