@@ -1773,8 +1773,23 @@ def ekf_run(
     q_psd: FloatArray, r_diag: FloatArray, monitor: FloatArray, hist_x: FloatArray, hist_p: FloatArray,
     hist_z: FloatArray, hist_u: FloatArray, hist_mon: FloatArray, hist_n: NDArray[np.int64],
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """`ekf_run_led` with no lead rows: every row stepped `dt_s` with `r_diag` (see there)."""
+    return ekf_run_led(x0, p0, z, u, dt_s, params, q_psd, r_diag, monitor, hist_x, hist_p, hist_z, hist_u, hist_mon,
+                       hist_n, 0, dt_s, r_diag)  # fmt: skip
+
+
+@njit
+def ekf_run_led(
+    x0: FloatArray, p0: FloatArray, z: FloatArray, u: FloatArray, dt_s: float, params: FloatArray,
+    q_psd: FloatArray, r_diag: FloatArray, monitor: FloatArray, hist_x: FloatArray, hist_p: FloatArray,
+    hist_z: FloatArray, hist_u: FloatArray, hist_mon: FloatArray, hist_n: NDArray[np.int64], lead: int,
+    lead_dt_s: float, lead_r_diag: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Batch filter over measurements z (N, 4 or 7) and process inputs u (N, N_INPUT): quaternions (N, 4), rope lengths
-    (N,), final state and covariance.
+    (N,), final state and covariance. The first `lead` rows are stepped `lead_dt_s` apart with `lead_r_diag` (a
+    coast across lost samples, `HookFilter._coast`), everything in their steps as `ekf_run` over them alone with
+    that step would do; then the rollback history restarts (no rollback reaches back into a coast) and the other
+    rows follow with `dt_s` and `r_diag`: one call where a bridged packet took two.
 
     Jump rollback: the `hist_*` rings (B rows, kept across calls in `hist_n` = [samples stored, measurement width];
     covariances as `_pack_sym` rows) hold the state before each of the last B samples and that sample's inputs. When
@@ -1799,19 +1814,22 @@ def ekf_run(
     quiet[_MEAN_GATE] = quiet[_SLOW_GATE] = quiet[_TRIAL_GATE] = 0.0
     x_kept, p_kept = np.empty_like(x), np.empty_like(p)
     for i in range(n):
+        dt_i, r_i = (lead_dt_s, lead_r_diag) if i < lead else (dt_s, r_diag)
+        if i == lead and lead > 0:
+            hist_n[0] = 0
         k = hist_n[0] % b
         hist_x[k], hist_mon[k] = x, monitor
         _pack_sym(p, hist_p[k])
         hist_z[k, :m], hist_u[k] = z[i], u[i]
         hist_n[0] += 1
-        _ekf_step_into(x, p, z[i], u[i], dt_s, params, q_psd, r_diag, monitor, vecs, mats, hm, ss, idx, cnt)
+        _ekf_step_into(x, p, z[i], u[i], dt_i, params, q_psd, r_i, monitor, vecs, mats, hm, ss, idx, cnt)
         if monitor[19] > 0.0 and monitor[5] == 0.0 and b > 1 and params[_HOIST_BACK] > 0.0:
-            j0 = hist_n[0] - min(hist_n[0], b, max(1, round(params[_ROLLBACK] / dt_s)))
+            j0 = hist_n[0] - min(hist_n[0], b, max(1, round(params[_ROLLBACK] / dt_i)))
             x[:] = hist_x[j0 % b]
             _unpack_sym(hist_p[j0 % b], p)
             mon = hist_mon[j0 % b].copy()
             mon[15], mon[16] = params[_HOIST_HOLD], params[_HOIST_CRUISE]
-            _rerun(x, p, hist_z, hist_u, j0, hist_n[0], m, dt_s, quiet, q_psd, r_diag, mon, vecs, mats, hm, ss, idx,
+            _rerun(x, p, hist_z, hist_u, j0, hist_n[0], m, dt_i, quiet, q_psd, r_i, mon, vecs, mats, hm, ss, idx,
                    cnt)  # fmt: skip
             monitor[0], monitor[1], monitor[9] = mon[0], mon[1], mon[9]
             monitor[14:17] = mon[14:17]
@@ -1822,7 +1840,7 @@ def ekf_run(
             if trial:
                 x_kept[:] = x
                 p_kept[:, :] = p
-            back = max(1, round((params[_TRIAL_WIN] if trial else params[_ROLLBACK]) / dt_s))
+            back = max(1, round((params[_TRIAL_WIN] if trial else params[_ROLLBACK]) / dt_i))
             j0 = hist_n[0] - min(hist_n[0], b, back)
             x[:] = hist_x[j0 % b]
             _unpack_sym(hist_p[j0 % b], p)
@@ -1832,15 +1850,15 @@ def ekf_run(
             for t in (17, 18):
                 p[t, t] += open_std * open_std
             p[_LOG_L, _LOG_L] += params[_JUMP_ROPE] * params[_JUMP_ROPE]
-            _rerun(x, p, hist_z, hist_u, j0, hist_n[0], m, dt_s, quiet, q_psd, r_diag, mon, vecs, mats, hm, ss, idx,
+            _rerun(x, p, hist_z, hist_u, j0, hist_n[0], m, dt_i, quiet, q_psd, r_i, mon, vecs, mats, hm, ss, idx,
                    cnt)
             if not trial and params[_STOP_STD] > 0.0:
                 _stop_rerun(x, p, mon, hist_x[j0 % b], _ring_p(hist_p, j0), hist_mon[j0 % b], hist_z, hist_u, j0,
-                            hist_n[0], m, dt_s, quiet, q_psd, r_diag, vecs, mats, hm, ss, idx, cnt)
+                            hist_n[0], m, dt_i, quiet, q_psd, r_i, vecs, mats, hm, ss, idx, cnt)
             if (not trial and params[_ONSET_GATE] > 0.0
                     and params[_MOVE_HOLD] - hist_mon[(hist_n[0] - 1) % b, 4] > params[_ONSET_QUIET]):
                 _onset_rerun(x, p, mon, monitor[20] + params[_ROLLBACK], hist_x, hist_p, hist_mon, hist_z, hist_u,
-                             hist_n[0], m, dt_s, quiet, q_psd, r_diag, vecs, mats, hm, ss, idx, cnt)
+                             hist_n[0], m, dt_i, quiet, q_psd, r_i, vecs, mats, hm, ss, idx, cnt)
             # a trial is kept when the re-run explains the swing rate better (generalised likelihood ratio)
             if trial and monitor[9] - mon[9] <= params[_TRIAL_LR]:
                 x[:] = x_kept
@@ -2510,6 +2528,10 @@ class HookFilter(AttitudeFilter):
         n = coast.shape[0]
         out = np.empty((n, 4))
         edges = [0, *(np.flatnonzero(coast[1:] != coast[:-1]) + 1).tolist(), n]
+        if len(edges) == 3 and coast[0] and tip_enu is None:  # the common case: lost packets, then this one
+            led = self._coast_then_run(gyr_rad_s, acc_m_s2, mag_uT, dt_s, edges[1])
+            if led is not None:
+                return led
         for a, b in zip(edges[:-1], edges[1:], strict=False):
             mag = None if mag_uT is None else mag_uT[a:b]
             tip = None if tip_enu is None else tip_enu[a:b]
@@ -2553,6 +2575,39 @@ class HookFilter(AttitudeFilter):
         if self._twin is not None and use_mag and not self._twin_paused:
             self._twin._coast_steps(g, f, None, dt_s, m, tip, gyr[-1])
         out[a:] = np.repeat(q, m, axis=0)
+        return out
+
+    def _coast_then_run(self, gyr: FloatArray, acc: FloatArray, mag_uT: FloatArray | None, dt_s: float, c: int
+                        ) -> FloatArray | None:  # fmt: skip
+        """`_coast` of rows `:c` then `_run_fed` of the rest (measured), in one kernel call (`ekf_run_led`): the
+        same floats, about half the Python and one kernel call fewer on each packet after lost ones (so a gateway
+        that drops packets under overload sheds their work). None (nothing done) outside the steady state it covers:
+        a twin or a start re-run pending, no start yet, or a coast that is not whole model steps."""
+        m = max(1, round(COAST_STEP_S / dt_s))
+        k = c // m
+        if (m == 1 or k < 2 or k * m != c or self._twin is not None or self._replay is not None
+                or not self._initialised):  # fmt: skip
+            return None
+        gyr64, acc64 = np.asarray(gyr, dtype=np.float64), np.asarray(acc, dtype=np.float64)
+        use_mag = self.use_mag and mag_uT is not None and self.mag_ref_uT is not None
+        mag64 = np.asarray(mag_uT, dtype=np.float64) if use_mag and mag_uT is not None else gyr64
+        g, f, mg = _coast_means(gyr64, acc64, mag64, use_mag, 0, k, m)
+        width = 7 if use_mag else 4  # as `_ekf_rows`: 6D rows carry the gyroscope in the magnetometer's columns
+        step_s = dt_s * m
+        z_c, u_c = _packet_rows(g, f, mg if use_mag else g, width, self.acc_z_offset_m_s2, self._gyr_before(g),
+                                step_s)  # fmt: skip
+        self._gyr_prev = gyr64[c - 1].copy()  # as `_coast_steps`: the measured rows difference from the coast's last
+        g_m, a_m = gyr64[c:], acc64[c:]
+        z_m, u_m = _packet_rows(g_m, a_m, mag64[c:] if use_mag else g_m, width, self.acc_z_offset_m_s2,
+                                self._gyr_before(g_m), dt_s)  # fmt: skip
+        params, r_diag = self._kernel_constants(use_mag, width)
+        quats, _, self.x, self.P = ekf_run_led(self.x, self.P, np.concatenate((z_c, z_m)), np.concatenate((u_c, u_m)),
+                                               dt_s, params, self._q_psd, r_diag, self._monitor, *self._rings(dt_s),
+                                               k, step_s, r_diag * COAST_R_SCALE)  # fmt: skip
+        self._samples_run += gyr64.shape[0]
+        out = np.empty((gyr64.shape[0], 4))
+        out[:c] = np.repeat(quats[:k], m, axis=0)
+        out[c:] = quats[k:]
         return out
 
     def _coast_steps(self, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, dt_s: float, m: int,

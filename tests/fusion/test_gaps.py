@@ -240,6 +240,63 @@ def test_a_hook_crosses_a_gap_in_coarse_model_steps_and_lands_where_fine_steps_w
     assert np.degrees(hook.swing_angle(q_fine)).max() > 0.5  # a hook that swings: the comparison means something
 
 
+@pytest.mark.parametrize("use_mag", [True, False], ids=["9D", "6D"])
+def test_a_packet_after_lost_ones_is_one_kernel_call_with_the_floats_of_two(monkeypatch: pytest.MonkeyPatch,
+                                                                             use_mag: bool) -> None:  # fmt: skip
+    """Past the compass test (no twin, no start re-run), a packet after lost ones coasts and runs in one kernel call
+    (`ekf_run_led`), so the work a drop sheds is not spent again on a second call's Python: the same quaternions,
+    state and covariance to the last bit as the coast and the run called apart (the path before), and the same
+    after a lossless packet that follows (the rollback history restarted alike), for gaps of 1, 2 and 4 packets."""
+    from bench.hook_suite import RATE_HZ, simulate_seed
+    from gateway.fusion import hook_filter
+    from gateway.fusion.hook_filter import HookFilter, HookFilterSettings
+
+    case, _, gyr, acc, mag9 = simulate_seed(4, 20.0, "calibrated", True)
+    mag = mag9 if use_mag else None
+    dt = 1.0 / RATE_HZ
+
+    def cut(v: np.ndarray | None, a: int, b: int) -> np.ndarray | None:
+        return None if v is None else v[a:b]
+
+    def steady() -> HookFilter:
+        f = HookFilter(HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True),
+                       use_mag=use_mag)  # fmt: skip
+        f.start(gyr[:50], acc[:50], cut(mag, 0, 50), dt)
+        f._twin = f._replay = None  # as once the compass test has trusted the compass
+        f.run(gyr[50:1000], acc[50:1000], cut(mag, 50, 1000), dt)
+        return f
+
+    one, two = steady(), steady()
+    calls: list[int] = []
+    led = hook_filter.ekf_run_led
+
+    def counting(*args: object) -> object:
+        calls.append(1)
+        return led(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(hook_filter, "ekf_run_led", counting)
+    at = 1000
+    for lost in (10, 20, 40):
+        seg = slice(at, at + lost + 10)
+        coast = np.zeros(lost + 10, dtype=bool)
+        coast[:lost] = True
+        calls.clear()
+        q_one = one.run_bridged(gyr[seg], acc[seg], cut(mag, seg.start, seg.stop), dt, coast)
+        assert len(calls) == 1
+        two._coast(gyr[at:at + lost], acc[at:at + lost], cut(mag, at, at + lost), dt, None)
+        q_two = two._run_fed(gyr[at + lost:seg.stop], acc[at + lost:seg.stop], cut(mag, at + lost, seg.stop), dt, 1.0,
+                             None)[0]  # fmt: skip
+        np.testing.assert_array_equal(q_one[lost:], q_two)
+        np.testing.assert_array_equal(one.x, two.x)
+        np.testing.assert_array_equal(one.P, two.P)
+        for ring_one, ring_two in zip(one._rings(dt), two._rings(dt), strict=True):  # the rollback history
+            np.testing.assert_array_equal(ring_one, ring_two)
+        nxt = slice(seg.stop, seg.stop + 10)
+        np.testing.assert_array_equal(one.run(gyr[nxt], acc[nxt], cut(mag, nxt.start, nxt.stop), dt),
+                                      two.run(gyr[nxt], acc[nxt], cut(mag, nxt.start, nxt.stop), dt))  # fmt: skip
+        at = nxt.stop + 50
+
+
 def test_a_bridged_hook_does_not_depend_on_how_packets_are_batched() -> None:
     """The same lossy stream one packet a batch or four (gaps then fall inside a batch's block too): the same
     quaternions to 1e-9 (the bridge and the coast cut the rows the same way either way)."""
