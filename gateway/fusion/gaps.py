@@ -151,6 +151,13 @@ def taper_inserted(rows: FloatArray, keep: NDArray[np.int64], dt_s: float, tau_s
 @njit
 def _taper_inserted(rows: FloatArray, keep: NDArray[np.int64], dt_s: float, tau_s: float) -> FloatArray:
     out = rows.copy()
+    _taper_in_place(out, keep, dt_s, tau_s)
+    return out
+
+
+@njit
+def _taper_in_place(rows: FloatArray, keep: NDArray[np.int64], dt_s: float, tau_s: float) -> None:
+    """`taper_inserted` on `rows` itself (numba: also a column view, as `_bridge_rows` passes)."""
     left = -1  # the last kept row before row r
     at = 0  # the first entry of `keep` at or after row r
     for r in range(rows.shape[0]):
@@ -160,8 +167,7 @@ def _taper_inserted(rows: FloatArray, keep: NDArray[np.int64], dt_s: float, tau_
             continue
         right = keep[min(at, keep.shape[0] - 1)]
         d = min(r - left, right - r)
-        out[r] *= np.exp(-d * dt_s / tau_s)
-    return out
+        rows[r] *= np.exp(-d * dt_s / tau_s)
 
 
 _NO_ROWS = np.empty((0, 3))
@@ -201,8 +207,8 @@ def _bridge_rows(gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: boo
                  p_gyr: FloatArray, p_acc: FloatArray, p_mag: FloatArray, p_t: FloatArray, dt_s: float,
                  max_gap_s: float, w: int, taper_s: float, tol_s: FloatArray) -> tuple[FloatArray, NDArray[np.int64]]:
     """`bridge_block` in one call: the previous block's tail (`p_*`, p rows; none: 0 rows) and the block stitched
-    as `np.hstack` / `np.concatenate` would, `_fill_gaps`, and the inserted gyroscope rows tapered as
-    `_taper_inserted` does (the same operations in the same order, so the same floats)."""
+    as `np.hstack` / `np.concatenate` would, `_fill_gaps`, and the inserted gyroscope rows tapered
+    (`_taper_in_place`): the same operations in the same order, so the same floats."""
     p, n = p_t.shape[0], t_s.shape[0]
     k = 9 if use_mag else 6
     times = np.empty(p + n)
@@ -217,18 +223,7 @@ def _bridge_rows(gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: boo
                 stitched[i, 6 + c] = mg[src, c]
     out, keep = _fill_gaps(times, stitched, p, dt_s, max_gap_s, w, tol_s)
     if taper_s > 0.0 and out.shape[0] > n:
-        left = -1  # as `_taper_inserted`
-        at = 0
-        for r in range(out.shape[0]):
-            if at < n and keep[at] == r:
-                left = r
-                at += 1
-                continue
-            right = keep[min(at, n - 1)]
-            d = min(r - left, right - r)
-            f = np.exp(-d * dt_s / taper_s)
-            for c in range(3):
-                out[r, c] *= f
+        _taper_in_place(out[:, :3], keep, dt_s, taper_s)
     return out, keep
 
 

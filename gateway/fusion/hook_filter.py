@@ -1743,6 +1743,11 @@ def _norm_sum(v: FloatArray) -> float:
     return total
 
 
+def _coast_rows_per_step(dt_s: float) -> int:
+    """Samples a coast crosses in one model step (`COAST_STEP_S`; 1: every sample stepped)."""
+    return max(1, round(COAST_STEP_S / dt_s))
+
+
 @njit
 def block_means(v: FloatArray, a: int, k: int, m: int) -> FloatArray:
     """Rows `a:` of `v` (N, c) as `k` means of `m` consecutive rows (k, c): the floats of numpy's
@@ -1759,7 +1764,7 @@ def block_means(v: FloatArray, a: int, k: int, m: int) -> FloatArray:
 
 
 @njit
-def _coast_means(gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: bool, a: int, k: int, m: int
+def _coast_block_means(gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: bool, a: int, k: int, m: int
                  ) -> tuple[FloatArray, FloatArray, FloatArray]:  # fmt: skip
     """`block_means` of a coast's gyroscope, accelerometer and (`use_mag`; else an empty array) magnetometer rows:
     one numba call where numpy took three of ~10 µs each, on every bridged call of a gateway that drops packets."""
@@ -2552,7 +2557,7 @@ class HookFilter(AttitudeFilter):
         dropped: each received hook sample came with five coasted ones). The compass test counts measured samples
         only, and a jump's rollback never reaches back across a coast (its history restarts)."""
         n = gyr.shape[0]
-        m = max(1, round(COAST_STEP_S / dt_s))
+        m = _coast_rows_per_step(dt_s)
         k = n // m
         if m == 1 or k < 2:
             return self._run_fed(gyr, acc, mag, dt_s, COAST_R_SCALE, tip_enu)[0]
@@ -2563,19 +2568,27 @@ class HookFilter(AttitudeFilter):
                                     None if tip_enu is None else tip_enu[:a])[0]  # fmt: skip
         if not self._initialised:
             self.initialise(acc[a], None if mag is None else mag[a])
-        use_mag = self.use_mag and mag is not None and self.mag_ref_uT is not None
-        gyr64, acc64 = np.asarray(gyr, dtype=np.float64), np.asarray(acc, dtype=np.float64)
-        mag64 = np.asarray(mag, dtype=np.float64) if use_mag and mag is not None else gyr64
-        g, f, mg = _coast_means(gyr64, acc64, mag64, use_mag, a, k, m)
+        g, f, mg, _, _, _ = self._coast_inputs(gyr, acc, mag, a, k, m)
         tip = None if tip_enu is None or self.mag_ref_uT is None else self._tip_in_frame(
             block_means(np.asarray(tip_enu, dtype=np.float64), a, k, m))  # fmt: skip
         self._replay = None  # as any bridged call: the start is not redone
         self._samples_run += n - a
-        q = self._coast_steps(g, f, mg if use_mag else None, dt_s, m, tip, gyr[-1])
-        if self._twin is not None and use_mag and not self._twin_paused:
+        q = self._coast_steps(g, f, mg, dt_s, m, tip, gyr[-1])
+        if self._twin is not None and mg is not None and not self._twin_paused:
             self._twin._coast_steps(g, f, None, dt_s, m, tip, gyr[-1])
         out[a:] = np.repeat(q, m, axis=0)
         return out
+
+    def _coast_inputs(self, gyr: FloatArray, acc: FloatArray, mag: FloatArray | None, a: int, k: int, m: int
+                      ) -> tuple[FloatArray, FloatArray, FloatArray | None, FloatArray, FloatArray, FloatArray | None]:
+        """A coast's model-step inputs, rows `a:` in `k` means of `m` (`_coast_block_means`, one call), and the rows
+        as float64: (gyroscope means, accelerometer means, magnetometer means or None, gyr, acc, mag or None); the
+        magnetometer only where this filter uses it (9D with a reference)."""
+        gyr64, acc64 = np.asarray(gyr, dtype=np.float64), np.asarray(acc, dtype=np.float64)
+        use_mag = self.use_mag and mag is not None and self.mag_ref_uT is not None
+        mag64 = np.asarray(mag, dtype=np.float64) if use_mag else None
+        g, f, mg = _coast_block_means(gyr64, acc64, gyr64 if mag64 is None else mag64, use_mag, a, k, m)
+        return g, f, (mg if use_mag else None), gyr64, acc64, mag64
 
     def _coast_then_run(self, gyr: FloatArray, acc: FloatArray, mag_uT: FloatArray | None, dt_s: float, c: int
                         ) -> FloatArray | None:  # fmt: skip
@@ -2583,24 +2596,21 @@ class HookFilter(AttitudeFilter):
         same floats, about half the Python and one kernel call fewer on each packet after lost ones (so a gateway
         that drops packets under overload sheds their work). None (nothing done) outside the steady state it covers:
         a twin or a start re-run pending, no start yet, or a coast that is not whole model steps."""
-        m = max(1, round(COAST_STEP_S / dt_s))
+        m = _coast_rows_per_step(dt_s)
         k = c // m
         if (m == 1 or k < 2 or k * m != c or self._twin is not None or self._replay is not None
                 or not self._initialised):  # fmt: skip
             return None
-        gyr64, acc64 = np.asarray(gyr, dtype=np.float64), np.asarray(acc, dtype=np.float64)
-        use_mag = self.use_mag and mag_uT is not None and self.mag_ref_uT is not None
-        mag64 = np.asarray(mag_uT, dtype=np.float64) if use_mag and mag_uT is not None else gyr64
-        g, f, mg = _coast_means(gyr64, acc64, mag64, use_mag, 0, k, m)
-        width = 7 if use_mag else 4  # as `_ekf_rows`: 6D rows carry the gyroscope in the magnetometer's columns
+        g, f, mg, gyr64, acc64, mag64 = self._coast_inputs(gyr, acc, mag_uT, 0, k, m)
+        width = 4 if mg is None else 7  # as `_ekf_rows`: 6D rows carry the gyroscope in the magnetometer's columns
         step_s = dt_s * m
-        z_c, u_c = _packet_rows(g, f, mg if use_mag else g, width, self.acc_z_offset_m_s2, self._gyr_before(g),
+        z_c, u_c = _packet_rows(g, f, g if mg is None else mg, width, self.acc_z_offset_m_s2, self._gyr_before(g),
                                 step_s)  # fmt: skip
         self._gyr_prev = gyr64[c - 1].copy()  # as `_coast_steps`: the measured rows difference from the coast's last
         g_m, a_m = gyr64[c:], acc64[c:]
-        z_m, u_m = _packet_rows(g_m, a_m, mag64[c:] if use_mag else g_m, width, self.acc_z_offset_m_s2,
+        z_m, u_m = _packet_rows(g_m, a_m, g_m if mag64 is None else mag64[c:], width, self.acc_z_offset_m_s2,
                                 self._gyr_before(g_m), dt_s)  # fmt: skip
-        params, r_diag = self._kernel_constants(use_mag, width)
+        params, r_diag = self._kernel_constants(mg is not None, width)
         quats, _, self.x, self.P = ekf_run_led(self.x, self.P, np.concatenate((z_c, z_m)), np.concatenate((u_c, u_m)),
                                                dt_s, params, self._q_psd, r_diag, self._monitor, *self._rings(dt_s),
                                                k, step_s, r_diag * COAST_R_SCALE)  # fmt: skip
