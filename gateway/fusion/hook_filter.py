@@ -77,7 +77,9 @@ iron (µT, body).
   variance (an unmodelled push), so the state follows the gyroscope instead of bending bias and tilt.
 
 Limits: the tilt during a trolley or slewing move is as good as the jump test's timing: a tip acceleration that
-builds up too slowly to trip it is partly taken for tilt (up to the tip's acceleration / g); a steady
+builds up too slowly to trip it is partly taken for tilt (up to the tip's acceleration / g), or for gyro bias while
+that is still settling (an onset episode that ends without a jump, over which the x/y bias moved beyond its own
+covariance, is run again as a jump from its start: `bias_jump_gate`, `bias_change_chi2`); a steady
 force present when the filter starts is indistinguishable from accelerometer bias; a hook that never twists
 keeps its hard iron's heading error. 6D heading is a free gauge
 (starts at 0), so bearings and torsion are relative to the start heading.
@@ -112,8 +114,9 @@ N_INPUT = 10  # per-sample process input: accelerometer x/y, gyroscope (3), its 
  _ROLLBACK, _TRIAL_WIN, _TRIAL_QUIET, _HOLD_TAU, _HOLD_MIN, _HOLD_GATE, _HOLD_MAX, _STOP_STD, _STOP_MIN,
  _STOP_LR, _STOP_RATIO, _L_OBS_SWING, _HOIST_GATE, _HOIST_MEAN_TAU, _HOIST_OPEN, _HOIST_HOLD, _HOIST_CRUISE,
  _HOIST_KEEP, _HOIST_STOP, _L_FORCE_TAU, _HOIST_BACK, _ONSET_GATE, _ROLLBACK_MAX, _ONSET_LR, _ONSET_QUIET,
- _LENGTH_HOLD_GATE, _MAG_FRAME) = range(67)  # _MAG_FRAME: a flag, then the 3×3 `mag_ref_frame` by rows (67-75)
-N_PARAMS = 76
+ _LENGTH_HOLD_GATE, _BIAS_JUMP_GATE, _BIAS_JUMP_WIN, _MAG_FRAME) = range(69)  # _MAG_FRAME: a flag, then the
+# 3×3 `mag_ref_frame` by rows (69-77)
+N_PARAMS = 78
 N_MONITOR = 22  # `ekf_step`'s innovation statistics, move and hoist timers, the tip estimate's, the swing energy's and
 # the force input's means
 
@@ -225,6 +228,12 @@ class HookFilterSettings:
     # step on a swinging hook can peak the statistic below the gate and the jump come seconds later, the swing fitted
     # about the wrong centre meanwhile, and the 0.3 s re-run then took the wrong tip estimate (windy seed 8: a 0.14
     # m/s² slew onset at 6.1 s peaked at 7.7, the jump at 9.3 s re-ran to -0.08 against +0.13 m/s²; 0.635 -> 0.229°)
+    bias_jump_gate: float = 9.0  # χ² (2 dof): an onset episode of the jump test (`jump_onset_gate`) that ended
+    # without a jump (no pass for `bias_jump_quiet_s`), over which the x/y gyro bias moved more than its covariance
+    # allows (Δb ~ N(0, P_then - P_now) for a constant bias): the move's onset went into the bias; it is run again
+    # as a jump from the episode's start (`bias_change_chi2`; 0: off, `BIAS_ROUND`, the filter before 2026-12-06's
+    # twenty-fifth session). Chosen on told 1-30 (5 also moved seed 20, for the worse; 16 never fired).
+    bias_jump_quiet_s: float = 0.5
     move_rollback_max_s: float = 4.0  # ... the furthest such a re-run goes back (the rollback ring holds this much:
     # 400 states and covariances at 100 Hz, 1.9 MB; 2.5 s missed windy seed 8's onset)
     jump_onset_lr: float = 0.0  # ... (1e9: always kept)
@@ -484,6 +493,10 @@ STEADY_ROUND: dict[str, float] = {"compass_steady_field_uT": 0.0}
 
 # The z gyro bias seeded from a quiet warm-up with a magnetometer too (`start_z_bias_from_compass`), before 2026-12-05.
 ZSEED_ROUND: dict[str, float] = {"start_z_bias_from_compass": False}
+
+# A move's onset the jump test missed, taken for gyro bias, left to the bias (the filter before 2026-12-06's
+# twenty-fifth session): `HookFilterSettings(**BIAS_ROUND)`.
+BIAS_ROUND: dict[str, float] = {"bias_jump_gate": 0.0}
 
 # The defaults before issue 11's compass round (no twin without the magnetometer): `HookFilterSettings(**COMPASS_ROUND)`
 COMPASS_ROUND: dict[str, float] = {"compass_check_excess": 0.0}
@@ -1784,6 +1797,27 @@ def ekf_run(
 
 
 @njit
+def _packed_index(i: int, j: int) -> int:
+    """Where P[i, j] (i <= j) sits in a `_pack_sym` row."""
+    return i * N_STATE - i * (i - 1) // 2 + (j - i)
+
+
+@njit
+def bias_change_chi2(x: FloatArray, p: FloatArray, hist_x: FloatArray, hist_p: FloatArray, k: int) -> float:
+    """The x/y gyro bias's change from ring row `k` (`hist_x`, packed `hist_p`) to `x`, `p`, normalised: for a
+    constant bias the change is N(0, P_then - P_now), so this χ² (2 dof) is large only when something else (a move's
+    onset) went into it; 0 when P_then - P_now is not positive definite."""
+    d0, d1 = x[6] - hist_x[k, 6], x[7] - hist_x[k, 7]
+    c00 = hist_p[k, _packed_index(6, 6)] - p[6, 6]
+    c01 = hist_p[k, _packed_index(6, 7)] - p[6, 7]
+    c11 = hist_p[k, _packed_index(7, 7)] - p[7, 7]
+    det = c00 * c11 - c01 * c01
+    if c00 <= 0.0 or det <= 1e-30:
+        return 0.0
+    return float((c11 * d0 * d0 - 2.0 * c01 * d0 * d1 + c00 * d1 * d1) / det)
+
+
+@njit
 def ekf_run_led(
     x0: FloatArray, p0: FloatArray, z: FloatArray, u: FloatArray, dt_s: float, params: FloatArray,
     q_psd: FloatArray, r_diag: FloatArray, monitor: FloatArray, hist_x: FloatArray, hist_p: FloatArray,
@@ -1828,6 +1862,14 @@ def ekf_run_led(
         hist_z[k, :m], hist_u[k] = z[i], u[i]
         hist_n[0] += 1
         _ekf_step_into(x, p, z[i], u[i], dt_i, params, q_psd, r_i, monitor, vecs, mats, hm, ss, idx, cnt)
+        bias_back = 0
+        if (params[_BIAS_JUMP_GATE] > 0.0 and monitor[5] == 0.0 and monitor[19] <= 0.0
+                and monitor[21] - dt_i < params[_BIAS_JUMP_WIN] <= monitor[21] < 1e8):
+            w = max(1, round((monitor[20] + params[_ROLLBACK]) / dt_i))  # a missed onset: from its episode's start
+            if (w < b and hist_n[0] >= w
+                    and bias_change_chi2(x, p, hist_x, hist_p, (hist_n[0] - w) % b) > params[_BIAS_JUMP_GATE]):
+                _mark_jump(monitor, params)
+                bias_back = w
         if monitor[19] > 0.0 and monitor[5] == 0.0 and b > 1 and params[_HOIST_BACK] > 0.0:
             j0 = hist_n[0] - min(hist_n[0], b, max(1, round(params[_ROLLBACK] / dt_i)))
             x[:] = hist_x[j0 % b]
@@ -1845,7 +1887,8 @@ def ekf_run_led(
             if trial:
                 x_kept[:] = x
                 p_kept[:, :] = p
-            back = max(1, round((params[_TRIAL_WIN] if trial else params[_ROLLBACK]) / dt_i))
+            back = bias_back if bias_back > 0 else max(1, round((params[_TRIAL_WIN] if trial else params[_ROLLBACK])
+                                                                / dt_i))  # fmt: skip
             j0 = hist_n[0] - min(hist_n[0], b, back)
             x[:] = hist_x[j0 % b]
             _unpack_sym(hist_p[j0 % b], p)
@@ -2002,7 +2045,8 @@ class HookFilter(AttitudeFilter):
                          s.hoist_hold_s, s.hoist_cruise_s, s.hoist_keep_m_s2, s.hoist_stop_m_s,
                          s.length_force_tau_s, 1.0 if s.hoist_rollback else 0.0, s.jump_onset_gate,
                          s.move_rollback_max_s, s.jump_onset_lr, s.jump_onset_quiet_s,
-                         s.jump_length_hold_gate, *self._frame_params(flag)])  # fmt: skip
+                         s.jump_length_hold_gate, s.bias_jump_gate, s.bias_jump_quiet_s,
+                         *self._frame_params(flag)])  # fmt: skip
 
     def _frame_params(self, use_mag: float) -> list[float]:
         """`_MAG_FRAME`'s flag and `mag_ref_frame` row by row (zeros when unused)."""
