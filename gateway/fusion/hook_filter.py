@@ -114,9 +114,9 @@ N_INPUT = 10  # per-sample process input: accelerometer x/y, gyroscope (3), its 
  _ROLLBACK, _TRIAL_WIN, _TRIAL_QUIET, _HOLD_TAU, _HOLD_MIN, _HOLD_GATE, _HOLD_MAX, _STOP_STD, _STOP_MIN,
  _STOP_LR, _STOP_RATIO, _L_OBS_SWING, _HOIST_GATE, _HOIST_MEAN_TAU, _HOIST_OPEN, _HOIST_HOLD, _HOIST_CRUISE,
  _HOIST_KEEP, _HOIST_STOP, _L_FORCE_TAU, _HOIST_BACK, _ONSET_GATE, _ROLLBACK_MAX, _ONSET_LR, _ONSET_QUIET,
- _LENGTH_HOLD_GATE, _BIAS_JUMP_GATE, _BIAS_JUMP_WIN, _MAG_FRAME) = range(69)  # _MAG_FRAME: a flag, then the
-# 3×3 `mag_ref_frame` by rows (69-77)
-N_PARAMS = 78
+ _LENGTH_HOLD_GATE, _BIAS_JUMP_GATE, _BIAS_JUMP_WIN, _BIAS_JUMP_MIN, _MAG_FRAME) = range(70)  # _MAG_FRAME: a flag,
+# then the 3×3 `mag_ref_frame` by rows (70-78)
+N_PARAMS = 79
 N_MONITOR = 22  # `ekf_step`'s innovation statistics, move and hoist timers, the tip estimate's, the swing energy's and
 # the force input's means
 
@@ -234,6 +234,10 @@ class HookFilterSettings:
     # as a jump from the episode's start (`bias_change_chi2`; 0: off, `BIAS_ROUND`, the filter before 2026-12-06's
     # twenty-fifth session). Chosen on told 1-30 (5 also moved seed 20, for the worse; 16 never fired).
     bias_jump_quiet_s: float = 0.5
+    bias_jump_min_rad_s: float = 5e-4  # ... and only a change of the bias at least this large (0.03 °/s: a smaller
+    # one carries under 0.3° of tilt through a 10-s move, and on an uncalibrated compass the bias moves that much for
+    # other reasons than a move: fresh 2443 on the MPU-6050/HMC5883L board lost 0.69 -> 0.91° with no minimum, 0.71°
+    # with 0.02 °/s; the wins, 0.04-0.2 °/s, all fire)
     move_rollback_max_s: float = 4.0  # ... the furthest such a re-run goes back (the rollback ring holds this much:
     # 400 states and covariances at 100 Hz, 1.9 MB; 2.5 s missed windy seed 8's onset)
     jump_onset_lr: float = 0.0  # ... (1e9: always kept)
@@ -1866,8 +1870,10 @@ def ekf_run_led(
         if (params[_BIAS_JUMP_GATE] > 0.0 and monitor[5] == 0.0 and monitor[19] <= 0.0
                 and monitor[21] - dt_i < params[_BIAS_JUMP_WIN] <= monitor[21] < 1e8):
             w = max(1, round((monitor[20] + params[_ROLLBACK]) / dt_i))  # a missed onset: from its episode's start
+            k0 = (hist_n[0] - w) % b
             if (w < b and hist_n[0] >= w
-                    and bias_change_chi2(x, p, hist_x, hist_p, (hist_n[0] - w) % b) > params[_BIAS_JUMP_GATE]):
+                    and math.hypot(x[6] - hist_x[k0, 6], x[7] - hist_x[k0, 7]) >= params[_BIAS_JUMP_MIN]
+                    and bias_change_chi2(x, p, hist_x, hist_p, k0) > params[_BIAS_JUMP_GATE]):
                 _mark_jump(monitor, params)
                 bias_back = w
         if monitor[19] > 0.0 and monitor[5] == 0.0 and b > 1 and params[_HOIST_BACK] > 0.0:
@@ -2045,7 +2051,7 @@ class HookFilter(AttitudeFilter):
                          s.hoist_hold_s, s.hoist_cruise_s, s.hoist_keep_m_s2, s.hoist_stop_m_s,
                          s.length_force_tau_s, 1.0 if s.hoist_rollback else 0.0, s.jump_onset_gate,
                          s.move_rollback_max_s, s.jump_onset_lr, s.jump_onset_quiet_s,
-                         s.jump_length_hold_gate, s.bias_jump_gate, s.bias_jump_quiet_s,
+                         s.jump_length_hold_gate, s.bias_jump_gate, s.bias_jump_quiet_s, s.bias_jump_min_rad_s,
                          *self._frame_params(flag)])  # fmt: skip
 
     def _frame_params(self, use_mag: float) -> list[float]:
