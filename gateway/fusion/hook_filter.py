@@ -114,7 +114,7 @@ N_INPUT = 10  # per-sample process input: accelerometer x/y, gyroscope (3), its 
  _ROLLBACK, _TRIAL_WIN, _TRIAL_QUIET, _HOLD_TAU, _HOLD_MIN, _HOLD_GATE, _HOLD_MAX, _STOP_STD, _STOP_MIN,
  _STOP_LR, _STOP_RATIO, _L_OBS_SWING, _HOIST_GATE, _HOIST_MEAN_TAU, _HOIST_OPEN, _HOIST_HOLD, _HOIST_CRUISE,
  _HOIST_KEEP, _HOIST_STOP, _L_FORCE_TAU, _HOIST_BACK, _ONSET_GATE, _ROLLBACK_MAX, _ONSET_LR, _ONSET_QUIET,
- _LENGTH_HOLD_GATE, _BIAS_JUMP_GATE, _BIAS_JUMP_WIN, _BIAS_JUMP_MIN, _MAG_FRAME) = range(70)  # _MAG_FRAME: a flag,
+ _LENGTH_HOLD_GATE, _BIAS_JUMP_GATE, _BIAS_JUMP_QUIET, _BIAS_JUMP_MIN, _MAG_FRAME) = range(70)  # _MAG_FRAME: a flag,
 # then the 3×3 `mag_ref_frame` by rows (70-78)
 N_PARAMS = 79
 N_MONITOR = 22  # `ekf_step`'s innovation statistics, move and hoist timers, the tip estimate's, the swing energy's and
@@ -1868,7 +1868,7 @@ def ekf_run_led(
         _ekf_step_into(x, p, z[i], u[i], dt_i, params, q_psd, r_i, monitor, vecs, mats, hm, ss, idx, cnt)
         bias_back = 0
         if (params[_BIAS_JUMP_GATE] > 0.0 and monitor[5] == 0.0 and monitor[19] <= 0.0
-                and monitor[21] - dt_i < params[_BIAS_JUMP_WIN] <= monitor[21] < 1e8):
+                and monitor[21] - dt_i < params[_BIAS_JUMP_QUIET] <= monitor[21] < 1e8):
             w = max(1, round((monitor[20] + params[_ROLLBACK]) / dt_i))  # a missed onset: from its episode's start
             k0 = (hist_n[0] - w) % b
             if (w < b and hist_n[0] >= w
