@@ -97,6 +97,7 @@ from numpy.typing import NDArray
 
 from gateway.fusion import hook as hook_geo
 from gateway.fusion.base import AttitudeFilter, FloatArray
+from gateway.fusion.field_rate import gyro_bias_from_field
 from gateway.fusion.quaternion import from_axis_angle, multiply, njit, rotate, to_matrix
 
 N_STATE = 24
@@ -436,6 +437,10 @@ class HookFilterSettings:
     # the z bias as the hook turns. False (`ZSEED_ROUND`, the filter before 2026-12-05): seeded when quiet, as in 6D,
     # where no compass finds it.
     start_z_bias_from_compass: bool = True
+    # `start()` not at rest, with a magnetometer: the x/y gyro bias from the field's turn over the warm-up against the
+    # gyroscope's (`gateway.fusion.field_rate`), instead of 0 with `init_bias_std_rad_s`; the start swing's rate and
+    # its carry-back to the window's start then leave it out. False: the filter before 2026-12-06 (`FIELD_ROUND`).
+    start_bias_from_field: bool = True
     start_mag_levelled: bool = True  # `start()`: the magnetometer reference and start heading from the window's field
     # turned to ENU by the start tilt and the twist (`level_mag_reference`); False: the body-frame mean (the filter
     # before the fifth round: a 5° swing put 4 µT of the vertical field into the heading, 11°, and the z gyro bias
@@ -486,6 +491,16 @@ RESTART_ROUND: dict[str, float] = {"restart_told_max_s": 0.0}
 # windy site with light loads (bench.hook_suite's windy family 1-12: Θ RMSE 0.235 -> 0.180°) it costs the suite's
 # cranes, whose loads are mostly heavy (1-30: 0.128 -> 0.145°). `HookFilterSettings(**WINDY_START)`.
 WINDY_START: dict[str, float] = {"start_wind_std_m_s2": 0.03}
+
+# `_bias_from_field`'s hard-iron prior, µT (the board's, not the filter's `mag_hard_iron_std_uT`). The 11 swinging
+# starts of suite seeds 1-60, the x/y bias's error (rms, °/s) and its error in its own σ (rms z): at 0.5 µT a calibrated
+# board 0.38 / z 1.0, but one with 5 µT of hard iron and 3 % soft iron (`--imu legacy`) 0.83 / z 2.1; at 5 µT
+# calibrated 0.48 / 0.94, legacy 0.58 / 1.06 (a raw compass 0.96 / 1.6: calibrate it); free (50 µT) 0.58-0.62 on all
+# three, z 0.8-0.9. Against 1 °/s not knowing it. 5 µT was also the best of the three on crane set 2482-2521.
+START_FIELD_HARD_IRON_STD_UT = 5.0
+
+# A swinging start's x/y gyro bias left at 0 (±`init_bias_std_rad_s`), the filter before the field-turn start.
+FIELD_ROUND: dict[str, float] = {"start_bias_from_field": False}
 
 # The start swing before issue 11's start-swing round (`start_swing_turns`): the warm-up read with the start heading.
 START_ROUND: dict[str, float] = {"start_swing_turns": False}
@@ -2147,6 +2162,8 @@ class HookFilter(AttitudeFilter):
                 self.seed_gyro_bias(gyr.mean(axis=0), axes=(0, 1, 2) if z else (0, 1))
         else:
             self.assume_moving()
+            if seed_bias and self._bias_from_field(gyr, mag_uT, dt_s):
+                swing = self.swing_from_window(gyr, dt_s)
         swinging = not rest and self._set_start_swing(swing)
         if s.start_mag_levelled and self.mag_ref_uT is not None and mag_uT is not None:
             mag = np.asarray(mag_uT, dtype=np.float64)
@@ -2164,6 +2181,25 @@ class HookFilter(AttitudeFilter):
         if (swing is not None and not s.rope_length_known and s.restart_told_max_s > 0.0 and self.use_mag
                 and mag_uT is not None):  # fmt: skip
             self._replay = _Replay((gyr.copy(), acc.copy(), np.array(mag_uT, dtype=np.float64), dt_s, seed_bias))
+
+    def _bias_from_field(self, gyr: FloatArray, mag_uT: FloatArray | None, dt_s: float) -> bool:
+        """A hook not at rest at start: seed the x/y gyro bias and its covariance from the field's turn over the
+        warm-up (`field_rate.gyro_bias_from_field`, `settings.start_bias_from_field`); False if there is no compass
+        or the window says nothing. Over 0.5 s the swing rate's level and the bias are one number to the gyroscope
+        (fresh crane 2519, 24 m, swinging 4°: a 2.2 °/s bias read as swing put Θ 1° off for 1.5 s)."""
+        s = self.settings
+        if not (s.start_bias_from_field and self.use_mag and mag_uT is not None):
+            return False
+        est = gyro_bias_from_field(gyr, np.asarray(mag_uT, dtype=np.float64), dt_s, s.init_bias_std_rad_s,
+                                   START_FIELD_HARD_IRON_STD_UT)  # fmt: skip
+        if est is None:
+            return False
+        xy = [_BIAS.start, _BIAS.start + 1]
+        self.x[xy] = est.bias_rad_s[:2]
+        self.P[xy, :] = 0.0
+        self.P[:, xy] = 0.0
+        self.P[np.ix_(xy, xy)] = est.cov[:2, :2]
+        return True
 
     def _split_start_force(self, mean_m_s2: FloatArray) -> FloatArray | None:
         """Split the warm-up's mean x/y force (body, m/s²) into accelerometer bias and a steady force by their priors
@@ -2381,6 +2417,7 @@ class HookFilter(AttitudeFilter):
         # at start turns 17° over the window: fresh seed 1720)
         turns = self.settings.start_swing_turns
         alpha = self.x[_ALPHA] + (self._heading_turn(gyr, dt_s) if turns else 0.0)
+        gyr = gyr - self.x[_BIAS]  # 0 unless seeded (`_bias_from_field`): the slope is bias-free, the level is not
         ca, sa = np.cos(alpha), np.sin(alpha)
         rate = np.stack([sa * gyr[:, 0] + ca * gyr[:, 1], -(ca * gyr[:, 0] - sa * gyr[:, 1])], axis=1)  # ≈ p'
         t = (np.arange(n) - 0.5 * (n - 1)) * dt_s  # 0 at the window's middle
