@@ -25,15 +25,15 @@ from gateway.ingest.bus import Bus
 from gateway.ingest.publisher import BlockingPublisher
 from gateway.pipeline import AlarmOut, Output
 from gateway.store import StoreWriter
-from gateway.views import PlotPoint, plot_points
+from gateway.views import PlotBatch
 
 log = logging.getLogger("gateway.hub")
 
 Listener = Callable[[str, schemas.WireModel], None]
 """(topic, model): topic is `attitude`, `attitude_block`, `swing`, `height`, `alarm`, `spots` or `reel_cmd`."""
-PlotListener = Callable[[list[PlotPoint]], None]
+PlotListener = Callable[[PlotBatch], None]
 """The dashboard points (`gateway.views.plot_point`) of the attitudes and swings one `emit` published, computed once
-for every such sink (history, live stream)."""
+for every such sink (history, live stream): a sequence of points, and their values in columns."""
 PacketListener = Callable[[schemas.Packet], None]
 """A decoded device packet the ingest task accepted (after sequence and time checks), before the pipeline."""
 
@@ -202,7 +202,7 @@ class Hub:
         self._put_devices(schemas.T_ATTITUDE_BLOCK, out.attitude_blocks)
         self._put_devices(schemas.T_SWING, out.swings)  # BLOCK (its row): a crane app must not lose any
         if self.plot_listeners and (newest or out.swings):
-            points = plot_points([*newest, *out.swings])
+            points = PlotBatch(newest, out.swings)
             for plot in self.plot_listeners:
                 try:
                     plot(points)
@@ -267,7 +267,7 @@ class HubSink:
     def on_hub(self, topic: str, model: schemas.WireModel) -> None:
         raise NotImplementedError
 
-    def on_plot(self, points: list[PlotPoint]) -> None:
+    def on_plot(self, points: PlotBatch) -> None:
         raise NotImplementedError
 
     def on_packet(self, packet: schemas.Packet) -> None:

@@ -47,6 +47,7 @@ from gateway.kinds.base import (
     FilterFailure,
     Fused,
     FusedDevice,
+    HeaveStates,
     KindBatch,
     KindContext,
     Output,
@@ -147,6 +148,8 @@ class Pipeline:
         for d, (_, ds) in self.device_settings.items():
             if ds.calibration is not None:
                 self.bank.set_calibration(d, ds.calibration)
+        self._dropped = 0  # `bank.dropped` when the batch's devices were fused
+        self.heave_states = HeaveStates()  # every IMU device's heave state, a row each (`heave_rows`)
         self._ctx = KindContext(s, lambda kind, dev_id: self.effective(kind, dev_id)[1], self._post_failed)
         self.taker: Callable[[schemas.Topic], Callable[[str, str], bool] | None] | None = None
         """Per batch, whether anyone takes a device's messages of a topic now (the composition root sets
@@ -324,6 +327,7 @@ class Pipeline:
 
     def _fuse(self, imu: dict[str, list[schemas.ImuPacket]], now: float, out: Output, conds: list[Timed]) -> None:
         fused = self.bank.fuse(imu, now, out)
+        self._dropped = self.bank.dropped  # `_imu_outputs`: a device dropped since (failed in post) is left out
         by_kind: dict[str, list[Fused]] = {}
         for f in fused:
             by_kind.setdefault(f.dev.kind, []).append(f)
@@ -348,11 +352,13 @@ class Pipeline:
         """Heights (one heave kernel call for all devices of the kind) and attitude blocks of the devices whose
         post succeeded; a failure costs only its device (a kernel failure: every device tries alone)."""
         s = self.settings
-        live = [i for i, f in enumerate(kb.items) if self.devices.get(f.dev.device_id) is f.dev]  # not failed in post
+        live = (list(range(len(kb.items))) if self.bank.dropped == self._dropped else  # none failed in post
+                [i for i, f in enumerate(kb.items) if self.devices.get(f.dev.device_id) is f.dev])  # fmt: skip
         rows: FloatArray | None = None
         if s.height_interval_s > 0 and live:
             try:
-                rows = heave_rows(kb, live, [self.bank.bias(kb.items[i].dev) for i in live], s.rest_acc_tol_m_s2)
+                rows = heave_rows(kb, live, self.bank.biases([kb.items[i].dev for i in live]), s.rest_acc_tol_m_s2,
+                                  self.heave_states)  # fmt: skip
             except Exception:
                 rows = None
         batch = None
@@ -363,6 +369,8 @@ class Pipeline:
                 batch = None
         if batch is not None:  # every value passed the batch check: only the attitude blocks are per device
             out.heights += batch
+        if not (s.attitude_blocks or s.height_interval_s > 0 and batch is None):
+            return  # nothing per device left
         for i in live:
             f = kb.items[i]
             try:

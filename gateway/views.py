@@ -7,9 +7,13 @@ from __future__ import annotations
 
 import math
 import time
-from typing import TYPE_CHECKING, Any
+from collections.abc import Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Final, overload
+
+import numpy as np
 
 from gateway import schemas
+from gateway.fusion.base import FloatArray
 
 if TYPE_CHECKING:  # the hub imports this module, and the runner imports the hub
     from gateway.ingest.runner import GatewayService
@@ -96,3 +100,65 @@ def plot_point(model: schemas.WireModel) -> PlotPoint | None:
 def plot_points(models: list[schemas.WireModel]) -> list[PlotPoint]:
     """`plot_point` of each Attitude or Swing of a batch, in order (the hub computes them once for every sink)."""
     return [pt for m in models if (pt := plot_point(m)) is not None]
+
+
+PLOT_FIELDS: Final = ("roll_deg", "pitch_deg", "yaw_deg", "swing_deg", "direction_deg", "torsion_deg")
+"""Every value a plot point can carry: an Attitude's three, then a Swing's three (`PlotBatch.columns`)."""
+
+
+class PlotBatch(Sequence[PlotPoint]):
+    """The dashboard points of one batch's published attitudes and then swings, for every plot sink: a sequence of
+    their `plot_point`s, made on first use (the live stream reads them only while someone watches it), and the same
+    values as columns (`columns`), which the history folds in with a few numpy calls per batch instead of a dict
+    and a Python fold per point."""
+
+    def __init__(self, attitudes: Sequence[schemas.Attitude], swings: Sequence[schemas.Swing]) -> None:
+        self.attitudes, self.swings = list(attitudes), list(swings)
+        self._points: list[PlotPoint] | None = None
+
+    def points(self) -> list[PlotPoint]:
+        """`plot_points` of the attitudes and swings, in that order (made once)."""
+        if self._points is None:
+            self._points = plot_points([*self.attitudes, *self.swings])
+        return self._points
+
+    @overload
+    def __getitem__(self, index: int) -> PlotPoint: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list[PlotPoint]: ...
+
+    def __getitem__(self, index: int | slice) -> PlotPoint | list[PlotPoint]:
+        return self.points()[index]
+
+    def __len__(self) -> int:
+        return len(self.attitudes) + len(self.swings)
+
+    def __iter__(self) -> Iterator[PlotPoint]:
+        return iter(self.points())
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, PlotBatch):
+            other = other.points()
+        return isinstance(other, list) and self.points() == other
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def columns(self) -> tuple[list[str], list[float], FloatArray]:
+        """(device ids, wall times s, values): point k of the sequence is device `ids[k]` at `t_s[k]` with
+        `values[k]` (n, len(PLOT_FIELDS)) in degrees, NaN where its output has no such value; the same floats as
+        its `plot_point` (np.degrees and math.degrees multiply by the same constant)."""
+        atts, swings = self.attitudes, self.swings
+        ids = [m.device_id for m in atts] + [m.device_id for m in swings]
+        t_s = ([(m.wall_t_us or time.time() * 1e6) / 1e6 for m in atts]
+               + [(m.wall_t_us or time.time() * 1e6) / 1e6 for m in swings])  # fmt: skip
+        values = np.full((len(ids), len(PLOT_FIELDS)), np.nan)
+        if atts:
+            values[: len(atts), :3] = np.degrees(np.array(
+                [[m.roll_rad for m in atts], [m.pitch_rad for m in atts], [m.yaw_unwrapped_rad for m in atts]],
+                dtype=np.float64).T)  # fmt: skip
+        if swings:
+            values[len(atts) :, 3:] = np.degrees(np.array(
+                [[m.swing_angle_rad for m in swings], [m.swing_direction_rad for m in swings],
+                 [m.torsion_rad for m in swings]], dtype=np.float64).T)  # fmt: skip
+        return ids, t_s, values

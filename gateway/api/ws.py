@@ -21,6 +21,7 @@ import json
 import logging
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -191,7 +192,7 @@ class LiveStream(HubSink):
         elif topic == "reel_cmd":
             self.broadcast({"type": "reel_cmd", "command": model.model_dump()})
 
-    def on_plot(self, points: list[PlotPoint]) -> None:
+    def on_plot(self, points: Sequence[PlotPoint]) -> None:
         """Hub plot listener (ingest task): buffer a batch's attitude/swing points while someone reads."""
         if not self.active:
             return

@@ -252,6 +252,7 @@ class FusionBank:
         # keyword arguments of its `run` (a hook's crane feed: `tip_enu`); none by default
         self._filter_inputs = filter_inputs
         self.devices: dict[str, FusedDevice] = {}
+        self.dropped = 0  # running devices forgotten so far (`drop`): unchanged, every fused device still runs
         self.batch: DefaultFilterBatch | None = None
         self.cal: dict[str, DeviceCalibration] = {}  # per-device IMU calibration (absent: raw values are fused)
         self._warmup: dict[str, list[schemas.ImuPacket]] = {}
@@ -274,6 +275,7 @@ class FusionBank:
 
     def drop(self, device_id: str) -> None:
         dev = self.devices.pop(device_id)
+        self.dropped += 1
         if dev.filt is None and self.batch is not None:
             self.batch.remove(device_id)
         self._on_drop(device_id)
@@ -314,6 +316,22 @@ class FusionBank:
             if b is not None:
                 return np.asarray(b, dtype=float)
         return None
+
+    def biases(self, devs: Sequence[FusedDevice]) -> FloatArray:
+        """`bias` of many devices as rows of one (n, 3) array, zeros where a filter has none: the default-filter
+        rows read with one index instead of a view per device."""
+        out = np.zeros((len(devs), 3))
+        at: list[int] = []
+        for k, dev in enumerate(devs):
+            if dev.filt is None:
+                at.append(k)
+            elif (b := self.bias(dev)) is not None:
+                out[k] = b
+        if at:
+            assert self.batch is not None
+            rows = self.batch.rows([devs[k].device_id for k in at])
+            out[at] = self.batch.states[rows, K.S_BIAS : K.S_BIAS + 3]
+        return out
 
     # -- one batch ------------------------------------------------------------------------------------------
 

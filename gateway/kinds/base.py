@@ -10,8 +10,10 @@ done once per batch over all devices of a kind here (`KindBatch`, `attitudes`), 
 from __future__ import annotations
 
 import math
+import operator
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
+from itertools import chain
 from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
@@ -117,6 +119,7 @@ class FusedDevice:
     wall_from_device: bool = False  # wall_offset_us from the device's own wall_t0_us (else from arrival time)
     last_attitude_t_s: float = -math.inf
     heave: Any = None  # gateway.fusion.heave.HeaveEstimator, made on the first fused block
+    heave_row: int = -1  # its row of the pipeline's `HeaveStates` (-1: not attached)
     last_height: schemas.Height | None = None  # the last height message made (`height`)
     height_row: HeightRow | None = None  # the last height's values when no message was made for it (`heights_batch`)
     last_height_t_s: float = -math.inf
@@ -456,33 +459,78 @@ def heights(f: Fused, bias_rad_s: FloatArray | None, interval_s: float, rest_acc
     return height_messages(f, rows, interval_s)
 
 
-def heave_rows(kb: KindBatch, live: Sequence[int], bias_rad_s: Sequence[FloatArray | None],
-               rest_acc_tol_m_s2: float) -> FloatArray:  # fmt: skip
+class HeaveStates:
+    """Every IMU device's heave state and settings as rows of two arrays, one row per device id (kept across its
+    fusion restarts: at most one per device seen). A batch's devices are then stepped with one gather and one
+    scatter around the kernel (`heave_rows`), where stacking each device's state and copying it back cost a numpy
+    call per device. A device's `HeaveEstimator` holds a view of its row as its `state`, so its own `update` (the
+    per-device path) advances the same row. One owner: the ingest task (through the pipeline)."""
+
+    def __init__(self) -> None:
+        self.slots: dict[str, int] = {}  # device id -> its row
+        self.owners: list[Any] = []  # per row: the HeaveEstimator whose `state` is a view of it
+        self.states: FloatArray = np.zeros((0, 0))
+        self.params: FloatArray = np.zeros((0, 0))
+
+    def attach(self, device_id: str, heave: Any) -> int:
+        """Give `heave` (a fresh HeaveEstimator of the device) its device's row: its state and settings are copied
+        in and its `state` becomes a view of that row. Returns the row."""
+        row = self.slots.get(device_id)
+        if row is None:
+            row = self.slots[device_id] = len(self.owners)
+            self.owners.append(heave)
+            if row >= self.states.shape[0]:
+                self._grow(max(16, 2 * row), heave.state.shape[0], heave.params.shape[0])
+        else:
+            self.owners[row] = heave
+        self.states[row] = heave.state
+        self.params[row] = heave.params
+        heave.state = self.states[row]
+        return row
+
+    def _grow(self, rows: int, n_state: int, n_params: int) -> None:
+        states, params = np.zeros((rows, n_state)), np.zeros((rows, n_params))
+        n = self.states.shape[0]
+        if n:
+            states[:n], params[:n] = self.states, self.params
+        self.states, self.params = states, params
+        for row, owner in enumerate(self.owners[:n]):  # each estimator's view onto the new arrays
+            owner.state = states[row]
+
+
+_depth_of = operator.attrgetter("depth_m")
+
+
+def heave_rows(kb: KindBatch, live: Sequence[int], bias_rad_s: FloatArray, rest_acc_tol_m_s2: float,
+               store: HeaveStates) -> FloatArray:  # fmt: skip
     """`heights`' heave rows (H, V_z, at rest, aided) of the devices `live` of a batch in one kernel call
-    (`heave_run_segments`), each with its own state, rate and settings; rows of other devices are unset."""
+    (`heave_run_segments`), each with its own state (its row of `store`), rate and settings; `bias_rad_s[k]` is
+    live device k's gyro bias (zero where its filter has none). Rows of other devices are unset."""
     from gateway.fusion.heave import heave_run_segments
 
     items = [kb.items[i] for i in live]
-    heaves = [_heave_of(f, rest_acc_tol_m_s2) for f in items]
+    at_rows = [f.dev.heave_row for f in items]
+    if at_rows and min(at_rows) < 0:  # a device's first fused block (or its estimator made by `heights`)
+        for k, f in enumerate(items):
+            if at_rows[k] < 0:
+                at_rows[k] = f.dev.heave_row = store.attach(f.dev.device_id, _heave_of(f, rest_acc_tol_m_s2))
+    at = np.array(at_rows, dtype=np.int64)
     sizes = kb.stop - kb.start
     bias = np.zeros((len(kb.items), 3))
-    for i, b in zip(live, bias_rad_s, strict=True):
-        if b is not None:
-            bias[i] = b
+    bias[np.asarray(live, dtype=np.int64)] = bias_rad_s
     gyr = kb.gyr - np.repeat(bias, sizes, axis=0)  # minus 0.0 where a filter has no bias: the same floats
     depth = np.zeros(0)
-    if any(p.depth_m is not None for f in items for p in f.packets):
+    packets = list(map(_depth_of, chain.from_iterable(f.packets for f in items)))
+    if packets.count(None) != len(packets):
         depth = np.full(kb.q.shape[0], np.nan)
         for i, f in zip(live, items, strict=True):
             _depth_into(f, depth, int(kb.start[i]))
-    states = np.array([h.state for h in heaves]).reshape(len(items), -1)
-    params = np.array([h.params for h in heaves]).reshape(len(items), -1)
+    states = store.states[at]
     dt_s = np.array([f.dev.dt_s for f in items], dtype=np.float64)
     sel = np.asarray(live, dtype=np.int64)
     rows: FloatArray = heave_run_segments(states, kb.q, gyr, kb.acc, depth, kb.start[sel], kb.stop[sel], dt_s,
-                                          params)  # fmt: skip
-    for h, st in zip(heaves, states, strict=True):
-        h.state[:] = st
+                                          store.params[at])  # fmt: skip
+    store.states[at] = states
     return rows
 
 
