@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 
 from gateway import schemas
-from gateway.api.routes.history import FIELDS, DeviceHistory, History, OpenBuckets
+from gateway.api.routes.history import FIELDS, DeviceHistory, History, OpenBuckets, ring_columns
 from gateway.views import PLOT_FIELDS, PlotBatch, plot_point
 
 
@@ -85,29 +85,9 @@ class ReferenceHistory:
         self.written += 1
 
     def columns(self, since_s: float, max_points: int) -> dict[str, list[float | None]]:
-        """Columnar `{"t_s": [...], field: [...]}` from `since_s`, at most `max_points` rows (every k-th bucket
-        when there are more, the newest kept; fields a bucket lacks are null; values to 4 decimals)."""
-        n = min(self.written, self.maxlen)
-        rows = np.arange(self.written - n, self.written) % self.maxlen  # oldest first
-        rows = rows[self.t_s[rows] >= since_s]
-        t = self.t_s[rows]
-        vals = {k: col[rows].astype(np.float64) for k, col in self.cols.items()}
         b = self._open
-        if b is not None and b.value and b.t_s >= since_s:
-            t = np.append(t, round(b.t_s, 3))
-            for k in b.value.keys() - vals.keys():
-                vals[k] = np.full(len(rows), np.nan)
-            vals = {k: np.append(v, b.value.get(k, np.nan)) for k, v in vals.items()}
-        if len(t) > max_points:
-            step = math.ceil(len(t) / max_points)
-            pick = np.arange((len(t) - 1) % step, len(t), step)  # ends on the newest row
-            t, vals = t[pick], {k: v[pick] for k, v in vals.items()}
-        out: dict[str, list[float | None]] = {"t_s": t.tolist()}
-        for k in sorted(vals):
-            v = np.round(vals[k], 4)
-            if np.isfinite(v).any():
-                out[k] = [None if math.isnan(x) else x for x in v.tolist()]
-        return out
+        open_bucket = (b.t_s, b.value) if b is not None and b.value else None
+        return ring_columns(self.t_s, self.cols, self.written, open_bucket, since_s, max_points)
 
 
 NAMES = [*FIELDS, "other_field"]  # every kind of aggregate, and a field FIELDS does not list (a mean)

@@ -206,30 +206,40 @@ class DeviceHistory:
         self.written += 1
 
     def columns(self, since_s: float, max_points: int) -> dict[str, list[float | None]]:
-        """Columnar `{"t_s": [...], field: [...]}` from `since_s`, at most `max_points` rows (every k-th bucket
-        when there are more, the newest kept; fields a bucket lacks are null; values to 4 decimals)."""
-        n = min(self.written, self.maxlen)
-        rows = np.arange(self.written - n, self.written) % self.maxlen  # oldest first
-        rows = rows[self.t_s[rows] >= since_s]
-        t = self.t_s[rows]
-        vals = {k: col[rows].astype(np.float64) for k, col in self.cols.items()}
+        """Columnar `{"t_s": [...], field: [...]}` from `since_s`, at most `max_points` rows (`ring_columns`)."""
         taken = self.buckets.taken(self.row)
-        t_open = float(self.buckets.t_s[self.row])
-        if taken and t_open >= since_s:
-            t = np.append(t, round(t_open, 3))
-            for k in taken.keys() - vals.keys():
-                vals[k] = np.full(len(rows), np.nan)
-            vals = {k: np.append(v, taken.get(k, np.nan)) for k, v in vals.items()}
-        if len(t) > max_points:
-            step = math.ceil(len(t) / max_points)
-            pick = np.arange((len(t) - 1) % step, len(t), step)  # ends on the newest row
-            t, vals = t[pick], {k: v[pick] for k, v in vals.items()}
-        out: dict[str, list[float | None]] = {"t_s": t.tolist()}
-        for k in sorted(vals):
-            v = np.round(vals[k], 4)
-            if np.isfinite(v).any():
-                out[k] = [None if math.isnan(x) else x for x in v.tolist()]
-        return out
+        open_bucket = (float(self.buckets.t_s[self.row]), taken) if taken else None
+        return ring_columns(self.t_s, self.cols, self.written, open_bucket, since_s, max_points)
+
+
+def ring_columns(t_s: NDArray[np.float64], cols: dict[str, NDArray[np.float32]], written: int,
+                 open_bucket: tuple[float, dict[str, float]] | None, since_s: float,
+                 max_points: int) -> dict[str, list[float | None]]:  # fmt: skip
+    """A history ring's columns (`written` rows so far into rings of `len(t_s)`) and its open bucket (its newest
+    time and aggregates, if any) as `{"t_s": [...], field: [...]}` from `since_s`, at most `max_points` rows (every
+    k-th bucket when there are more, the newest kept; fields a bucket lacks are null; values to 4 decimals)."""
+    maxlen = len(t_s)
+    n = min(written, maxlen)
+    rows = np.arange(written - n, written) % maxlen  # oldest first
+    rows = rows[t_s[rows] >= since_s]
+    t = t_s[rows]
+    vals = {k: col[rows].astype(np.float64) for k, col in cols.items()}
+    if open_bucket is not None and open_bucket[0] >= since_s:
+        t_open, taken = open_bucket
+        t = np.append(t, round(t_open, 3))
+        for k in taken.keys() - vals.keys():
+            vals[k] = np.full(len(rows), np.nan)
+        vals = {k: np.append(v, taken.get(k, np.nan)) for k, v in vals.items()}
+    if len(t) > max_points:
+        step = math.ceil(len(t) / max_points)
+        pick = np.arange((len(t) - 1) % step, len(t), step)  # ends on the newest row
+        t, vals = t[pick], {k: v[pick] for k, v in vals.items()}
+    out: dict[str, list[float | None]] = {"t_s": t.tolist()}
+    for k in sorted(vals):
+        v = np.round(vals[k], 4)
+        if np.isfinite(v).any():
+            out[k] = [None if math.isnan(x) else x for x in v.tolist()]
+    return out
 
 
 class History(HubSink):
