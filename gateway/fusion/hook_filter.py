@@ -439,8 +439,9 @@ class HookFilterSettings:
     start_z_bias_from_compass: bool = True
     # `start()` not at rest, with a magnetometer: the x/y gyro bias from the field's turn over the warm-up against the
     # gyroscope's (`gateway.fusion.field_rate`), instead of 0 with `init_bias_std_rad_s`; the start swing's rate and
-    # its carry-back to the window's start then leave it out. False: the filter before 2026-12-06 (`FIELD_ROUND`).
-    start_bias_from_field: bool = True
+    # its carry-back to the window's start then leave it out. Off by default (`FIELD_START` turns it on): level on
+    # fresh calibrated cranes, better on an MPU-6050/HMC5883L-class board, but a raw compass misled it (docs/fusion.md).
+    start_bias_from_field: bool = False
     start_mag_levelled: bool = True  # `start()`: the magnetometer reference and start heading from the window's field
     # turned to ENU by the start tilt and the twist (`level_mag_reference`); False: the body-frame mean (the filter
     # before the fifth round: a 5° swing put 4 µT of the vertical field into the heading, 11°, and the z gyro bias
@@ -499,8 +500,10 @@ WINDY_START: dict[str, float] = {"start_wind_std_m_s2": 0.03}
 # three, z 0.8-0.9. Against 1 °/s not knowing it. 5 µT was also the best of the three on crane set 2482-2521.
 START_FIELD_HARD_IRON_STD_UT = 5.0
 
-# A swinging start's x/y gyro bias left at 0 (±`init_bias_std_rad_s`), the filter before the field-turn start.
-FIELD_ROUND: dict[str, float] = {"start_bias_from_field": False}
+# A swinging start's x/y gyro bias from the field's turn (`start_bias_from_field`), off by default: fresh cranes
+# 2562-2601 0.133 -> 0.134° (max 1.25 -> 2.15°), on an MPU-6050/HMC5883L-class board 0.167 -> 0.155°, but a raw,
+# uncalibrated compass took tuning crane 7 from 0.133 to 2.99°. `HookFilterSettings(**FIELD_START)`.
+FIELD_START: dict[str, float] = {"start_bias_from_field": True}
 
 # The start swing before issue 11's start-swing round (`start_swing_turns`): the warm-up read with the start heading.
 START_ROUND: dict[str, float] = {"start_swing_turns": False}
