@@ -6,6 +6,7 @@ they see whole batches; they never change anything.
 from __future__ import annotations
 
 import math
+import operator
 import time
 from collections.abc import Iterator, Sequence
 from typing import TYPE_CHECKING, Any, Final, overload
@@ -82,28 +83,35 @@ PlotPoint = tuple[str, float, dict[str, float]]
 """(device id, wall time s, plotted values in degrees): one point of the dashboard's series."""
 
 
+_PLOT_SOURCES: Final = {
+    schemas.Attitude: (("roll_deg", "roll_rad"), ("pitch_deg", "pitch_rad"), ("yaw_deg", "yaw_unwrapped_rad")),
+    schemas.Swing: (("swing_deg", "swing_angle_rad"), ("direction_deg", "swing_direction_rad"),
+                    ("torsion_deg", "torsion_rad")),
+}
+"""Per plotted output type, (plotted field in degrees, the model's attribute in radians): the one table that turns hub
+outputs into the dashboard's series, for `plot_point` and `PlotBatch.columns` alike."""
+
+PLOT_FIELDS: Final = tuple(name for pairs in _PLOT_SOURCES.values() for name, _ in pairs)
+"""Every value a plot point can carry: an Attitude's three, then a Swing's three (`PlotBatch.columns`)."""
+
+
+def _wall_s(model: schemas.Attitude | schemas.Swing) -> float:
+    """The output's wall time, s (now if it has none)."""
+    return (model.wall_t_us or time.time() * 1e6) / 1e6
+
+
 def plot_point(model: schemas.WireModel) -> PlotPoint | None:
-    """(device id, wall time s, plotted values in degrees) of an Attitude or Swing output, else None: the one place
-    that turns hub outputs into the dashboard's series (history and the live stream)."""
-    if isinstance(model, schemas.Attitude):
-        values = {"roll_deg": math.degrees(model.roll_rad), "pitch_deg": math.degrees(model.pitch_rad),
-                  "yaw_deg": math.degrees(model.yaw_unwrapped_rad)}  # fmt: skip
-    elif isinstance(model, schemas.Swing):
-        values = {"swing_deg": math.degrees(model.swing_angle_rad),
-                  "direction_deg": math.degrees(model.swing_direction_rad),
-                  "torsion_deg": math.degrees(model.torsion_rad)}  # fmt: skip
-    else:
+    """(device id, wall time s, plotted values in degrees) of an Attitude or Swing output, else None (`_PLOT_SOURCES`;
+    the history and the live stream plot these)."""
+    pairs = _PLOT_SOURCES.get(type(model))
+    if pairs is None or not isinstance(model, schemas.Attitude | schemas.Swing):
         return None
-    return model.device_id, (model.wall_t_us or time.time() * 1e6) / 1e6, values
+    return model.device_id, _wall_s(model), {name: math.degrees(getattr(model, attr)) for name, attr in pairs}
 
 
 def plot_points(models: list[schemas.WireModel]) -> list[PlotPoint]:
     """`plot_point` of each Attitude or Swing of a batch, in order (the hub computes them once for every sink)."""
     return [pt for m in models if (pt := plot_point(m)) is not None]
-
-
-PLOT_FIELDS: Final = ("roll_deg", "pitch_deg", "yaw_deg", "swing_deg", "direction_deg", "torsion_deg")
-"""Every value a plot point can carry: an Attitude's three, then a Swing's three (`PlotBatch.columns`)."""
 
 
 class PlotBatch(Sequence[PlotPoint]):
@@ -150,15 +158,13 @@ class PlotBatch(Sequence[PlotPoint]):
         its `plot_point` (np.degrees and math.degrees multiply by the same constant)."""
         atts, swings = self.attitudes, self.swings
         ids = [m.device_id for m in atts] + [m.device_id for m in swings]
-        t_s = ([(m.wall_t_us or time.time() * 1e6) / 1e6 for m in atts]
-               + [(m.wall_t_us or time.time() * 1e6) / 1e6 for m in swings])  # fmt: skip
+        t_s = [_wall_s(m) for m in atts] + [_wall_s(m) for m in swings]
         values = np.full((len(ids), len(PLOT_FIELDS)), np.nan)
-        if atts:
-            values[: len(atts), :3] = np.degrees(np.array(
-                [[m.roll_rad for m in atts], [m.pitch_rad for m in atts], [m.yaw_unwrapped_rad for m in atts]],
-                dtype=np.float64).T)  # fmt: skip
-        if swings:
-            values[len(atts) :, 3:] = np.degrees(np.array(
-                [[m.swing_angle_rad for m in swings], [m.swing_direction_rad for m in swings],
-                 [m.torsion_rad for m in swings]], dtype=np.float64).T)  # fmt: skip
+        for start, models, kind in ((0, atts, schemas.Attitude), (len(atts), swings, schemas.Swing)):
+            if models:
+                pairs = _PLOT_SOURCES[kind]
+                col = PLOT_FIELDS.index(pairs[0][0])
+                read = operator.attrgetter(*(attr for _, attr in pairs))
+                values[start : start + len(models), col : col + len(pairs)] = np.degrees(
+                    np.array([read(m) for m in models], dtype=np.float64))  # fmt: skip
         return ids, t_s, values

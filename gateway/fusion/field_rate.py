@@ -69,7 +69,6 @@ def gyro_bias_from_field(gyr_rad_s: FloatArray, mag_uT: FloatArray, dt_s: float,
         return None
     gyr, mag = gyr[:n], mag[:n]
     bias = np.zeros(3)
-    cov = np.eye(3) * bias_std_rad_s**2
     residual = noise_floor_uT
     for _ in range(max(1, iterations)):
         turns = body_turns(gyr - bias, dt_s)  # (N, 3, 3): body k -> body 0

@@ -494,10 +494,9 @@ RESTART_ROUND: dict[str, float] = {"restart_told_max_s": 0.0}
 WINDY_START: dict[str, float] = {"start_wind_std_m_s2": 0.03}
 
 # `_bias_from_field`'s hard-iron prior, µT (the board's, not the filter's `mag_hard_iron_std_uT`). The 11 swinging
-# starts of suite seeds 1-60, the x/y bias's error (rms, °/s) and its error in its own σ (rms z): at 0.5 µT a calibrated
-# board 0.38 / z 1.0, but one with 5 µT of hard iron and 3 % soft iron (`--imu legacy`) 0.83 / z 2.1; at 5 µT
-# calibrated 0.48 / 0.94, legacy 0.58 / 1.06 (a raw compass 0.96 / 1.6: calibrate it); free (50 µT) 0.58-0.62 on all
-# three, z 0.8-0.9. Against 1 °/s not knowing it. 5 µT was also the best of the three on crane set 2482-2521.
+# starts of suite seeds 1-60 (true x/y bias 0.92 °/s rms), the fit's error (rms, °/s) and its error in its own σ
+# (rms z), at 0.5 / 5 / 50 µT: calibrated board 0.37 / 0.45 / 0.52 (z 0.71 / 0.68 / 0.49); MPU-6050/HMC5883L-class
+# (`--imu legacy`) 0.86 / 0.58 / 0.50 (z 1.65 / 0.83 / 0.50); raw compass 2.35 / 1.28 (z 4.4 / 1.5): worse than 0.
 START_FIELD_HARD_IRON_STD_UT = 5.0
 
 # A swinging start's x/y gyro bias from the field's turn (`start_bias_from_field`), off by default: fresh cranes

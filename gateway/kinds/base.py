@@ -520,8 +520,8 @@ def heave_rows(kb: KindBatch, live: Sequence[int], bias_rad_s: FloatArray, rest_
     bias[np.asarray(live, dtype=np.int64)] = bias_rad_s
     gyr = kb.gyr - np.repeat(bias, sizes, axis=0)  # minus 0.0 where a filter has no bias: the same floats
     depth = np.zeros(0)
-    packets = list(map(_depth_of, chain.from_iterable(f.packets for f in items)))
-    if packets.count(None) != len(packets):
+    depths = list(map(_depth_of, chain.from_iterable(f.packets for f in items)))
+    if depths.count(None) != len(depths):  # some packet carries a depth
         depth = np.full(kb.q.shape[0], np.nan)
         for i, f in zip(live, items, strict=True):
             _depth_into(f, depth, int(kb.start[i]))

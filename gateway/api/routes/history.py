@@ -53,7 +53,6 @@ class HistorySettings:
     poll_s: float = 1.0
 
 
-FIELD_NAMES: tuple[str, ...] = tuple(FIELDS)
 _MEAN, _MAX, _LAST = 0, 1, 2
 _AGG_CODE: dict[Agg, int] = {"mean": _MEAN, "max": _MAX, "last": _LAST}
 
@@ -140,12 +139,8 @@ class OpenBuckets:
                 raise ValueError(f"history points at non-finite times: {t[renew & ~np.isfinite(t)]}")
             fresh = rows[renew]
             closing = fresh[is_open[renew] & (self.n[fresh] > 0).any(axis=1)]  # open buckets that took values
-            if closing.size:
-                names = self.names
-                for row, counts, values, t_s in zip(closing.tolist(), self.n[closing].tolist(),
-                                                    self.value[closing].tolist(), self.t_s[closing].tolist(),
-                                                    strict=True):  # fmt: skip
-                    self.owners[row]._close(t_s, {k: values[j] for j, k in enumerate(names) if counts[j] > 0})
+            for row in closing.tolist():
+                self.owners[row]._close(float(self.t_s[row]), self.taken(row))
             self.open[fresh] = True
             self.t0_s[fresh] = np.floor(t[renew] / bucket_s) * bucket_s
             self.t_s[fresh] = 0.0
