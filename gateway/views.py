@@ -67,6 +67,11 @@ def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dic
             out["compass_dropped_s"] = getattr(filt, "compass_dropped_s", None)
             out["start_redone_s"] = getattr(filt, "start_redone_s", None)  # not told its rope: started again told it
             out["start_pending"] = bool(getattr(filt, "start_pending", False))  # ... still may: its alarms wait
+            # the warm-up's mean x/y force and whether the start took it for the accelerometer's offset (a hook held
+            # aside at start would be misread as one up to `max_warmup_acc_bias_m_s2`: docs/fusion.md)
+            force = getattr(filt, "start_force_m_s2", None)
+            out["start_force_m_s2"] = None if force is None else list(force)
+            out["start_force_is_offset"] = bool(getattr(filt, "start_force_is_offset", False))
         if stream is not None:
             t = stream.main()
             out["stream"] = {"ok": t.ok, "lost": t.lost, "duplicates": t.duplicates, "reordered": t.reordered,

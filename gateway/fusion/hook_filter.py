@@ -2039,6 +2039,8 @@ class HookFilter(AttitudeFilter):
         self.start_redone_q0: FloatArray | None = None  # then: the redone estimate of the first sample after `start()`
         self.compass_dropped_s: float | None = None  # the magnetometer misled the swing: dropped this many seconds
         # after the start (`_check_compass`); None while it is used
+        self.start_force_m_s2: tuple[float, float] | None = None  # `start()`: the warm-up's mean x/y force (body)
+        self.start_force_is_offset = False  # ... taken for the accelerometer's offset (False: for a real force)
         self._north_kept_rad: float | None = None  # β at a drop that kept the heading (`north_turn_rad`)
         self._samples_run = 0  # samples through `run_with_length` / `run_bridged` (where a crane feed's β is read)
         hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
@@ -2151,7 +2153,9 @@ class HookFilter(AttitudeFilter):
             u = process_inputs(gyr, acc, gyr[0], dt_s)
             r = self.settings.lever_arm_m
             mean = np.mean([force_input(row, r[0], r[1], r[2]) for row in u], axis=0)
-            if float(np.hypot(*mean)) <= self.settings.max_warmup_acc_bias_m_s2:
+            self.start_force_m_s2 = (float(mean[0]), float(mean[1]))
+            self.start_force_is_offset = float(np.hypot(*mean)) <= self.settings.max_warmup_acc_bias_m_s2
+            if self.start_force_is_offset:
                 self.x[_ACC_XY] = mean
                 lean_force = self._split_start_force(mean)
             else:  # a real force (the hook held aside, a pull): no bias guess, let the dynamics find it

@@ -8,8 +8,10 @@ import stat
 import time
 from collections.abc import Callable
 
+import numpy as np
 import pytest
 
+from devices.common import ImuErrorModel, SensorModel
 from gateway import schemas
 from tests.gateway.conftest import Running, rod_messages, wait_for
 
@@ -248,6 +250,10 @@ def test_a_hooks_dropped_compass_shows_in_its_device_detail(running: Callable[[]
     assert dev["compass"] == "dropped", dev
     assert 0.0 < dev["compass_dropped_s"] < 10.0
     assert dev["start_redone_s"] is None  # told its rope length: nothing to redo
+    # the warm-up's mean x/y force, taken for the board's accelerometer offset (the suite's board for seed 7)
+    offset = SensorModel(ImuErrorModel.uncalibrated(), 1, np.random.default_rng(10_007)).acc_bias_m_s2[0, :2]
+    assert dev["start_force_is_offset"] is True
+    assert dev["start_force_m_s2"] == pytest.approx(offset.tolist(), abs=0.1), (dev["start_force_m_s2"], offset)
 
 
 def test_a_hook_not_told_its_rope_says_when_it_started_again(running: Callable[[], Running]) -> None:
