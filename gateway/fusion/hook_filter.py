@@ -376,6 +376,11 @@ class HookFilterSettings:
     # of g; at 0.4 (before 2026-12-06's twenty-seventh session) one MPU-6050/HMC5883L-class board in eight has a bias
     # above it, which the start then took for a force (fresh crane 2562, 28.5 m: Θ 3.1° off at 2.5 s).
     max_warmup_acc_bias_m_s2: float = 0.8
+    # `start()`: a quiet window is not rest if its swing reads over 3σ of noise plus this many σ of the twist's
+    # cross-axis pick-up (a bounded error, not noise); 0: rest whenever no swing passes the 3σ detection bar (before
+    # 2026-12-06's twenty-seventh session: crane 2672 at 50 Hz, 19.6 m swinging 7.8° and twisting fast, read 8.67° for
+    # a bar of 8.72°, was started at plumb with its swing's rate as gyro bias, Θ 5.1° off)
+    rest_cross_sigmas: float = 2.0
     # `start()`: the prior std of a steady horizontal force per unit mass (wind) at start. The warm-up's mean x/y force
     # is bias plus that force, which a hook that does not twist cannot tell apart: it is split by the two priors
     # (`init_acc_xy_bias_std_m_s2` for the bias), the force's share leaning the rope. 0: all of it is bias.
@@ -522,6 +527,10 @@ ZSEED_ROUND: dict[str, float] = {"start_z_bias_from_compass": False}
 # A move's onset the jump test missed, taken for gyro bias, left to the bias (the filter before 2026-12-06's
 # twenty-fifth session): `HookFilterSettings(**BIAS_ROUND)`.
 BIAS_ROUND: dict[str, float] = {"bias_jump_gate": 0.0}
+
+# A quiet warm-up whose swing misses the 3σ detection bar taken for rest however large it reads (the filter before
+# 2026-12-06's twenty-seventh session): `HookFilterSettings(**REST_ROUND)`.
+REST_ROUND: dict[str, float] = {"rest_cross_sigmas": 0.0}
 
 # A warm-up mean x/y force above 0.4 m/s² taken for a force, not bias (the filter before 2026-12-06's twenty-seventh
 # session): `HookFilterSettings(**WARMUP_ROUND)`.
@@ -2042,6 +2051,7 @@ class HookFilter(AttitudeFilter):
         self.start_force_m_s2: tuple[float, float] | None = None  # `start()`: the warm-up's mean x/y force (body)
         self.start_force_is_offset = False  # ... taken for the accelerometer's offset (False: for a real force)
         self._north_kept_rad: float | None = None  # β at a drop that kept the heading (`north_turn_rad`)
+        self._window_swing_bar = (math.inf, 0.0)  # `swing_from_window`'s rest bar and swing read (rad), for `start()`
         self._samples_run = 0  # samples through `run_with_length` / `run_bridged` (where a crane feed's β is read)
         hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
         self._q_psd = np.array(
@@ -2168,8 +2178,14 @@ class HookFilter(AttitudeFilter):
         s = self.settings
         quiet = gyr.std(axis=0) < s.rest_gyr_std_rad_s if gyr.shape[0] > 1 else np.zeros(3, dtype=bool)
         level = abs(float(np.linalg.norm(acc.mean(axis=0))) - s.gravity_m_s2) < s.rest_acc_tol_m_s2
+        self._window_swing_bar = (math.inf, 0.0)
         swing = self.swing_from_window(gyr, dt_s)
-        rest = level and quiet[0] and quiet[1] and swing is None
+        # a swing under the 3σ detection bar can still be too large for rest: the twist's cross-axis pick-up is a
+        # bounded error, not noise (`rest_cross_sigmas`); seeding the gyro bias from such a window would take the
+        # swing's rate for bias and start at plumb
+        bar, seen = self._window_swing_bar
+        moving = s.rest_cross_sigmas > 0.0 and swing is None and bar < seen <= 0.5
+        rest = level and quiet[0] and quiet[1] and swing is None and not moving
         if rest:
             if seed_bias:
                 z = quiet[2] and not (s.start_z_bias_from_compass and self.use_mag and mag_uT is not None)
@@ -2438,10 +2454,12 @@ class HookFilter(AttitudeFilter):
         slope = t @ (rate - rate.mean(axis=0)) / float(t @ t)
         scale = self.rope_length_m / self.settings.gravity_m_s2
         p_mid = -scale * slope
-        sigma = scale * self.settings.gyro_noise_rad_s * math.sqrt(12.0 / (n * (n * dt_s) ** 2))
+        sigma_noise = scale * self.settings.gyro_noise_rad_s * math.sqrt(12.0 / (n * (n * dt_s) ** 2))
         slope_z = float(t @ (gyr[:, 2] - gyr[:, 2].mean())) / float(t @ t)
-        sigma = math.hypot(sigma, scale * self.settings.init_cross_axis_std * abs(slope_z))  # twisting: x/y see z
+        sigma_cross = scale * self.settings.init_cross_axis_std * abs(slope_z)  # twisting: x/y see z
+        sigma = math.hypot(sigma_noise, sigma_cross)
         norm = float(np.hypot(*p_mid))
+        self._window_swing_bar = 3.0 * sigma_noise + self.settings.rest_cross_sigmas * sigma_cross, norm
         if norm < max(3.0 * sigma, 0.005) or norm > 0.5:  # no swing to see, or not a pendulum's (a knock, a jerk)
             return None
         p_start = p_mid + rate.mean(axis=0) * t[0] + (0.5 * slope * t[0] ** 2 if turns else 0.0)  # to second order
