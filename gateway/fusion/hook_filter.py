@@ -91,6 +91,7 @@ import collections
 import copy
 import math
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -2012,6 +2013,27 @@ def _joined(parts: list[tuple[FloatArray, FloatArray]]) -> tuple[FloatArray, Flo
     return np.concatenate([q for q, _ in parts]), np.concatenate([ln for _, ln in parts])
 
 
+class WindowSwing(NamedTuple):
+    """A warm-up window's swing as the pendulum law reads it (`HookFilter.read_window_swing`), rad and rad/s."""
+
+    p_start: FloatArray  # the rope's horizontal direction at the window's first sample
+    rate_start: FloatArray  # its rate there
+    norm: float  # |p| at the window's middle
+    sigma_noise: float  # its σ from the gyroscope's noise
+    sigma_cross: float  # ... from the twist's cross-axis pick-up (a bounded error, not noise)
+
+    def detected(self) -> tuple[FloatArray, FloatArray, float] | None:
+        """(p, p', std of p) if the swing is seen above 3σ and is a pendulum's (under 0.5 rad), else None."""
+        sigma = math.hypot(self.sigma_noise, self.sigma_cross)
+        if self.norm < max(3.0 * sigma, 0.005) or self.norm > 0.5:  # no swing to see, or a knock, a jerk
+            return None
+        return self.p_start, self.rate_start, math.hypot(2.0 * sigma, 0.1 * self.norm)
+
+    def too_large_for_rest(self, cross_sigmas: float) -> bool:
+        """Over 3σ of noise plus `cross_sigmas` σ of cross-axis pick-up (and a pendulum's): not a hook at rest."""
+        return 3.0 * self.sigma_noise + cross_sigmas * self.sigma_cross < self.norm <= 0.5
+
+
 class HookFilter(AttitudeFilter):
     """Pendulum-aware EKF for the crane hook (see the module docstring). `update()` runs one `ekf_step`, `run()`
     the batch `ekf_run` (the same step in a numba loop). State: `self.x` (N_STATE,) = (24,), `self.P` (24, 24)."""
@@ -2051,7 +2073,6 @@ class HookFilter(AttitudeFilter):
         self.start_force_m_s2: tuple[float, float] | None = None  # `start()`: the warm-up's mean x/y force (body)
         self.start_force_is_offset = False  # ... taken for the accelerometer's offset (False: for a real force)
         self._north_kept_rad: float | None = None  # β at a drop that kept the heading (`north_turn_rad`)
-        self._window_swing_bar = (math.inf, 0.0)  # `swing_from_window`'s rest bar and swing read (rad), for `start()`
         self._samples_run = 0  # samples through `run_with_length` / `run_bridged` (where a crane feed's β is read)
         hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
         self._q_psd = np.array(
@@ -2178,13 +2199,13 @@ class HookFilter(AttitudeFilter):
         s = self.settings
         quiet = gyr.std(axis=0) < s.rest_gyr_std_rad_s if gyr.shape[0] > 1 else np.zeros(3, dtype=bool)
         level = abs(float(np.linalg.norm(acc.mean(axis=0))) - s.gravity_m_s2) < s.rest_acc_tol_m_s2
-        self._window_swing_bar = (math.inf, 0.0)
-        swing = self.swing_from_window(gyr, dt_s)
+        read = self.read_window_swing(gyr, dt_s)
+        swing = None if read is None else read.detected()
         # a swing under the 3σ detection bar can still be too large for rest: the twist's cross-axis pick-up is a
         # bounded error, not noise (`rest_cross_sigmas`); seeding the gyro bias from such a window would take the
         # swing's rate for bias and start at plumb
-        bar, seen = self._window_swing_bar
-        moving = s.rest_cross_sigmas > 0.0 and swing is None and bar < seen <= 0.5
+        moving = swing is None and read is not None and s.rest_cross_sigmas > 0.0 and read.too_large_for_rest(
+            s.rest_cross_sigmas)
         rest = level and quiet[0] and quiet[1] and swing is None and not moving
         if rest:
             if seed_bias:
@@ -2439,6 +2460,11 @@ class HookFilter(AttitudeFilter):
         back to its start to second order (`p' t + p'' t²/2`; on a 3 m rope the second term is 8 % of `p`). A long
         rope's slow swing looks "quiet" over 0.5 s: started at plumb with the swing rate taken for gyro bias, a 7° swing
         on 20 m read 4.4° off at first (bench.hook_suite 108)."""
+        read = self.read_window_swing(gyr_rad_s, dt_s)
+        return None if read is None else read.detected()
+
+    def read_window_swing(self, gyr_rad_s: FloatArray, dt_s: float) -> WindowSwing | None:
+        """`swing_from_window`'s reading of the window before its 3σ test; None if shorter than 0.2 s."""
         gyr = np.asarray(gyr_rad_s, dtype=np.float64)
         n = gyr.shape[0]
         if n * dt_s < 0.2:
@@ -2457,13 +2483,8 @@ class HookFilter(AttitudeFilter):
         sigma_noise = scale * self.settings.gyro_noise_rad_s * math.sqrt(12.0 / (n * (n * dt_s) ** 2))
         slope_z = float(t @ (gyr[:, 2] - gyr[:, 2].mean())) / float(t @ t)
         sigma_cross = scale * self.settings.init_cross_axis_std * abs(slope_z)  # twisting: x/y see z
-        sigma = math.hypot(sigma_noise, sigma_cross)
-        norm = float(np.hypot(*p_mid))
-        self._window_swing_bar = 3.0 * sigma_noise + self.settings.rest_cross_sigmas * sigma_cross, norm
-        if norm < max(3.0 * sigma, 0.005) or norm > 0.5:  # no swing to see, or not a pendulum's (a knock, a jerk)
-            return None
         p_start = p_mid + rate.mean(axis=0) * t[0] + (0.5 * slope * t[0] ** 2 if turns else 0.0)  # to second order
-        return p_start, rate[:5].mean(axis=0), math.hypot(2.0 * sigma, 0.1 * norm)
+        return WindowSwing(p_start, rate[:5].mean(axis=0), float(np.hypot(*p_mid)), sigma_noise, sigma_cross)
 
     def _rings(self, dt_s: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
                                             NDArray[np.int64]]:  # fmt: skip

@@ -782,10 +782,10 @@ def test_a_swing_under_the_detection_bar_of_a_fast_twist_is_not_taken_for_rest()
     (suite crane 4, 25.7 m) is rest either way, its window's mean rate the gyro bias."""
     from bench.hook_suite import simulate_seed
 
+    case, truth, gyr, acc, mag = simulate_seed(2672, 120.0, "calibrated", True, rate_hz=50.0)
+    rope = case.physics.rope_length_m
     worst = []
     for over in ({}, REST_ROUND):
-        case, truth, gyr, acc, mag = simulate_seed(2672, 120.0, "calibrated", True, rate_hz=50.0)
-        rope = case.physics.rope_length_m
         f = HookFilter(HookFilterSettings(rope_length_m=rope, rope_length_known=True, **over), use_mag=True)
         f.start(gyr[:25], acc[:25], mag[:25], 0.02)
         q = f.run(gyr[:150], acc[:150], mag[:150], 0.02)
