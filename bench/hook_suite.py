@@ -28,6 +28,7 @@
     python -m bench.hook_suite --settings bias0             # a missed move onset left to the gyro bias (BIAS_ROUND)
     python -m bench.hook_suite --settings warmup04          # a warm-up force over 0.4 m/s² not bias (WARMUP_ROUND)
     python -m bench.hook_suite --settings rest3             # a quiet warm-up under the 3σ bar is rest (REST_ROUND)
+    python -m bench.hook_suite --settings iron05            # a calibrated board's hard-iron prior (IRON_PRIOR_ROUND)
     python -m bench.hook_suite --length-factor 2            # the rope length told 2x too long at t = 0
     python -m bench.hook_suite --told-m 10                  # told 10 m whatever the rope (the gateway's default)
     python -m bench.hook_suite --offset-told 0.005          # the IMU's offset from the rope told, measured to 5 mm
@@ -101,6 +102,7 @@ from gateway.fusion.hook_filter import (
     HARD_IRON_REFERENCE,
     HELD_TRACKING,
     HOIST_ROUND,
+    IRON_PRIOR_ROUND,
     IRON_ROUND,
     PREVIOUS_DEFAULT,
     PRIOR_ROUND,
@@ -564,7 +566,7 @@ PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JU
            "norestart": RESTART_ROUND, "start1": START_ROUND,
            "windstart": WINDY_START, "drop1": DROP_ROUND, "zseed": ZSEED_ROUND,
            "steady": STEADY_ROUND, "bias0": BIAS_ROUND, "warmup04": WARMUP_ROUND,
-           "rest3": REST_ROUND}
+           "rest3": REST_ROUND, "iron05": IRON_PRIOR_ROUND}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -636,7 +638,9 @@ def main(argv: list[str] | None = None) -> int:
                    "missed and the x/y gyro bias took is left there, the filter before 2026-12-06's bias-jump test), "
                    "warmup04 (WARMUP_ROUND: a warm-up mean x/y force over 0.4 m/s² taken for a force, not bias, the "
                    "filter before 2026-12-06's twenty-seventh session), rest3 (REST_ROUND: a quiet warm-up whose swing "
-                   "misses the 3σ detection bar is rest however large it reads, the filter before the same session)")
+                   "misses the 3σ detection bar is rest however large it reads, the filter before the same session), "
+                   "iron05 (IRON_PRIOR_ROUND: the hard-iron prior of a calibrated board, 0.5 µT, the filter before "
+                   "2026-12-06's twenty-eighth session)")
     p.add_argument("--worst", action="store_true",
                    help=f"also say where each seed's worst Θ error is (start, during or after which event, free "
                    f"swing) and the share of its samples above {WORST_LIMIT_DEG:g}°, and count the seeds over it by "

@@ -317,8 +317,17 @@ class HookFilterSettings:
     tip_turn_psd: float = 0.05  # rad²/s: the tip acceleration's direction random-walks with this PSD, i.e. process
     # noise perpendicular to the tip estimate `a` of `tip_turn_psd |a|²` (a slew's acceleration turns with the boom at
     # up to ~0.1 rad/s; a still crane's zero tip estimate gets none) (0: off)
-    mag_hard_iron_std_uT: float = 0.5  # prior std of the magnetometer's residual hard iron, per body axis (0: not
-    # estimated). A calibrated board keeps ~0.5 µT (devices.common.ImuErrorModel.calibrated): 1-4° of heading
+    mag_hard_iron_std_uT: float = 3.0  # prior std of the magnetometer's residual hard iron, per body axis (0: not
+    # estimated). A calibrated board keeps ~0.5 µT (devices.common.ImuErrorModel.calibrated): 1-4° of heading; an
+    # MPU-6050/HMC5883L-class board never calibrated ~5 µT, a raw one ~15 µT. 3 µT (0.5 before 2026-12-06's
+    # twenty-eighth session, `IRON_PRIOR_ROUND`): the hard iron of a board nobody calibrated is learnt as the hook
+    # twists instead of held near 0 (tuning 1-30 told, MPU-6050-class board: torsion 2.96 -> 1.75°; raw board Θ
+    # 0.175 -> 0.120°, its 30 µT learnt and its compass kept), a calibrated board level (0.114 -> 0.115°). 6 µT ran a
+    # raw not-told crane away (tuning seed 29) and 12 µT a told one (seed 10): no wider (docs/fusion.md)
+    mag_hard_iron_std_not_told_uT: float = 0.5  # ... at most this while the rope length is not told (the provisional
+    # start; the start redone told its length takes `mag_hard_iron_std_uT`): 3 µT there mended not-told runaways on
+    # the suite (MPU-6050-class 1-30 0.212 -> 0.149°) but took crane 1696's redone start through the pipeline from
+    # 0.22 to 0.42° (torsion 0.95 -> 9.8°), and a calibrated board's not-told torsion 0.74 -> 1.32°
     mag_hard_iron_psd: float = 1e-6  # µT²/s: its drift (battery and motor currents)
     mag_reference_hard_iron: bool = True  # the magnetometer reference is read at start with the hard iron in it, so
     # the model is `Rᵀ (m_ref - M h) + h`, `M` the attitude the reference was read at (`mag_ref_frame`): the hard iron
@@ -497,6 +506,10 @@ IRON_ROUND: dict[str, float] = {"mag_reference_hard_iron": False}
 PRIOR_ROUND: dict[str, float] = {"rope_known_rel_std": 0.05}
 # No re-start told the learnt length (`restart_told_std`), the filter before issue 11's start round.
 RESTART_ROUND: dict[str, float] = {"restart_told_max_s": 0.0}
+
+# The hard-iron prior of a calibrated board (0.5 µT) also when told the rope length, the filter before 2026-12-06's
+# twenty-eighth session: `HookFilterSettings(**IRON_PRIOR_ROUND)`.
+IRON_PRIOR_ROUND: dict[str, float] = {"mag_hard_iron_std_uT": 0.5}
 
 # A steady wind at start split from the accelerometer bias by priors (`start_wind_std_m_s2`), off by default: for a
 # windy site with light loads (bench.hook_suite's windy family 1-12: Θ RMSE 0.235 -> 0.180°) it costs the suite's
@@ -2145,7 +2158,8 @@ class HookFilter(AttitudeFilter):
             + [rope_std, 0.05, 0.05]
             + [s.tip_accel_std_m_s2] * 2
             + [s.lever_std_m] * 2
-            + [s.mag_hard_iron_std_uT] * 3
+            + [s.mag_hard_iron_std_uT if s.rope_length_known else min(s.mag_hard_iron_std_uT,
+                                                                        s.mag_hard_iron_std_not_told_uT)] * 3
         )
         self.P = np.diag(std**2)
 

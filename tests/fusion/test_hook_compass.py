@@ -12,11 +12,19 @@ import numpy as np
 import pytest
 
 from bench.hook_suite import simulate_seed
+from devices.common import ImuErrorModel, SensorModel
 from gateway import schemas
 from gateway.config import DeviceSettings, HookThresholds
 from gateway.fusion import hook as hook_geo
 from gateway.fusion.bank import HOOK_FILTER, HOOK_FILTER_6D, make_filter
-from gateway.fusion.hook_filter import COMPASS_ROUND, STEADY_ROUND, ZSEED_ROUND, HookFilter, HookFilterSettings
+from gateway.fusion.hook_filter import (
+    COMPASS_ROUND,
+    IRON_PRIOR_ROUND,
+    STEADY_ROUND,
+    ZSEED_ROUND,
+    HookFilter,
+    HookFilterSettings,
+)
 from gateway.pipeline import Pipeline
 
 SEED, DURATION_S, SPP, RATE_HZ = 7, 60.0, 10, 100.0
@@ -89,17 +97,37 @@ def test_hook_6d_keeps_the_swing_of_a_hook_whose_compass_is_raw(raw_board: tuple
     assert err_6d.max() < 1.0
 
 
-def test_the_default_hook_filter_finds_a_raw_compass_out(raw_board: tuple) -> None:
-    """The default filter (9D, with its twin) on the same packets: the compass is dropped within the first 10 s
-    (measured at 5.7 s; 5.1 s before the hard iron was read into the reference, `IRON_ROUND`) and Θ is then the
-    twin's, within 0.3° RMSE and 1° max from the drop to 60 s (measured 0.075° / 0.18°; 64° / 81° over 5-60 s
-    without the twin). The drop time is read from a first run, then the errors from it on."""
-    _, pipe = _swing_errors_deg(None, raw_board)
+def test_the_default_hook_filter_learns_a_raw_compass_s_hard_iron(raw_board: tuple) -> None:
+    """The default filter (9D, with its twin) on the same packets through the pipeline: since 2026-12-06's
+    twenty-eighth session (a 3-µT hard-iron prior) it learns the raw board's 30 µT of hard iron as the hook twists,
+    keeps the compass, and Θ is within 0.3° RMSE and 1° max over 5-60 s (measured 0.075° / 0.19°, what the twin gave
+    after the drop that came before, next test); its hard-iron estimate is within 2 µT of the board's (x/y measured
+    1.3 / 0.2 µT off)."""
+    err, pipe = _swing_errors_deg(None, raw_board)
     f = pipe.devices["hook-1"].filt
     assert isinstance(f, HookFilter) and pipe.devices["hook-1"].use_mag
+    assert f.compass_trusted and f.compass_dropped_s is None
+    assert err.size > 100
+    assert float(np.sqrt(np.mean(err**2))) < 0.3
+    assert err.max() < 1.0
+    board = SensorModel(ImuErrorModel.preset("uncalibrated"), 1, np.random.default_rng(10_000 + SEED))  # the suite's
+    assert np.hypot(*board.mag_hard_iron_uT[0, :2]) > 25.0
+    np.testing.assert_allclose(f.x[21:23], board.mag_hard_iron_uT[0, :2], atol=2.0)
+
+
+def test_a_raw_compass_held_to_a_calibrated_board_s_hard_iron_is_found_out(raw_board: tuple) -> None:
+    """With a calibrated board's 0.5-µT hard-iron prior (`IRON_PRIOR_ROUND`, the default before) the raw compass
+    misleads the swing and the twin drops it within the first 10 s (measured at 7 s in 10-sample calls; 5.7 s
+    through the pipeline before the prior changed), and Θ is then the twin's, within 0.3° RMSE and 1° max from the
+    drop to 60 s (measured 0.075° / 0.18°; 64° / 81° over 5-60 s without the twin)."""
+    case, truth, gyr, acc, mag = raw_board
+    f = HookFilter(HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True,
+                                      **IRON_PRIOR_ROUND))  # type: ignore[arg-type]
+    q = _run(f, gyr, acc, mag, SPP)
     assert not f.compass_trusted and f.compass_dropped_s is not None and f.compass_dropped_s < 10.0
     assert f.compass == "dropped"
-    err, _ = _swing_errors_deg(None, raw_board, from_s=WARM_S + f.compass_dropped_s)
+    after = round((WARM_S + f.compass_dropped_s) * RATE_HZ)
+    err = np.abs(np.degrees(hook_geo.swing_angle(q) - truth.swing_rad))[after:]
     assert err.size > 100
     assert float(np.sqrt(np.mean(err**2))) < 0.3
     assert err.max() < 1.0
@@ -118,7 +146,8 @@ def test_the_compass_test_does_not_hang_on_the_call_size(raw_board: tuple) -> No
     the compass returns the twin's output for all its samples: a whole second in one, the last packet in another).
     Before the test ran at call ends: within a packet of the same time, not the same state."""
     case, truth, gyr, acc, mag = raw_board
-    settings = HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True)
+    settings = HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True,
+                                  **IRON_PRIOR_ROUND)  # type: ignore[arg-type]  # (the default keeps this compass)
     quats, drops = {}, {}
     for calls in (gyr.shape[0], 100, 10, 7):
         f = HookFilter(settings)
@@ -168,7 +197,6 @@ def test_a_still_hook_pauses_its_twin_and_a_swing_restarts_it_from_the_filter() 
     for `compass_check_still_s` (10 s) the twin is not stepped (its state stands); within 3 s of the true swing
     passing `compass_check_swing_rad` (the filter's swing energy is a running mean) a new twin starts from the
     filter's state; the output is the filter's without the twin, bit for bit (the compass is kept)."""
-    from devices.common import ImuErrorModel, SensorModel
     from devices.hook_physics import HookPhysicsSettings, HookScenario, Pull, simulate
 
     physics = HookPhysicsSettings(rope_length_m=8.0, hook_mass_kg=2000.0)
@@ -238,8 +266,9 @@ def test_a_hook_not_told_its_length_and_swinging_at_start_starts_again_told_what
 
 @pytest.fixture(scope="module")
 def legacy_1740() -> tuple:
-    """Suite crane 1740 on the legacy board (5 µT hard iron, 3 % soft iron): its compass is dropped at 23 s although
-    it was sound (the twin's swing rates fit better for a while)."""
+    """Suite crane 1740 on the legacy board (5 µT hard iron, 3 % soft iron): with a calibrated board's hard-iron prior
+    (`IRON_PRIOR_ROUND`) its compass is dropped at 23 s although it was sound (the twin's swing rates fit better for a
+    while); the default keeps it (below)."""
     case, truth, gyr, acc, mag = simulate_seed(1740, 120.0, "legacy", True)  # the suite's 2-min timeline
     assert mag is not None
     n = round(40.0 * RATE_HZ)  # its first 40 s
@@ -255,7 +284,7 @@ def test_a_dropped_compass_leaves_the_published_heading_where_it_was(legacy_1740
     jump either. 10-sample calls, as the gateway feeds it."""
     case, truth, gyr, acc, mag = legacy_1740
     f = HookFilter(HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True,
-                                      compass_drop_keeps_heading=keep))  # fmt: skip
+                                      compass_drop_keeps_heading=keep, **IRON_PRIOR_ROUND))  # type: ignore[arg-type]
     f.start(gyr[:50], acc[:50], mag[:50], 1.0 / RATE_HZ)
     quats, north = [], []
     for a in range(0, gyr.shape[0], 10):
@@ -272,6 +301,22 @@ def test_a_dropped_compass_leaves_the_published_heading_where_it_was(legacy_1740
         assert north[drop // 10 + 5] == pytest.approx(north[drop // 10 - 20], abs=math.radians(0.5))
     else:  # the filter before: the twin's own heading
         assert abs(after - before) > 30.0, (before, after)
+
+
+def test_a_sound_legacy_compass_is_kept_with_the_board_class_hard_iron_prior(legacy_1740: tuple) -> None:
+    """The same crane and board with the default 3-µT hard-iron prior: the hard iron is learnt, the compass is not
+    dropped, and the heading error over the 40 s is smaller than the dropped compass's (RMS measured 7.3° against
+    11.7°)."""
+    case, truth, gyr, acc, mag = legacy_1740
+    told = {"rope_length_m": case.physics.rope_length_m, "rope_length_known": True}
+    heading_rms = []
+    for over in ({}, IRON_PRIOR_ROUND):
+        f = HookFilter(HookFilterSettings(**told, **over))  # type: ignore[arg-type]
+        q = _run(f, gyr, acc, mag, 10)
+        err = np.degrees(np.unwrap(hook_geo.twist_heading(q) - hook_geo.twist_heading(truth)))[50:]
+        heading_rms.append(float(np.sqrt(np.mean(err**2))))
+        assert (f.compass_dropped_s is None) == (not over), f.compass_dropped_s
+    assert heading_rms[0] < 0.8 * heading_rms[1], heading_rms
 
 
 def test_a_slow_twist_at_start_is_not_taken_for_the_z_bias_with_a_compass() -> None:
@@ -303,8 +348,8 @@ def test_a_compass_whose_field_holds_steady_is_not_dropped_on_a_small_excess() -
     likelihood beat the filter's by 12 a second (its z bias, free in 6D, learnt -2.5 °/s for a true 0.14), and the
     compass was dropped at 20 s; the twin's heading then drifted, torsion 16° off by 60 s. The field's magnitude held
     steady (its 1-s means within 0.2 µT), which a hard iron turning with the hook would not let it, so the bar stays
-    the first 20 s's 600: the compass is kept, torsion within 1° over 0.5-60 s, the same whatever the call size (one
-    call, 7-sample packets). The raw board's drop above (`test_the_default_hook_filter_finds_a_raw_compass_out`) still
+    the first 20 s's 600: the compass is kept, torsion within 1.1° over 0.5-60 s, the same whatever the call size
+    (one call, 7-sample packets). The raw board's drop above (held to a calibrated board's hard-iron prior) still
     comes; and a steady field's compass is still dropped on a larger excess (the next test)."""
     case, truth, gyr, acc, mag = simulate_seed(2371, 120.0, "calibrated", True)  # (the timeline is drawn over 120 s)
     assert mag is not None
@@ -325,7 +370,7 @@ def test_a_compass_whose_field_holds_steady_is_not_dropped_on_a_small_excess() -
         now = HookFilter(HookFilterSettings(**told))  # type: ignore[arg-type]
         quats[calls], err = torsion_err_deg(now, calls)
         assert now.compass_trusted and now.compass_dropped_s is None, calls
-        assert err.max() < 1.0, calls
+        assert err.max() < 1.1, calls  # measured 1.01° (0.97° with the 0.5-µT hard-iron prior before)
     assert np.array_equal(quats[n], quats[7])
 
 

@@ -23,6 +23,7 @@ from gateway.fusion.hook_filter import (
     FIELD_START,
     FOURTH_ROUND,
     HOIST_ROUND,
+    IRON_PRIOR_ROUND,
     PREVIOUS_DEFAULT,
     PRIOR_ROUND,
     REST_ROUND,
@@ -327,9 +328,10 @@ def test_a_hook_swinging_at_start_levels_its_magnetometer_reference(seed):
     of 2-3 °/s): the warm-up's body-frame mean field carries the tilted vertical field (4 µT), so the start heading
     and the reference were off, and the z gyro bias and hard iron took the difference. Turned to ENU by the start
     swing and twist, the reference is the earth field's, and the start swing is read with that heading. Max Θ error
-    over the first 10 s, measured 0.65° / 0.48° (seeds 3 / 6); the body-frame mean (`FOURTH_ROUND`) 1.44° / 1.28°
+    over the first 10 s, measured 0.58° / 0.41° (seeds 3 / 6); the body-frame mean (`FOURTH_ROUND`) 3.59° / 1.30°
     (both with the x/y bias left at 0, the default; with the bias from the field's turn, `FIELD_START`, 0.57° /
-    0.37°)."""
+    0.41°; with a calibrated board's 0.5-µT hard-iron prior, before 2026-12-06's twenty-eighth session, 0.65° / 0.48°,
+    1.44° / 1.28° and 0.57° / 0.37°)."""
     physics = HookPhysicsSettings(rope_length_m=16.0, gravity_m_s2=G_M_S2, earth_field_uT=EARTH_FIELD_ENU_UT)
     scenario = HookScenario(duration_s=10.0, output_rate_hz=RATE_HZ, initial_swing_rad=math.radians(5.0),
                             initial_swing_bearing_rad=1.2, initial_torsion_rad=0.5, initial_torsion_rate_rad_s=0.1,
@@ -348,7 +350,7 @@ def test_a_hook_swinging_at_start_levels_its_magnetometer_reference(seed):
         q = f.run(gyr, acc, mag, DT_S)
         worst.append(float(np.degrees(np.abs(hook.swing_angle(q) - truth.swing_rad))[n:].max()))
     assert worst[0] < 0.8 < worst[1], worst
-    assert worst[2] < worst[0], worst
+    assert worst[2] < worst[0] + 0.02, worst  # the field's bias: no worse (level on seed 6 with the 3-µT prior)
     assert refs[0] < 1.0 < refs[1], refs  # µT from the earth field: measured 0.40 / 0.13, body-frame mean 3.9 / 3.6
     # the start swing read with the levelled heading, closer than with the body-frame mean's (its std is 1.55°, so
     # only within 1°): 0.67° / 0.93°, body-frame mean 0.72° / 1.62° (0.57° / 0.60° and 0.84° / 1.23° before the start
@@ -465,6 +467,26 @@ def test_hard_iron_is_learnt_as_the_hook_twists():
         rmse.append(rmse_deg(err))
     assert rmse[0] < 1.0, rmse
     assert rmse[1] > 2.0 * rmse[0], rmse
+
+
+def test_a_board_nobody_calibrated_has_its_hard_iron_learnt_with_the_wider_prior():
+    """Suite crane 26 on the MPU-6050/HMC5883L-class board (5 µT of hard iron per axis), 120 s told: with the
+    3-µT prior the hard iron is learnt as the hook twists (torsion RMSE measured 2.09°); held near 0 by a calibrated
+    board's 0.5 µT (`IRON_PRIOR_ROUND`) it stays a heading error (8.43°). Crane 23 on a raw board (15 µT), its first
+    30 s: the 0.5-µT prior let the compass mislead the swing (Θ RMSE 2.06°, max 5.9°); 3 µT: 0.19°."""
+    from bench.hook_suite import hook_estimate, score, simulate_seed
+
+    for seed, imu, duration_s in ((26, "legacy", 120.0), (23, "uncalibrated", 30.0)):
+        case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, True)
+        keep = truth.t_s > 0.5
+        figures = [score(hook_estimate(gyr, acc, mag, case.physics.rope_length_m, overrides=over)[0], truth, keep,
+                         True) for over in ({}, IRON_PRIOR_ROUND)]  # fmt: skip
+        if imu == "legacy":
+            now, before = (f["torsion_rmse"] for f in figures)
+            assert now < 3.0 and before > 2.5 * now, (now, before)
+        else:
+            now, before = (f["swing_rmse"] for f in figures)
+            assert now < 0.3 and before > 1.0, (now, before)
 
 
 def test_the_windy_suite_family_is_light_short_and_windy_from_the_start():
