@@ -326,8 +326,9 @@ class HookFilterSettings:
     # raw not-told crane away (tuning seed 29) and 12 µT a told one (seed 10): no wider (docs/fusion.md)
     mag_hard_iron_std_not_told_uT: float = 0.5  # ... at most this while the rope length is not told (the provisional
     # start; the start redone told its length takes `mag_hard_iron_std_uT`): 3 µT there mended not-told runaways on
-    # the suite (MPU-6050-class 1-30 0.212 -> 0.149°) but took crane 1696's redone start through the pipeline from
-    # 0.22 to 0.42° (torsion 0.95 -> 9.8°), and a calibrated board's not-told torsion 0.74 -> 1.32°
+    # the suite (MPU-6050-class 1-30 0.212 -> 0.149°), but crane 1696's rope had not settled when its twin dropped
+    # the compass, which gives the redone start up (Θ 0.20 -> 5.3° in process), and a calibrated board's not-told
+    # torsion went 0.74 -> 1.32°
     mag_hard_iron_psd: float = 1e-6  # µT²/s: its drift (battery and motor currents)
     mag_reference_hard_iron: bool = True  # the magnetometer reference is read at start with the hard iron in it, so
     # the model is `Rᵀ (m_ref - M h) + h`, `M` the attitude the reference was read at (`mag_ref_frame`): the hard iron
