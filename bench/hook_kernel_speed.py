@@ -38,13 +38,12 @@ def make_samples(seed: int, duration_s: float, path: Path, suite_version: int | 
     """Simulate the suite crane of `seed` (`bench.hook_suite.make_case`'s `suite_version`, None: its default), or
     with `still` that crane's hook hanging still (no swing, no event: an idle crane), and store its IMU samples and
     rope length in `path` (.npz)."""
-    from bench.hook_suite import RATE_HZ, SUITE_VERSION, make_case
-    from devices.common import ImuErrorModel, SensorModel
+    from bench.hook_suite import RATE_HZ, SUITE_VERSION, make_case, suite_board
     from devices.hook_physics import HookScenario, simulate
 
     case = make_case(seed, duration_s, suite_version=SUITE_VERSION if suite_version is None else suite_version)
     truth = simulate(case.physics, HookScenario(duration_s=duration_s) if still else case.scenario)
-    sensor = SensorModel(ImuErrorModel.preset("calibrated"), 1, np.random.default_rng(10_000 + seed))
+    sensor = suite_board(seed, "calibrated")
     gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, 1.0 / RATE_HZ)
     np.savez(path, gyr=gyr, acc=acc, mag=mag, dt_s=1.0 / RATE_HZ, rope_length_m=case.physics.rope_length_m)
 

@@ -448,6 +448,14 @@ def measured_offset(case: SuiteCase, std_m: float) -> tuple[float, float, float]
 TWIST_SESSION_S = 40.0
 
 
+def suite_board(seed: int, imu: str, sensor_draw: int = 0) -> SensorModel:
+    """The suite's board for crane `seed` (preset `imu`; `sensor_draw` > 0: another board of that preset): its
+    errors drawn, its generator left where `measure` goes on drawing the noise. Tests read a board's true errors
+    here."""
+    rng = np.random.default_rng(10_000 + seed + SENSOR_DRAW_STRIDE * sensor_draw)
+    return SensorModel(ImuErrorModel.preset(imu), 1, rng)
+
+
 def twist_session(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw: int = 0,
                   board_seed: int | None = None) -> tuple[HookTruth, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """What `python -m gateway.calibrate --hook-mount` is given for the seed's hook (its rope and IMU mount, the
@@ -463,9 +471,8 @@ def twist_session(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_dr
                       initial_torsion_rad=math.radians(rng.uniform(45.0, 90.0)) * float(rng.choice([-1.0, 1.0])),
                       wind_torque_std_n_m=0.5 * stiffness, wind_tau_s=2.0, seed=30_000 + case.seed)  # fmt: skip
     truth = simulate(ph, sc)
-    board_rng = np.random.default_rng(10_000 + case.seed + SENSOR_DRAW_STRIDE * sensor_draw if board_seed is None
-                                      else board_seed)  # fmt: skip
-    sensor = SensorModel(ImuErrorModel.preset(imu), 1, board_rng)
+    sensor = (suite_board(case.seed, imu, sensor_draw) if board_seed is None
+              else SensorModel(ImuErrorModel.preset(imu), 1, np.random.default_rng(board_seed)))
     gyr, acc, mag = sensor.measure(*mounted(case, truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT), 1.0 / rate_hz)
     return truth, gyr, acc, mag
 
@@ -525,8 +532,7 @@ def simulate_seed(seed: int, duration_s: float, imu: str, use_mag: bool, family:
     `lever_x_m`, `mount_tilt_deg`: see `make_case`."""
     case = make_case(seed, duration_s, family, rate_hz, suite_version, lever_x_m, mount_tilt_deg)
     truth = simulate(case.physics, case.scenario)
-    rng = np.random.default_rng(10_000 + seed + SENSOR_DRAW_STRIDE * sensor_draw)
-    sensor = SensorModel(ImuErrorModel.preset(imu), 1, rng)
+    sensor = suite_board(seed, imu, sensor_draw)
     gyr, acc, mag = sensor.measure(*mounted(case, truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT), 1.0 / rate_hz)
     return case, truth, gyr, acc, mag if use_mag else None
 

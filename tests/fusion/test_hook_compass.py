@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from bench.hook_suite import simulate_seed
+from bench.hook_suite import simulate_seed, suite_board
 from devices.common import ImuErrorModel, SensorModel
 from gateway import schemas
 from gateway.config import DeviceSettings, HookThresholds
@@ -110,7 +110,7 @@ def test_the_default_hook_filter_learns_a_raw_compass_s_hard_iron(raw_board: tup
     assert err.size > 100
     assert float(np.sqrt(np.mean(err**2))) < 0.3
     assert err.max() < 1.0
-    board = SensorModel(ImuErrorModel.preset("uncalibrated"), 1, np.random.default_rng(10_000 + SEED))  # the suite's
+    board = suite_board(SEED, "uncalibrated")
     assert np.hypot(*board.mag_hard_iron_uT[0, :2]) > 25.0
     np.testing.assert_allclose(f.x[21:23], board.mag_hard_iron_uT[0, :2], atol=2.0)
 

@@ -18,8 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.hook_suite import RATE_HZ, WARMUP_S, make_case
-from devices.common import ImuErrorModel, SensorModel
+from bench.hook_suite import RATE_HZ, WARMUP_S, make_case, suite_board
 from devices.hook_physics import simulate
 from gateway.fusion import hook_filter as hf
 
@@ -180,7 +179,7 @@ def reference_run(x0, p0, z, u, dt_s, params, q_psd, r_diag, monitor, hist_x, hi
 def suite_samples(seed: int, duration_s: float):
     case = make_case(seed, duration_s)
     truth = simulate(case.physics, case.scenario)
-    sensor = SensorModel(ImuErrorModel.preset("calibrated"), 1, np.random.default_rng(10_000 + seed))
+    sensor = suite_board(seed, "calibrated")
     gyr, acc, mag = sensor.measure(truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT, DT_S)
     return case, gyr, acc, mag
 

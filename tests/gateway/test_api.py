@@ -8,10 +8,8 @@ import stat
 import time
 from collections.abc import Callable
 
-import numpy as np
 import pytest
 
-from devices.common import ImuErrorModel, SensorModel
 from gateway import schemas
 from tests.gateway.conftest import Running, rod_messages, wait_for
 
@@ -257,7 +255,7 @@ def test_a_hooks_start_force_shows_in_its_device_detail(running: Callable[[], Ru
     configured: `GET /api/devices/{id}` shows the warm-up's mean x/y force taken for the board's accelerometer offset,
     nothing to redo, and the compass kept (its hard iron learnt as the hook twists; dropped before 2026-12-06's
     twenty-eighth session)."""
-    from bench.hook_suite import simulate_seed
+    from bench.hook_suite import simulate_seed, suite_board
     from tests.fusion.test_hook_compass import _packets
 
     case, _, gyr, acc, mag = simulate_seed(7, 60.0, "uncalibrated", True)  # the draws depend on the duration
@@ -270,7 +268,7 @@ def test_a_hooks_start_force_shows_in_its_device_detail(running: Callable[[], Ru
     assert dev["compass"] in ("tested", "trusted") and dev["compass_dropped_s"] is None, dev
     assert dev["start_redone_s"] is None  # told its rope length: nothing to redo
     # the warm-up's mean x/y force, taken for the board's accelerometer offset (the suite's board for seed 7)
-    offset = SensorModel(ImuErrorModel.uncalibrated(), 1, np.random.default_rng(10_007)).acc_bias_m_s2[0, :2]
+    offset = suite_board(7, "uncalibrated").acc_bias_m_s2[0, :2]
     assert dev["start_force_is_offset"] is True
     assert dev["start_force_m_s2"] == pytest.approx(offset.tolist(), abs=0.1), (dev["start_force_m_s2"], offset)
 
