@@ -110,6 +110,7 @@ from gateway.fusion.hook_filter import (
     RESTART_ROUND,
     ROPE_ROUND,
     SLEW_ROUND,
+    SOFT_IRON_ROUND,
     START_ROUND,
     STEADY_ROUND,
     TIP_ROUND,
@@ -397,8 +398,8 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
              rate_hz: float = RATE_HZ, length_factor: float = 1.0, suite_version: int = SUITE_VERSION,
              sensor_draw: int = 0, told_m: float | None = None, lever_x_m: float | None = None,
              offset_told: float | str | None = None, mount_tilt_deg: float = 0.0, feed: str | None = None,
-             feed_bearing_error_deg: float = 0.0, bias_told: float | None = None, iron_told: bool = False
-             ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+             feed_bearing_error_deg: float = 0.0, bias_told: float | None = None, iron_told: bool = False,
+             score_from_s: float = WARMUP_S) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`; the filter is told
     `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1), or `told_m` whatever
     the rope (the gateway's 10 m for a hook whose length nobody configured); `sensor_draw`, `lever_x_m`,
@@ -409,7 +410,8 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
     `bias_told`: the accelerometer's x/y bias told as the twist fits it, drifted since by this std (m/s², per axis;
     `twist_bias`; with `offset_told="twist"`, in the axes its tilt turns to); None: not told. `iron_told`: the
     magnetometer's offset the twist fits taken out of its samples before fusion, as the device calibration
-    `calibrate --hook-mount` prints does in the gateway (`twist_iron`), for VQF too (the same samples)."""
+    `calibrate --hook-mount` prints does in the gateway (`twist_iron`), for VQF too (the same samples).
+    `score_from_s`: the figures over the samples from this time on (default: the warm-up's end)."""
     case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz, suite_version,
                                                sensor_draw, lever_x_m, mount_tilt_deg)  # fmt: skip
     cal = twist_iron(case, imu, rate_hz, sensor_draw) if iron_told and mag is not None else None
@@ -431,7 +433,7 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
     if paper_ekf:
         others.append(("ekf001", paper_ekf_estimate(gyr, acc, mag, rate_hz)))
     for name, q in [("hook", q_hook), *others]:
-        out[name] = score_phases(q, truth, case, use_mag)
+        out[name] = score_phases(q, truth, case, use_mag, score_from_s)
     out["hook"]["all"].update(rope_errors(length, truth))
     out["hook"]["all"].update(worst_error(q_hook, truth))
     return out
@@ -547,9 +549,11 @@ def worst_error(q: np.ndarray, truth: HookTruth, limit_deg: float = WORST_LIMIT_
     return {"worst_t_s": float(truth.t_s[scored][i]), "over_share": float(np.mean(err > limit_deg))}
 
 
-def score_phases(q: np.ndarray, truth: HookTruth, case: SuiteCase, absolute: bool) -> dict[str, dict[str, float]]:
-    """`score` over the whole run after the warm-up (`"all"`) and over each phase of `PHASES`."""
-    scored = truth.t_s >= WARMUP_S
+def score_phases(q: np.ndarray, truth: HookTruth, case: SuiteCase, absolute: bool, from_s: float = WARMUP_S
+                 ) -> dict[str, dict[str, float]]:  # fmt: skip
+    """`score` over the whole run from `from_s` (default: after the warm-up; `"all"`) and over each phase of
+    `PHASES`."""
+    scored = truth.t_s >= from_s
     phase = case.phase(truth.t_s)
     out = {"all": score(q, truth, scored, absolute)}
     for k, ph in enumerate(PHASES):
@@ -572,7 +576,7 @@ PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JU
            "norestart": RESTART_ROUND, "start1": START_ROUND,
            "windstart": WINDY_START, "drop1": DROP_ROUND, "zseed": ZSEED_ROUND,
            "steady": STEADY_ROUND, "bias0": BIAS_ROUND, "warmup04": WARMUP_ROUND,
-           "rest3": REST_ROUND, "iron05": IRON_PRIOR_ROUND}
+           "rest3": REST_ROUND, "iron05": IRON_PRIOR_ROUND, "soft0": SOFT_IRON_ROUND}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -646,7 +650,8 @@ def main(argv: list[str] | None = None) -> int:
                    "filter before 2026-12-06's twenty-seventh session), rest3 (REST_ROUND: a quiet warm-up whose swing "
                    "misses the 3σ detection bar is rest however large it reads, the filter before the same session), "
                    "iron05 (IRON_PRIOR_ROUND: the hard-iron prior of a calibrated board, 0.5 µT, the filter before "
-                   "2026-12-06's twenty-eighth session)")
+                   "2026-12-06's twenty-eighth session), soft0 (SOFT_IRON_ROUND: no soft iron learnt, the filter "
+                   "before 2026-12-06's twenty-ninth session)")
     p.add_argument("--worst", action="store_true",
                    help=f"also say where each seed's worst Θ error is (start, during or after which event, free "
                    f"swing) and the share of its samples above {WORST_LIMIT_DEG:g}°, and count the seeds over it by "
@@ -687,6 +692,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--crane-bearing-error", type=float, default=0.0, metavar="DEG",
                    help="with --crane-feed: the crane's North that many degrees off the gateway's (its sign drawn "
                    "per seed; default 0)")
+    p.add_argument("--score-from", type=float, default=WARMUP_S, metavar="S",
+                   help=f"score the figures (whole run and phases; Θ max and VQF too) from S seconds on (default "
+                   f"{WARMUP_S:g}: the warm-up's end; e.g. 20: after the start's hard iron is learnt)")
     add_suite_version_argument(p)
     args = p.parse_args(argv)
     seeds = parse_seeds(args.seeds)
@@ -709,7 +717,7 @@ def main(argv: list[str] | None = None) -> int:
     board += f" {args.crane_bearing_error:g}° off North" if args.crane_feed and args.crane_bearing_error else ""
     print(f"hook suite v{args.suite_version} ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}{board}, "
           f"{args.duration:g} s per seed, rope length {told}, {args.rate_hz:g} Hz; degrees; whole run after "
-          f"{WARMUP_S:g} s")
+          f"{args.score_from:g} s")
     print(f"{'seed':>4} {'crane':<44}{'':>6}{'Θ RMSE':>8}{'Θ max':>7}{'dir':>7}{'tors':>7}{'rope m':>8}")
     names = ["hook", "vqf"] + (["ekf001"] if args.paper_ekf else [])
     rows: dict[str, list[dict[str, dict[str, float]]]] = {n: [] for n in names}
@@ -721,7 +729,8 @@ def main(argv: list[str] | None = None) -> int:
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
                      args.tracking, parse_settings(args.settings), args.rate_hz, args.length_factor,
                      args.suite_version, args.sensor_draw, args.told_m, args.lever_x, args.offset_told,
-                     args.mount_tilt, args.crane_feed, args.crane_bearing_error, args.bias_told, args.iron_told)
+                     args.mount_tilt, args.crane_feed, args.crane_bearing_error, args.bias_told, args.iron_told,
+                     args.score_from)
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]

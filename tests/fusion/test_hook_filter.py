@@ -24,6 +24,7 @@ from gateway.fusion.hook_filter import (
     FOURTH_ROUND,
     HOIST_ROUND,
     IRON_PRIOR_ROUND,
+    N_STATE,
     PREVIOUS_DEFAULT,
     PRIOR_ROUND,
     REST_ROUND,
@@ -713,7 +714,7 @@ def test_the_start_swing_of_a_twisting_hook_is_read_with_the_heading_it_turns_th
     amp, minor = math.sin(math.radians(5.0)), 0.3  # an elliptic swing, its major axis along East
     gyr = np.empty((n, 3))
     for k in range(n):
-        x = np.zeros(24)
+        x = np.zeros(N_STATE)
         x[0], x[1] = amp * math.cos(omega * t[k] + 0.7), minor * amp * math.sin(omega * t[k] + 0.7)
         x[2], x[3] = -amp * omega * math.sin(omega * t[k] + 0.7), minor * amp * omega * math.cos(omega * t[k] + 0.7)
         x[4], x[5] = alpha0 + rate_rad_s * t[k], rate_rad_s
