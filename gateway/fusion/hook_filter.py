@@ -11,13 +11,14 @@ the pendulum, so they are fed into the model as a measured input instead of bein
 axis reads the tension `T/m = g n_z + l |n'|² - l''`, which carries the swing amplitude and the hoist's
 acceleration `l''`.
 
-State (26): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
+State (28): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
 `n_z = sqrt(1 - |p|²)`); `v = p'`; the hook heading about the rope `α` (swing-twist split
 `q = q_swing(n) ⊗ q_z(α)`, see gateway.fusion.hook) and its rate `α'`; the gyroscope bias `b` (rad/s, body);
 the offset of the tension channel (m/s²); the accelerometer x/y bias (m/s², body); the gyroscope's x/y
 sensitivity `c` to the z rate (cross-axis coupling); the rope: `ln l`, `l'` (m/s) and `l''` (m/s²); the boom
 tip's horizontal acceleration (m/s², ENU); the IMU's x/y offset from the rope axis (m); the magnetometer's hard
-iron (µT, body) and the part of its soft iron that turns a heading (`S`, body x/y).
+iron (µT, body) and the parts of its soft iron that turn with the twist (`S`: in body x/y, and the z axis's
+pick-up of the horizontal field).
 
 * Predict: RK4 of the pendulum with a moving rope length,
   `p'' = -(g n_z p + W)/l - 2 (l'/l) p' - |n'|² p`, where `W` is the horizontal part of the measured non-tension
@@ -70,7 +71,7 @@ iron (µT, body) and the part of its soft iron that turns a heading (`S`, body x
   that the rope's speed and hoist acceleration take corrections from the tension channel only (a consider-style gain
   restriction filterpy cannot express), so the filter runs its own `ekf_step`: `update()` one sample, `run()` a
   numba loop of the same step (tests check they agree). The arithmetic is sparse and allocation-free (issue 16):
-  F is the identity but for the pendulum, heading and rope rows and H sees 17 of the 26 states, so `F P Fᵀ`,
+  F is the identity but for the pendulum, heading and rope rows and H sees 19 of the 28 states, so `F P Fᵀ`,
   `H P` and `H P Hᵀ` run over their non-zeros (the swing-rate block before the gating for the NIS and whitening,
   all rows after it for the surprise test and the Cholesky gain, kept in step by the surprise inflation);
   Joseph's form for the restricted gain K = K_opt + D is computed exactly as `P - P Hᵀ S⁻¹ H P + D S Dᵀ` (D lives
@@ -103,13 +104,14 @@ from gateway.fusion.base import AttitudeFilter, FloatArray
 from gateway.fusion.field_rate import gyro_bias_from_field
 from gateway.fusion.quaternion import from_axis_angle, multiply, njit, rotate, to_matrix
 
-N_STATE = 26
+N_STATE = 28
 _P, _V, _ALPHA, _ALPHA_RATE, _BIAS, _ACC_BIAS = slice(0, 2), slice(2, 4), 4, 5, slice(6, 9), 9
 _ACC_XY, _CROSS, _LOG_L, _L_RATE, _L_ACC, _TIP = slice(10, 12), slice(12, 14), 14, 15, 16, slice(17, 19)
 _LEVER = slice(19, 21)  # the IMU's x/y offset from the rope axis (its z offset is a setting)
 _HARD_IRON = slice(21, 24)  # the magnetometer's residual hard iron (µT, body), learnt as the hook twists
-_SOFT_IRON = slice(24, 26)  # its soft iron in the body's x/y plane, the part that turns a heading: (d, s) of
-# `S = [[d, s, 0], [s, -d, 0], [0, 0, 0]]` (`(S_xx - S_yy) / 2` and `S_xy`), learnt as the hook twists
+_SOFT_IRON = slice(24, 28)  # its soft iron, the parts that turn with the twist: (d, s, c_x, c_y) of
+# `S = [[d, s, 0], [s, -d, 0], [c_x, c_y, 0]]` (`(S_xx - S_yy) / 2`, `S_xy`, and the z axis's pick-up of the
+# horizontal field `S_zx`, `S_zy`), learnt as the hook twists
 N_INPUT = 10  # per-sample process input: accelerometer x/y, gyroscope (3), its backward difference (3), the
 # boom tip's known acceleration (2, the filter's frame; 0 unless a crane feed tells it: `run_with_length`'s `tip_enu`)
 # params layout (numba kernels take one float array)
@@ -334,10 +336,11 @@ class HookFilterSettings:
     # the compass, which gives the redone start up (Θ 0.20 -> 5.3° in process), and a calibrated board's not-told
     # torsion went 0.74 -> 1.32°
     mag_hard_iron_psd: float = 1e-6  # µT²/s: its drift (battery and motor currents)
-    mag_soft_iron_std: float = 0.02  # prior std of the soft iron's heading-turning part in the body's x/y plane,
-    # (d, s) of `_SOFT_IRON` (0: not estimated, `SOFT_IRON_ROUND`). An MPU-6050/HMC5883L-class board never calibrated
+    mag_soft_iron_std: float = 0.02  # prior std of the soft iron's parts that turn with the twist, (d, s, c_x,
+    # c_y) of `_SOFT_IRON` (0: not estimated, `SOFT_IRON_ROUND`). An MPU-6050/HMC5883L-class board never calibrated
     # has a few % (devices.common.ImuErrorModel: 3 % per entry): up to 2° of heading at twice the twist's angle,
-    # what was left of its torsion error once the hard iron was learnt; a calibrated board ~0.3 %
+    # what was left of its torsion error once the hard iron was learnt; its z row (c) reads ~0.7 µT turning with
+    # the twist, which, not held, set (d, s) off on long runs (fresh crane 2838); a calibrated board ~0.3 %
     mag_soft_iron_std_not_told: float = 0.0  # ... at most this while the rope length is not told (the provisional
     # start, as `mag_hard_iron_std_not_told_uT`; the start redone told its length takes `mag_soft_iron_std`)
     mag_soft_iron_psd: float = 0.0  # 1/s: its drift (none: it is the board's iron)
@@ -811,7 +814,8 @@ def _measurement_trig(x: FloatArray, params: FloatArray, l: float,
         mx, my, mz = _field_held(x, params)
         bx, by, bz = _to_body(qw, qx, qy, qz, mx, my, mz)
         d, e = x[24], x[25]
-        out[4], out[5], out[6] = bx + d * bx + e * by + x[21], by + e * bx - d * by + x[22], bz + x[23]
+        out[4], out[5] = bx + d * bx + e * by + x[21], by + e * bx - d * by + x[22]
+        out[6] = bz + x[26] * bx + x[27] * by + x[23]
     else:
         out[4] = out[5] = out[6] = 0.0
 
@@ -828,13 +832,13 @@ def _field_held(x: FloatArray, params: FloatArray) -> tuple[float, float, float]
         wx = params[k] * mx + params[k + 3] * my + params[k + 6] * mz - x[21]  # Mᵀ m_ref - h
         wy = params[k + 1] * mx + params[k + 4] * my + params[k + 7] * mz - x[22]
         vx, vy = _soft_iron_inverse(x[24], x[25], wx, wy)
-        dx, dy = vx - wx, vy - wy  # ((I + S)⁻¹ - I) w: 0 in z
+        dx, dy, dz = vx - wx, vy - wy, -(x[26] * vx + x[27] * vy)  # ((I + S)⁻¹ - I) w
         mx -= params[k] * x[21] + params[k + 1] * x[22] + params[k + 2] * x[23]
         my -= params[k + 3] * x[21] + params[k + 4] * x[22] + params[k + 5] * x[23]
         mz -= params[k + 6] * x[21] + params[k + 7] * x[22] + params[k + 8] * x[23]
-        mx += params[k] * dx + params[k + 1] * dy
-        my += params[k + 3] * dx + params[k + 4] * dy
-        mz += params[k + 6] * dx + params[k + 7] * dy
+        mx += params[k] * dx + params[k + 1] * dy + params[k + 2] * dz
+        my += params[k + 3] * dx + params[k + 4] * dy + params[k + 5] * dz
+        mz += params[k + 6] * dx + params[k + 7] * dy + params[k + 8] * dz
     return mx, my, mz
 
 
@@ -1137,11 +1141,13 @@ def _measurement_jacobian_exact(x: FloatArray, params: FloatArray, h0: FloatArra
         d, e = x[24], x[25]
         ux, uy, uz = _to_body(qw, qx, qy, qz, *_field_held(x, params))  # u = Rᵀ (the field held)
         # the field turns against the heading: ∂u/∂α = (u_y, -u_x, 0), through (I + S)
-        h_jac[4, 4], h_jac[5, 4] = uy + d * uy - e * ux, e * uy - ux + d * ux
+        cx_, cy_ = x[26], x[27]
+        h_jac[4, 4], h_jac[5, 4], h_jac[6, 4] = uy + d * uy - e * ux, e * uy - ux + d * ux, cx_ * uy - cy_ * ux
         for i in range(3):  # the hard iron is estimated: body-fixed, it turns against the field as the hook twists
             h_jac[4 + i, 21 + i] = 1.0
         h_jac[4, 24], h_jac[5, 24] = ux, -uy  # ... and the soft iron: ∂(S u)/∂(d, s)
         h_jac[4, 25], h_jac[5, 25] = uy, ux
+        h_jac[6, 26], h_jac[6, 27] = ux, uy
         if params[_MAG_FRAME] > 0.0:  # ... both were in the reference as read at start (`_field_held`, the body
             # field read there `v = (I + S)⁻¹ (Mᵀ m_ref - h)`): ∂/∂h = I - A e_j, ∂/∂(d, s) = ∂S u - A ∂S v with
             # A = (I + S) Rᵀ M (I + S)⁻¹; all 0 at the attitude the reference was read at (R = M, u = v)
@@ -1149,15 +1155,18 @@ def _measurement_jacobian_exact(x: FloatArray, params: FloatArray, h0: FloatArra
             mx, my, mz = params[_MX], params[_MY], params[_MZ]
             vx, vy = _soft_iron_inverse(d, e, params[k] * mx + params[k + 3] * my + params[k + 6] * mz - x[21],
                                         params[k + 1] * mx + params[k + 4] * my + params[k + 7] * mz - x[22])
-            for j in range(5):  # the hard iron's three columns, then the soft iron's two (∂S v = (v_x, -v_y, 0),
-                # (v_y, v_x, 0))
+            for j in range(7):  # the hard iron's three columns, then the soft iron's four (∂S v = (v_x, -v_y, 0),
+                # (v_y, v_x, 0), (0, 0, v_x), (0, 0, v_y))
                 if j < 3:
                     cx, cy, cz = (1.0 if j == 0 else 0.0), (1.0 if j == 1 else 0.0), (1.0 if j == 2 else 0.0)
                 elif j == 3:
                     cx, cy, cz = vx, -vy, 0.0
-                else:
+                elif j == 4:
                     cx, cy, cz = vy, vx, 0.0
-                cx, cy = _soft_iron_inverse(d, e, cx, cy)
+                else:
+                    cx, cy, cz = 0.0, 0.0, (vx if j == 5 else vy)
+                cx, cy = _soft_iron_inverse(d, e, cx, cy)  # (I + S)⁻¹ c
+                cz -= cx_ * cx + cy_ * cy
                 gx = params[k] * cx + params[k + 1] * cy + params[k + 2] * cz  # M (I + S)⁻¹ c
                 gy = params[k + 3] * cx + params[k + 4] * cy + params[k + 5] * cz
                 gz = params[k + 6] * cx + params[k + 7] * cy + params[k + 8] * cz
@@ -1165,7 +1174,7 @@ def _measurement_jacobian_exact(x: FloatArray, params: FloatArray, h0: FloatArra
                 col = 21 + j
                 h_jac[4, col] -= bx + d * bx + e * by
                 h_jac[5, col] -= by + e * bx - d * by
-                h_jac[6, col] -= bz
+                h_jac[6, col] -= bz + cx_ * bx + cy_ * by
 
 
 @njit
@@ -1259,7 +1268,7 @@ def _process_noise_into(x: FloatArray, dt_s: float, q_psd: FloatArray, params: F
 
 
 # --- covariance arithmetic: F and H are sparse (F is the identity but for the pendulum, heading and rope rows; H
-# sees 17 of the 26 states), so the products run over their non-zero entries only, in preallocated buffers ---------
+# sees 19 of the 28 states), so the products run over their non-zero entries only, in preallocated buffers ---------
 
 
 @njit
@@ -2103,7 +2112,7 @@ class WindowSwing(NamedTuple):
 
 class HookFilter(AttitudeFilter):
     """Pendulum-aware EKF for the crane hook (see the module docstring). `update()` runs one `ekf_step`, `run()`
-    the batch `ekf_run` (the same step in a numba loop). State: `self.x` (N_STATE,) = (26,), `self.P` (26, 26)."""
+    the batch `ekf_run` (the same step in a numba loop). State: `self.x` (N_STATE,) = (28,), `self.P` (28, 28)."""
 
     name = "hook"
     known_inputs: tuple[str, ...] = ("tip_enu",)  # what `run` takes beside the samples (`FusionBank`: a crane feed)
@@ -2152,7 +2161,7 @@ class HookFilter(AttitudeFilter):
             + [2.0 * s.tip_accel_std_m_s2**2 / s.tip_accel_tau_s] * 2
             + [0.0] * 2
             + [s.mag_hard_iron_psd] * 3
-            + [s.mag_soft_iron_psd] * 2
+            + [s.mag_soft_iron_psd] * 4
         )
         self._initialised = False
         self._reset(heading_rad=0.0, heading_std_rad=s.init_heading_std_rad, acc_xy_bias=np.zeros(2))
@@ -2216,7 +2225,7 @@ class HookFilter(AttitudeFilter):
             + [s.mag_hard_iron_std_uT if s.rope_length_known else min(s.mag_hard_iron_std_uT,
                                                                         s.mag_hard_iron_std_not_told_uT)] * 3
             + [s.mag_soft_iron_std if s.rope_length_known else min(s.mag_soft_iron_std,
-                                                                    s.mag_soft_iron_std_not_told)] * 2
+                                                                    s.mag_soft_iron_std_not_told)] * 4
         )
         self.P = np.diag(std**2)
 
