@@ -809,13 +809,10 @@ def _measurement_trig(x: FloatArray, params: FloatArray, l: float,
     lever_z = dwx * ry - dwy * rx + wz * (wx * rx + wy * ry + wz * rz) - rz * (wx * wx + wy * wy + wz * wz)
     out[0], out[1], out[2] = wx + x[6] + x[12] * wz, wy + x[7] + x[13] * wz, wz + x[8]
     out[3] = l * (vx * vx + vy * vy + vz * vz) + g * nz - x[_L_ACC] + lever_z + x[9]
-    if with_mag and params[_USE_MAG] > 0.0:  # (I + S) Rᵀ (m_ref - M h - M S Mᵀ m_ref) + h: the reference read
-        # with the hard and soft iron in it
+    if with_mag and params[_USE_MAG] > 0.0:  # (I + S) Rᵀ B + h, B the field the start read (`_field_held`)
         mx, my, mz = _field_held(x, params)
-        bx, by, bz = _to_body(qw, qx, qy, qz, mx, my, mz)
-        d, e = x[24], x[25]
-        out[4], out[5] = bx + d * bx + e * by + x[21], by + e * bx - d * by + x[22]
-        out[6] = bz + x[26] * bx + x[27] * by + x[23]
+        sx, sy, sz = _soft_iron_apply(x, *_to_body(qw, qx, qy, qz, mx, my, mz))
+        out[4], out[5], out[6] = sx + x[21], sy + x[22], sz + x[23]
     else:
         out[4] = out[5] = out[6] = 0.0
 
@@ -843,9 +840,16 @@ def _field_held(x: FloatArray, params: FloatArray) -> tuple[float, float, float]
 
 
 @njit
+def _soft_iron_apply(x: FloatArray, bx: float, by: float, bz: float) -> tuple[float, float, float]:
+    """`(I + S) b` for the body vector `b` and the soft iron of `x` (`_SOFT_IRON`)."""
+    d, e = x[24], x[25]
+    return bx + d * bx + e * by, by + e * bx - d * by, bz + x[26] * bx + x[27] * by
+
+
+@njit
 def _soft_iron_inverse(d: float, e: float, wx: float, wy: float) -> tuple[float, float]:
-    """`(I + S)⁻¹ w` in the body's x/y plane for `S = [[d, e], [e, -d]]` (`_SOFT_IRON`; its z row and column are 0):
-    `S² = (d² + e²) I`, so the inverse is `(I - S) / (1 - d² - e²)`."""
+    """The x/y part of `(I + S)⁻¹ w`, `S`'s x/y block `[[d, e], [e, -d]]` (`_SOFT_IRON`; its z column is 0, so the
+    x/y part does not depend on its z row): `S² = (d² + e²) I`, so the block's inverse is `(I - S) / (1 - d² - e²)`."""
     det = 1.0 - d * d - e * e
     return ((1.0 - d) * wx - e * wy) / det, ((1.0 + d) * wy - e * wx) / det
 
@@ -1141,8 +1145,7 @@ def _measurement_jacobian_exact(x: FloatArray, params: FloatArray, h0: FloatArra
         d, e = x[24], x[25]
         ux, uy, uz = _to_body(qw, qx, qy, qz, *_field_held(x, params))  # u = Rᵀ (the field held)
         # the field turns against the heading: ∂u/∂α = (u_y, -u_x, 0), through (I + S)
-        cx_, cy_ = x[26], x[27]
-        h_jac[4, 4], h_jac[5, 4], h_jac[6, 4] = uy + d * uy - e * ux, e * uy - ux + d * ux, cx_ * uy - cy_ * ux
+        h_jac[4, 4], h_jac[5, 4], h_jac[6, 4] = _soft_iron_apply(x, uy, -ux, 0.0)
         for i in range(3):  # the hard iron is estimated: body-fixed, it turns against the field as the hook twists
             h_jac[4 + i, 21 + i] = 1.0
         h_jac[4, 24], h_jac[5, 24] = ux, -uy  # ... and the soft iron: ∂(S u)/∂(d, s)
@@ -1166,15 +1169,14 @@ def _measurement_jacobian_exact(x: FloatArray, params: FloatArray, h0: FloatArra
                 else:
                     cx, cy, cz = 0.0, 0.0, (vx if j == 5 else vy)
                 cx, cy = _soft_iron_inverse(d, e, cx, cy)  # (I + S)⁻¹ c
-                cz -= cx_ * cx + cy_ * cy
+                cz -= x[26] * cx + x[27] * cy
                 gx = params[k] * cx + params[k + 1] * cy + params[k + 2] * cz  # M (I + S)⁻¹ c
                 gy = params[k + 3] * cx + params[k + 4] * cy + params[k + 5] * cz
                 gz = params[k + 6] * cx + params[k + 7] * cy + params[k + 8] * cz
-                bx, by, bz = _to_body(qw, qx, qy, qz, gx, gy, gz)
-                col = 21 + j
-                h_jac[4, col] -= bx + d * bx + e * by
-                h_jac[5, col] -= by + e * bx - d * by
-                h_jac[6, col] -= bz + cx_ * bx + cy_ * by
+                sx, sy, sz = _soft_iron_apply(x, *_to_body(qw, qx, qy, qz, gx, gy, gz))
+                h_jac[4, 21 + j] -= sx
+                h_jac[5, 21 + j] -= sy
+                h_jac[6, 21 + j] -= sz
 
 
 @njit
