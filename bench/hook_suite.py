@@ -104,6 +104,7 @@ from gateway.fusion.hook_filter import (
     HOIST_ROUND,
     IRON_PRIOR_ROUND,
     IRON_ROUND,
+    LEVER_ROUND,
     PREVIOUS_DEFAULT,
     PRIOR_ROUND,
     REST_ROUND,
@@ -576,7 +577,8 @@ PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JU
            "norestart": RESTART_ROUND, "start1": START_ROUND,
            "windstart": WINDY_START, "drop1": DROP_ROUND, "zseed": ZSEED_ROUND,
            "steady": STEADY_ROUND, "bias0": BIAS_ROUND, "warmup04": WARMUP_ROUND,
-           "rest3": REST_ROUND, "iron05": IRON_PRIOR_ROUND, "soft0": SOFT_IRON_ROUND}
+           "rest3": REST_ROUND, "iron05": IRON_PRIOR_ROUND, "soft0": SOFT_IRON_ROUND,
+           "lever0": LEVER_ROUND}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -651,7 +653,8 @@ def main(argv: list[str] | None = None) -> int:
                    "misses the 3σ detection bar is rest however large it reads, the filter before the same session), "
                    "iron05 (IRON_PRIOR_ROUND: the hard-iron prior of a calibrated board, 0.5 µT, the filter before "
                    "2026-12-06's twenty-eighth session), soft0 (SOFT_IRON_ROUND: no soft iron learnt, the filter "
-                   "before 2026-12-06's twenty-ninth session)")
+                   "before 2026-12-06's twenty-ninth session), lever0 (LEVER_ROUND: the tension row's lever arm from "
+                   "the settings, not the learnt state, the filter before 2026-12-07's thirtieth session)")
     p.add_argument("--worst", action="store_true",
                    help=f"also say where each seed's worst Θ error is (start, during or after which event, free "
                    f"swing) and the share of its samples above {WORST_LIMIT_DEG:g}°, and count the seeds over it by "

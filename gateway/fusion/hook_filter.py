@@ -122,9 +122,9 @@ N_INPUT = 10  # per-sample process input: accelerometer x/y, gyroscope (3), its 
  _ROLLBACK, _TRIAL_WIN, _TRIAL_QUIET, _HOLD_TAU, _HOLD_MIN, _HOLD_GATE, _HOLD_MAX, _STOP_STD, _STOP_MIN,
  _STOP_LR, _STOP_RATIO, _L_OBS_SWING, _HOIST_GATE, _HOIST_MEAN_TAU, _HOIST_OPEN, _HOIST_HOLD, _HOIST_CRUISE,
  _HOIST_KEEP, _HOIST_STOP, _L_FORCE_TAU, _HOIST_BACK, _ONSET_GATE, _ROLLBACK_MAX, _ONSET_LR, _ONSET_QUIET,
- _LENGTH_HOLD_GATE, _BIAS_JUMP_GATE, _BIAS_JUMP_QUIET, _BIAS_JUMP_MIN, _MAG_FRAME) = range(70)  # _MAG_FRAME: a flag,
-# then the 3×3 `mag_ref_frame` by rows (70-78)
-N_PARAMS = 79
+ _LENGTH_HOLD_GATE, _BIAS_JUMP_GATE, _BIAS_JUMP_QUIET, _BIAS_JUMP_MIN, _LEVER_TENSION,
+ _MAG_FRAME) = range(71)  # _MAG_FRAME: a flag, then the 3×3 `mag_ref_frame` by rows (71-79)
+N_PARAMS = 80
 N_MONITOR = 22  # `ekf_step`'s innovation statistics, move and hoist timers, the tip estimate's, the swing energy's and
 # the force input's means
 
@@ -193,6 +193,8 @@ class HookFilterSettings:
     # jump test: it let the swing rate follow any push, so the innovation never showed a move)
     use_force_input: bool = True  # False: the accelerometer's x/y are ignored (the filter before issue 11)
     lever_std_m: float = 0.03  # prior std of the IMU's x/y offset from the rope axis around `lever_arm_m`
+    lever_in_tension: bool = True  # the tension row's lever-arm terms read the offset the state holds (learnt); False:
+    # the settings' `lever_arm_m`, so only the force input learnt it (the filter before 2026-12-07, `LEVER_ROUND`)
     # A mount measured and configured (`HookThresholds.imu_offset_m`; None: not told, the default above is assumed):
     # the lever arm told and its prior std. Told within 5 mm, tuning cranes 1-30 read Θ 0.128 -> 0.104° (std 0.005 /
     # 0.01 / 0.02: 0.103 / 0.104 / 0.106°); fresh 2026-2065 with the IMU 0.3 m off the axis 0.565 -> 0.145°
@@ -527,6 +529,9 @@ RESTART_ROUND: dict[str, float] = {"restart_told_max_s": 0.0}
 IRON_PRIOR_ROUND: dict[str, float] = {"mag_hard_iron_std_uT": 0.5}
 # No soft iron learnt (`mag_soft_iron_std`), the filter before 2026-12-06's twenty-ninth session.
 SOFT_IRON_ROUND: dict[str, float] = {"mag_soft_iron_std": 0.0}
+# The lever arm the tension row reads from the settings, not the state (`lever_in_tension`), the filter before
+# 2026-12-07's thirtieth session.
+LEVER_ROUND: dict[str, float] = {"lever_in_tension": 0.0}
 
 # A steady wind at start split from the accelerometer bias by priors (`start_wind_std_m_s2`), off by default: for a
 # windy site with light loads (bench.hook_suite's windy family 1-12: Θ RMSE 0.235 -> 0.180°) it costs the suite's
@@ -766,7 +771,8 @@ def measurement(x: FloatArray, params: FloatArray) -> FloatArray:
 
     acc_z is the tension `l |n'|² + g n_z - l''` plus the lever-arm terms `[ω' × r + ω × (ω × r)]_z`, with `ω'` the
     body-rate derivative along the free pendulum's own motion (central difference over ±1 ms, twist
-    acceleration 0).
+    acceleration 0) and r the lever arm the state holds (x/y, `_LEVER`; z from the settings): the mount the filter
+    has learnt, not the one it assumed (until 2026-12-07 the settings' x/y, so the tension told it nothing of them).
     """
     out = np.empty(7)
     _measurement_into(x, params, out)
@@ -794,18 +800,12 @@ def _measurement_trig(x: FloatArray, params: FloatArray, l: float,
     of x) and the heading's `_twist_trig` at α ± `_DW_STEP_S` α' given (each column of the Jacobian perturbs only
     some of them); without `with_mag` the magnetometer rows are 0."""
     g = params[_G]
-    rx, ry, rz = params[_RX], params[_RY], params[_RZ]
-    px, py, vx, vy, alpha_rate = x[0], x[1], x[2], x[3], x[5]
+    rx, ry, rz = _lever_arm(x, params)
+    px, py, vx, vy = x[0], x[1], x[2], x[3]
     qw, qx, qy, qz, wx, wy, wz = centre
     nz = math.sqrt(max(1.0 - px * px - py * py, 1e-6))
     vz = -(px * vx + py * vy) / nz
-    ax, ay = _pendulum_accel(px, py, vx, vy, g, l, x[_L_RATE], 0.0, 0.0)
-    h = _DW_STEP_S
-    _, _, _, _, px_, py_, pz_ = _attitude_rate_trig(px + h * vx, py + h * vy, vx + h * ax, vy + h * ay, trig_ahead,
-                                                    alpha_rate)  # fmt: skip
-    _, _, _, _, mx_, my_, mz_ = _attitude_rate_trig(px - h * vx, py - h * vy, vx - h * ax, vy - h * ay, trig_back,
-                                                    alpha_rate)  # fmt: skip
-    dwx, dwy = (px_ - mx_) / (2.0 * h), (py_ - my_) / (2.0 * h)
+    dwx, dwy = _swing_rate_change(x, g, l, trig_ahead, trig_back)
     lever_z = dwx * ry - dwy * rx + wz * (wx * rx + wy * ry + wz * rz) - rz * (wx * wx + wy * wy + wz * wz)
     out[0], out[1], out[2] = wx + x[6] + x[12] * wz, wy + x[7] + x[13] * wz, wz + x[8]
     out[3] = l * (vx * vx + vy * vy + vz * vz) + g * nz - x[_L_ACC] + lever_z + x[9]
@@ -815,6 +815,30 @@ def _measurement_trig(x: FloatArray, params: FloatArray, l: float,
         out[4], out[5], out[6] = sx + x[21], sy + x[22], sz + x[23]
     else:
         out[4] = out[5] = out[6] = 0.0
+
+
+@njit
+def _lever_arm(x: FloatArray, params: FloatArray) -> tuple[float, float, float]:
+    """The IMU's offset from the rope axis the tension row reads: x/y as the state holds them (`_LEVER`, learnt),
+    or with `lever_in_tension` off the settings' (the filter before 2026-12-07); z from the settings."""
+    if params[_LEVER_TENSION] > 0.0:
+        return x[19], x[20], params[_RZ]
+    return params[_RX], params[_RY], params[_RZ]
+
+
+@njit
+def _swing_rate_change(x: FloatArray, g: float, l: float, trig_ahead: tuple[float, float, float, float],
+                       trig_back: tuple[float, float, float, float]) -> tuple[float, float]:
+    """The body rate's x/y derivative `ω'` along the free pendulum's own motion: `measurement`'s central difference
+    over ±`_DW_STEP_S` (the heading's `_twist_trig` at both points given)."""
+    px, py, vx, vy, alpha_rate = x[0], x[1], x[2], x[3], x[5]
+    ax, ay = _pendulum_accel(px, py, vx, vy, g, l, x[_L_RATE], 0.0, 0.0)
+    h = _DW_STEP_S
+    _, _, _, _, px_, py_, _ = _attitude_rate_trig(px + h * vx, py + h * vy, vx + h * ax, vy + h * ay, trig_ahead,
+                                                  alpha_rate)  # fmt: skip
+    _, _, _, _, mx_, my_, _ = _attitude_rate_trig(px - h * vx, py - h * vy, vx - h * ax, vy - h * ay, trig_back,
+                                                  alpha_rate)  # fmt: skip
+    return (px_ - mx_) / (2.0 * h), (py_ - my_) / (2.0 * h)
 
 
 @njit
@@ -868,7 +892,8 @@ def _to_body(qw: float, qx: float, qy: float, qz: float, vx: float, vy: float, v
 # Columns `process_jacobian` differentiates (the rest of F is the identity, with F[4, 5] = dt) and columns
 # `measurement_jacobian` differentiates (the linear bias, offset and hoist columns are set exactly).
 _F_COLS = (0, 1, 2, 3, 4, 10, 11, 14, 15, 16, 17, 18, 19, 20)
-_H_COLS = (0, 1, 2, 3, 4, 5, 14, 15)
+_H_SWING_COLS = (0, 1, 2, 3, 4, 5, 14, 15)  # the columns the swing and rope move the measurement through
+_H_COLS = (*_H_SWING_COLS, 19, 20)  # ... and the lever arm's x/y, through the tension row's lever terms
 
 
 @njit
@@ -1079,7 +1104,7 @@ def _measurement_jacobian_into(x: FloatArray, params: FloatArray, h0: FloatArray
     (`_body_rate_jacobian`); the tension row chains it, at the state and at the two points of the rate's central
     difference (whose states move with the pendulum's acceleration, `_pendulum_accel_jacobian`), into the lever-arm
     terms; the magnetometer rows see the heading only, `∂(R_z(α)ᵀ w)/∂α = (m_y, -m_x, 0)` for the predicted field
-    `m`. `work` (≥ 11, ≥ 8) is scratch."""
+    `m`; the lever arm's x/y enter the tension row linearly. `work` (≥ 11, ≥ 8) is scratch."""
     alpha, ar = x[4], x[5]
     l = math.exp(x[_LOG_L])
     trig = _twist_trig(alpha)
@@ -1087,7 +1112,8 @@ def _measurement_jacobian_into(x: FloatArray, params: FloatArray, h0: FloatArray
     centre = _attitude_rate_trig(x[0], x[1], x[2], x[3], trig, ar)
     _measurement_trig(x, params, l, centre, ahead, back, True, h0)
     h_jac[:, :] = 0.0
-    g, rx, ry, rz = params[_G], params[_RX], params[_RY], params[_RZ]
+    g = params[_G]
+    rx, ry, rz = _lever_arm(x, params)
     px, py, vx, vy = x[0], x[1], x[2], x[3]
     jc, ja, jb, da = work[0:3], work[3:6], work[6:9], work[9:11]
     h = _DW_STEP_S
@@ -1103,7 +1129,7 @@ def _measurement_jacobian_into(x: FloatArray, params: FloatArray, h0: FloatArray
     dn = (-px / nz, -py / nz) if r2 > 1e-6 else (0.0, 0.0)
     vz = -(px * vx + py * vy) / nz
     dvz = (-(vx + vz * dn[0]) / nz, -(vy + vz * dn[1]) / nz, -px / nz, -py / nz)
-    for j in _H_COLS:
+    for j in _H_SWING_COLS:
         t = j if j < 6 else -1  # the column's unit step: component t of (p, v, α, α'), or the rope's (t = -1)
         dlog, dld = (l if j == _LOG_L else 0.0), (1.0 if j == _L_RATE else 0.0)  # ∂l, ∂l' along it
         dc = (jc[0, t], jc[1, t], jc[2, t]) if t >= 0 else (0.0, 0.0, 0.0)  # ∂ω at the state
@@ -1125,6 +1151,10 @@ def _measurement_jacobian_into(x: FloatArray, params: FloatArray, h0: FloatArray
         dgrav = g * dn[t] if 0 <= t < 2 else 0.0
         h_jac[3, j] = (l * dv2 + (vx * vx + vy * vy + vz * vz) * dlog + dgrav + d_lever
                        + lever[0] * dc[0] + lever[1] * dc[1] + lever[2] * dc[2])  # fmt: skip
+    if params[_LEVER_TENSION] > 0.0:  # the lever terms are linear in r_x, r_y
+        dwx, dwy = _swing_rate_change(x, g, l, ahead, back)
+        h_jac[3, 19] = -dwy + wz * wx
+        h_jac[3, 20] = dwx + wz * wy
     _measurement_jacobian_exact(x, params, h0, h_jac)
 
 
@@ -2189,6 +2219,7 @@ class HookFilter(AttitudeFilter):
                          s.length_force_tau_s, 1.0 if s.hoist_rollback else 0.0, s.jump_onset_gate,
                          s.move_rollback_max_s, s.jump_onset_lr, s.jump_onset_quiet_s,
                          s.jump_length_hold_gate, s.bias_jump_gate, s.bias_jump_quiet_s, s.bias_jump_min_rad_s,
+                         1.0 if s.lever_in_tension else 0.0,
                          *self._frame_params(flag)])  # fmt: skip
 
     def _frame_params(self, use_mag: float) -> list[float]:

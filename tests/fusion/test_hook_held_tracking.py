@@ -7,7 +7,7 @@ import numpy as np
 
 from bench.hook_suite import hook_estimate, main, run_seed, simulate_seed
 from gateway.fusion import hook
-from gateway.fusion.hook_filter import HELD_TRACKING, HOIST_ROUND, ROPE_ROUND, SLEW_ROUND, TIP_ROUND
+from gateway.fusion.hook_filter import HELD_TRACKING, HOIST_ROUND, LEVER_ROUND, ROPE_ROUND, SLEW_ROUND, TIP_ROUND
 
 
 def test_held_tracking_sees_a_slews_stop_with_its_own_jump_gate() -> None:
@@ -17,12 +17,13 @@ def test_held_tracking_sees_a_slews_stop_with_its_own_jump_gate() -> None:
     its round (`ROPE_ROUND`, the rope settings before the hoist round): with the hoist round's defaults both read
     0.35° there, the held gate changes nothing on this seed; the tenth round's tight tip state is undone too
     (`HOIST_ROUND`), and the eleventh round's onset re-run (`TIP_ROUND`): it re-runs this slew from its onset, after
-    which held and not held both read 0.171°; and the thirteenth round's length hold (`SLEW_ROUND`, whose
-    held tracking `HELD_TRACKING` puts back)."""
+    which held and not held both read 0.171°; the thirteenth round's length hold (`SLEW_ROUND`, whose
+    held tracking `HELD_TRACKING` puts back); and the thirtieth session's lever arm in the tension row
+    (`LEVER_ROUND`; with it this filter reads 0.40° / 0.60° here, the default 0.19°, 0.12° without it)."""
     case, truth, gyr, acc, mag = simulate_seed(8, 120.0, "calibrated", True, "windy")
     after_stop = (truth.t_s > 28.0) & (truth.t_s < 40.0)
     rmse = {}
-    base = ROPE_ROUND | HOIST_ROUND | TIP_ROUND | SLEW_ROUND | HELD_TRACKING
+    base = ROPE_ROUND | HOIST_ROUND | TIP_ROUND | SLEW_ROUND | HELD_TRACKING | LEVER_ROUND
     for name, over in (("held", base), ("no gate", base | {"move_track_hold_gate": 0.0})):
         q, _ = hook_estimate(gyr, acc, mag, case.physics.rope_length_m, overrides=over)
         rmse[name] = float(np.sqrt(np.mean(np.degrees(hook.swing_angle(q) - truth.swing_rad)[after_stop] ** 2)))

@@ -317,7 +317,8 @@ def test_the_exact_jacobians_are_the_plain_forward_differences(seed, use_mag, fo
     absolute, the forward differences' own error (rounding `|f_i| 2⁻⁵² / 1e-7`, truncation `1e-7/2 × ∂²f_i`, e.g.
     `2 l` for the tension's `l |n'|²` in the swing rate). The predicted state and measurement are bit for bit the
     plain ones. It can fail: without the rate difference's term in the tension row, the lever arm's `ω'` term in the
-    force input, or `l'` in the tension row's chained pendulum acceleration, it does."""
+    force input, `l'` in the tension row's chained pendulum acceleration, or the lever arm's columns in the tension
+    row, it does."""
     rng = np.random.default_rng(seed)
     x = np.concatenate([rng.normal(scale=0.2, size=4), rng.normal(size=2), rng.normal(scale=0.05, size=8),
                         [rng.uniform(-1.0, 4.0)], rng.normal(scale=0.3, size=6), rng.normal(size=3),
