@@ -795,10 +795,11 @@ _DW_STEP_S = 1e-3  # `measurement`'s central difference of the body rate
 def _measurement_trig(x: FloatArray, params: FloatArray, l: float,
                       centre: tuple[float, float, float, float, float, float, float],
                       trig_ahead: tuple[float, float, float, float], trig_back: tuple[float, float, float, float],
-                      with_mag: bool, out: FloatArray) -> None:  # fmt: skip
-    """`measurement` with the rope length `l` = exp(x[_LOG_L]), the attitude and rate `centre` (`_attitude_rate`
-    of x) and the heading's `_twist_trig` at α ± `_DW_STEP_S` α' given (each column of the Jacobian perturbs only
-    some of them); without `with_mag` the magnetometer rows are 0."""
+                      with_mag: bool, out: FloatArray) -> tuple[float, float]:  # fmt: skip
+    """`measurement` into `out` with the rope length `l` = exp(x[_LOG_L]), the attitude and rate `centre`
+    (`_attitude_rate` of x) and the heading's `_twist_trig` at α ± `_DW_STEP_S` α' given (each column of the Jacobian
+    perturbs only some of them); without `with_mag` the magnetometer rows are 0. Returns the swing's `ω'` it used
+    (`_swing_rate_change`), which the Jacobian's lever-arm columns need too."""
     g = params[_G]
     rx, ry, rz = _lever_arm(x, params)
     px, py, vx, vy = x[0], x[1], x[2], x[3]
@@ -815,6 +816,7 @@ def _measurement_trig(x: FloatArray, params: FloatArray, l: float,
         out[4], out[5], out[6] = sx + x[21], sy + x[22], sz + x[23]
     else:
         out[4] = out[5] = out[6] = 0.0
+    return dwx, dwy
 
 
 @njit
@@ -1110,7 +1112,7 @@ def _measurement_jacobian_into(x: FloatArray, params: FloatArray, h0: FloatArray
     trig = _twist_trig(alpha)
     ahead, back = _twist_trig(alpha + _DW_STEP_S * ar), _twist_trig(alpha - _DW_STEP_S * ar)
     centre = _attitude_rate_trig(x[0], x[1], x[2], x[3], trig, ar)
-    _measurement_trig(x, params, l, centre, ahead, back, True, h0)
+    dwx, dwy = _measurement_trig(x, params, l, centre, ahead, back, True, h0)
     h_jac[:, :] = 0.0
     g = params[_G]
     rx, ry, rz = _lever_arm(x, params)
@@ -1152,7 +1154,6 @@ def _measurement_jacobian_into(x: FloatArray, params: FloatArray, h0: FloatArray
         h_jac[3, j] = (l * dv2 + (vx * vx + vy * vy + vz * vz) * dlog + dgrav + d_lever
                        + lever[0] * dc[0] + lever[1] * dc[1] + lever[2] * dc[2])  # fmt: skip
     if params[_LEVER_TENSION] > 0.0:  # the lever terms are linear in r_x, r_y
-        dwx, dwy = _swing_rate_change(x, g, l, ahead, back)
         h_jac[3, 19] = -dwy + wz * wx
         h_jac[3, 20] = dwx + wz * wy
     _measurement_jacobian_exact(x, params, h0, h_jac)
