@@ -173,13 +173,24 @@ class _BatchReaderBus(_CountingBus):
         return key == "gw/attitudes"
 
 
+def join_periods(batches: list[list[Any]], k: int) -> list[list[Any]]:
+    """Each run of `k` packet periods' batches as one, in order (the last may hold fewer): a gateway that waits `k`
+    periods per batch, so each batch holds `k` packets of every device."""
+    if k < 1:
+        raise ValueError(f"periods per batch must be at least 1, not {k}")
+    return [[it for b in batches[i:i + k] for it in b] for i in range(0, len(batches), k)]
+
+
 def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 10, hook_share: float = 0.2,
                    profile: Path | None = None, encoding: str = "json", gil_threads: int = 0,
-                   subscribed: str = "all", batch_size: int = 0, drop: float = 0.0) -> dict[str, Any]:  # fmt: skip
+                   subscribed: str = "all", batch_size: int = 0, drop: float = 0.0,
+                   periods_per_batch: int = 1) -> dict[str, Any]:  # fmt: skip
     """CPU seconds per packet of `GatewayService.handle` at `n` devices, with the sinks `create_app` wires (dashboard
     history, live stream without clients, metrics) and the blocking-put thread; the bus only digests the puts.
     `batch_size`: each packet period's packets handed over in batches of at most this many (0: one batch), as a
     gateway that keeps up takes what arrived since its last batch.
+    `periods_per_batch`: each batch holds that many packet periods' packets (`join_periods`), as a gateway that
+    waits longer for a batch (`ingest_coalesce_s`) or runs behind.
     `drop`: after the untimed start, each packet is left out with this probability (seeded), as a gateway's full
     inbox drops packets under overload; `ms_per_offered` is then the CPU per packet sent, which a gateway that sheds
     load must lower (each dropped packet's filter work shed with it), not raise.
@@ -208,6 +219,8 @@ def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 
         batches = [[(key, schemas.imu_to_binary(schemas.decode(key, payload)))  # type: ignore[arg-type]
                     for key, payload in batch] for batch in batches]  # fmt: skip
     period_s = spp / RATE_HZ
+    batches = join_periods(batches, periods_per_batch)
+    period_s *= periods_per_batch
     skip = int(round(skip_s / period_s))
     offered = sum(len(b) for b in batches[skip:])
     if drop > 0.0:
@@ -307,7 +320,8 @@ def _child(tree: Path, rods: int, args: argparse.Namespace) -> dict[str, Any]:
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", str(rods), "--seconds", str(args.seconds),
            "--skip-s", str(args.skip_s), "--seed", str(args.seed), "--stage", args.stage, "--spp", str(args.spp),
            "--encoding", args.encoding, "--gil-threads", str(args.gil_threads), "--subscribed", args.subscribed,
-           "--batch-size", str(args.batch_size), "--drop", str(args.drop), "--hook-share", str(args.hook_share)]
+           "--batch-size", str(args.batch_size), "--drop", str(args.drop),
+           "--periods-per-batch", str(args.periods_per_batch), "--hook-share", str(args.hook_share)]
     here = Path(__file__).resolve().parents[1]
     env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{here}" if args.stage == "ingest" else str(tree))
     res = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True)
@@ -336,6 +350,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--subscribed", choices=("all", "attitude", "batch"), default="all",
                    help="with --stage ingest: which output keys have a subscriber: all (default), only the per-device "
                         "attitudes (bench.fleet's observer), or only gw/attitudes (bench.fleet --observe batch)")
+    p.add_argument("--periods-per-batch", type=int, default=1, help="with --stage ingest: each batch holds this many "
+                   "packet periods' packets (default 1: one packet per device)")
     p.add_argument("--batch-size", type=int, default=0, help="with --stage ingest: hand each packet period's packets "
                    "over in batches of at most this many (default 0: one batch per period)")
     p.add_argument("--drop", type=float, default=0.0, help="with --stage ingest: leave out this share of the timed "
@@ -349,7 +365,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.stage == "ingest":
             return measure_ingest(n, args.seconds, args.skip_s, args.seed, args.spp, args.hook_share, args.profile,
                                   encoding=args.encoding, gil_threads=args.gil_threads, subscribed=args.subscribed,
-                                  batch_size=args.batch_size, drop=args.drop)
+                                  batch_size=args.batch_size, drop=args.drop,
+                                  periods_per_batch=args.periods_per_batch)
         return measure(n, args.seconds, args.skip_s, args.seed)
 
     if args.child is not None:
