@@ -119,6 +119,7 @@ from gateway.fusion.hook_filter import (
     TRIAL_JUMP,
     WARMUP_ROUND,
     WINDY_START,
+    ZSCALE_ROUND,
     ZSEED_ROUND,
     HookFilter,
     HookFilterSettings,
@@ -578,7 +579,7 @@ PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JU
            "windstart": WINDY_START, "drop1": DROP_ROUND, "zseed": ZSEED_ROUND,
            "steady": STEADY_ROUND, "bias0": BIAS_ROUND, "warmup04": WARMUP_ROUND,
            "rest3": REST_ROUND, "iron05": IRON_PRIOR_ROUND, "soft0": SOFT_IRON_ROUND,
-           "lever0": LEVER_ROUND}
+           "lever0": LEVER_ROUND, "zscale0": ZSCALE_ROUND}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -654,7 +655,8 @@ def main(argv: list[str] | None = None) -> int:
                    "iron05 (IRON_PRIOR_ROUND: the hard-iron prior of a calibrated board, 0.5 µT, the filter before "
                    "2026-12-06's twenty-eighth session), soft0 (SOFT_IRON_ROUND: no soft iron learnt, the filter "
                    "before 2026-12-06's twenty-ninth session), lever0 (LEVER_ROUND: the tension row's lever arm from "
-                   "the settings, not the learnt state, the filter before 2026-12-07's thirtieth session)")
+                   "the settings, not the learnt state, the filter before 2026-12-07's thirtieth session), zscale0 "
+                   "(ZSCALE_ROUND: the z gyro's scale not learnt, the filter before 2026-12-07's thirty-first session)")
     p.add_argument("--worst", action="store_true",
                    help=f"also say where each seed's worst Θ error is (start, during or after which event, free "
                    f"swing) and the share of its samples above {WORST_LIMIT_DEG:g}°, and count the seeds over it by "

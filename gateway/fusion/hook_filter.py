@@ -104,7 +104,7 @@ from gateway.fusion.base import AttitudeFilter, FloatArray
 from gateway.fusion.field_rate import gyro_bias_from_field
 from gateway.fusion.quaternion import from_axis_angle, multiply, njit, rotate, to_matrix
 
-N_STATE = 28
+N_STATE = 29
 _P, _V, _ALPHA, _ALPHA_RATE, _BIAS, _ACC_BIAS = slice(0, 2), slice(2, 4), 4, 5, slice(6, 9), 9
 _ACC_XY, _CROSS, _LOG_L, _L_RATE, _L_ACC, _TIP = slice(10, 12), slice(12, 14), 14, 15, 16, slice(17, 19)
 _LEVER = slice(19, 21)  # the IMU's x/y offset from the rope axis (its z offset is a setting)
@@ -112,6 +112,7 @@ _HARD_IRON = slice(21, 24)  # the magnetometer's residual hard iron (µT, body),
 _SOFT_IRON = slice(24, 28)  # its soft iron, the parts that turn with the twist: (d, s, c_x, c_y) of
 # `S = [[d, s, 0], [s, -d, 0], [c_x, c_y, 0]]` (`(S_xx - S_yy) / 2`, `S_xy`, and the z axis's pick-up of the
 # horizontal field `S_zx`, `S_zy`), learnt as the hook twists
+_GYR_Z_SCALE = 28  # the z gyro's scale error (relative): a hook twisting fast turns by (1 + it) × what it reads
 N_INPUT = 10  # per-sample process input: accelerometer x/y, gyroscope (3), its backward difference (3), the
 # boom tip's known acceleration (2, the filter's frame; 0 unless a crane feed tells it: `run_with_length`'s `tip_enu`)
 # params layout (numba kernels take one float array)
@@ -193,6 +194,12 @@ class HookFilterSettings:
     # jump test: it let the swing rate follow any push, so the innovation never showed a move)
     use_force_input: bool = True  # False: the accelerometer's x/y are ignored (the filter before issue 11)
     lever_std_m: float = 0.03  # prior std of the IMU's x/y offset from the rope axis around `lever_arm_m`
+    gyro_z_scale_std: float = 0.005  # prior std of the z gyro's scale error (`_GYR_Z_SCALE`, learnt as the hook
+    # twists: the compass and the swing see a heading turned by it). MPU-6050 sensitivity ±3 % (3σ), and nobody
+    # calibrates a gyro's scale on a crane: 2.5 % on a hook twisting at ~1 rad/s turned its heading ±1.75° with the
+    # twist and read Θ 0.77° (crane 2825, 300 s; 0.23° with the scale learnt, 0.23° with it at 1). 0.01, the
+    # board's own spread, let a hook spinning one way at start split its z bias wrongly (crane 8 0.167 -> 0.590°).
+    # 0: not estimated (the filter before 2026-12-07's thirty-first session, `ZSCALE_ROUND`)
     lever_in_tension: bool = True  # the tension row's lever-arm terms read the offset the state holds (learnt); False:
     # the settings' `lever_arm_m`, so only the force input learnt it (the filter before 2026-12-07, `LEVER_ROUND`)
     # A mount measured and configured (`HookThresholds.imu_offset_m`; None: not told, the default above is assumed):
@@ -533,6 +540,9 @@ SOFT_IRON_ROUND: dict[str, float] = {"mag_soft_iron_std": 0.0}
 # 2026-12-07's thirtieth session.
 LEVER_ROUND: dict[str, float] = {"lever_in_tension": 0.0}
 
+# The z gyro's scale error not estimated (`gyro_z_scale_std` 0), the filter before 2026-12-07's thirty-first session.
+ZSCALE_ROUND: dict[str, float] = {"gyro_z_scale_std": 0.0}
+
 # A steady wind at start split from the accelerometer bias by priors (`start_wind_std_m_s2`), off by default: for a
 # windy site with light loads (bench.hook_suite's windy family 1-12: Θ RMSE 0.235 -> 0.180°) it costs the suite's
 # cranes, whose loads are mostly heavy (1-30: 0.128 -> 0.145°). `HookFilterSettings(**WINDY_START)`.
@@ -808,7 +818,7 @@ def _measurement_trig(x: FloatArray, params: FloatArray, l: float,
     vz = -(px * vx + py * vy) / nz
     dwx, dwy = _swing_rate_change(x, g, l, trig_ahead, trig_back)
     lever_z = dwx * ry - dwy * rx + wz * (wx * rx + wy * ry + wz * rz) - rz * (wx * wx + wy * wy + wz * wz)
-    out[0], out[1], out[2] = wx + x[6] + x[12] * wz, wy + x[7] + x[13] * wz, wz + x[8]
+    out[0], out[1], out[2] = wx + x[6] + x[12] * wz, wy + x[7] + x[13] * wz, wz * (1.0 + x[_GYR_Z_SCALE]) + x[8]
     out[3] = l * (vx * vx + vy * vy + vz * vz) + g * nz - x[_L_ACC] + lever_z + x[9]
     if with_mag and params[_USE_MAG] > 0.0:  # (I + S) Rᵀ B + h, B the field the start read (`_field_held`)
         mx, my, mz = _field_held(x, params)
@@ -1148,7 +1158,7 @@ def _measurement_jacobian_into(x: FloatArray, params: FloatArray, h0: FloatArray
             d_lever += (ry if i == 0 else -rx) * v / (2.0 * h)
         h_jac[0, j] = dc[0] + x[12] * dc[2]
         h_jac[1, j] = dc[1] + x[13] * dc[2]
-        h_jac[2, j] = dc[2]
+        h_jac[2, j] = dc[2] * (1.0 + x[_GYR_Z_SCALE])
         dv2 = 2.0 * vz * (dvz[t] if 0 <= t < 4 else 0.0) + 2.0 * (vx * delta[0] + vy * delta[1])  # ∂|n'|²
         dgrav = g * dn[t] if 0 <= t < 2 else 0.0
         h_jac[3, j] = (l * dv2 + (vx * vx + vy * vy + vz * vz) * dlog + dgrav + d_lever
@@ -1167,8 +1177,9 @@ def _measurement_jacobian_exact(x: FloatArray, params: FloatArray, h0: FloatArra
         h_jac[j, 6 + j] = 1.0
     h_jac[3, 9] = 1.0
     h_jac[3, _L_ACC] = -1.0
-    wz = h0[2] - x[8]  # cross-axis sensitivity: the twist rate leaks into x and y
+    wz = (h0[2] - x[8]) / (1.0 + x[_GYR_Z_SCALE])  # cross-axis sensitivity: the twist rate leaks into x and y
     h_jac[0, 12], h_jac[1, 13] = wz, wz
+    h_jac[2, _GYR_Z_SCALE] = wz  # ... and the z gyro reads it scaled
     for j in range(N_STATE):  # heading-only magnetometer: hard and soft iron must not tilt the rope estimate
         h_jac[4:, j] = 0.0
     if params[_USE_MAG] > 0.0:
@@ -1219,6 +1230,7 @@ def _post_update(x: FloatArray, params: FloatArray) -> None:
         x[1] *= 0.99 / norm
     x[4] = (x[4] + np.pi) % (2.0 * np.pi) - np.pi
     x[_LOG_L] = min(max(x[_LOG_L], math.log(params[_L_MIN])), math.log(params[_L_MAX]))
+    x[_GYR_Z_SCALE] = min(max(x[_GYR_Z_SCALE], -0.1), 0.1)
 
 
 @njit
@@ -2195,6 +2207,7 @@ class HookFilter(AttitudeFilter):
             + [0.0] * 2
             + [s.mag_hard_iron_psd] * 3
             + [s.mag_soft_iron_psd] * 4
+            + [0.0]
         )
         self._initialised = False
         self._reset(heading_rad=0.0, heading_std_rad=s.init_heading_std_rad, acc_xy_bias=np.zeros(2))
@@ -2260,6 +2273,7 @@ class HookFilter(AttitudeFilter):
                                                                         s.mag_hard_iron_std_not_told_uT)] * 3
             + [s.mag_soft_iron_std if s.rope_length_known else min(s.mag_soft_iron_std,
                                                                     s.mag_soft_iron_std_not_told)] * 4
+            + [s.gyro_z_scale_std]
         )
         self.P = np.diag(std**2)
 

@@ -30,7 +30,7 @@ def test_the_iron_in_the_reference_is_unseen_at_the_start_attitude_and_its_jacob
     rng = np.random.default_rng(seed)
     x = np.concatenate([rng.normal(scale=0.2, size=4), rng.normal(size=2), rng.normal(scale=0.05, size=8),
                         [rng.uniform(-1.0, 4.0)], rng.normal(scale=0.3, size=6), rng.normal(size=3),
-                        rng.normal(scale=0.03, size=4)])  # fmt: skip
+                        rng.normal(scale=0.03, size=4), rng.normal(scale=0.02, size=1)])  # fmt: skip
     assert x.shape == (hf.N_STATE,)
     f = hf.HookFilter(hf.HookFilterSettings(**hf.HARD_IRON_REFERENCE))
     f.mag_ref_uT = np.array([0.0, 20.0, -44.0])

@@ -322,7 +322,7 @@ def test_the_exact_jacobians_are_the_plain_forward_differences(seed, use_mag, fo
     rng = np.random.default_rng(seed)
     x = np.concatenate([rng.normal(scale=0.2, size=4), rng.normal(size=2), rng.normal(scale=0.05, size=8),
                         [rng.uniform(-1.0, 4.0)], rng.normal(scale=0.3, size=6), rng.normal(size=3),
-                        rng.normal(scale=0.03, size=4)])  # fmt: skip
+                        rng.normal(scale=0.03, size=4), rng.normal(scale=0.02, size=1)])  # fmt: skip
     u = rng.normal(size=hf.N_INPUT)
     f = hf.HookFilter()
     f.mag_ref_uT = np.array([0.0, 20.0, -40.0])
@@ -347,7 +347,7 @@ def test_the_exact_jacobians_are_the_plain_forward_differences(seed, use_mag, fo
 @settings(max_examples=50, deadline=None)
 @given(seed=st.integers(0, 2**31))
 def test_a_packed_covariance_comes_back_bit_for_bit(seed: int) -> None:
-    """The rollback ring keeps each covariance's upper triangle (`_pack_sym`, 406 of 784 numbers: 4 s of them per
+    """The rollback ring keeps each covariance's upper triangle (`_pack_sym`, 435 of 841 numbers: 4 s of them per
     hook); the kernel keeps P exactly symmetric, so unpacking must give the same matrix to the last bit, or a
     rollback would restart from a different covariance than the one the filter had."""
     p = random_spd(np.random.default_rng(seed), hf.N_STATE)
@@ -360,7 +360,7 @@ def test_a_packed_covariance_comes_back_bit_for_bit(seed: int) -> None:
 
 
 def test_the_rollback_ring_keeps_covariances_packed() -> None:
-    """4 s of covariances at 100 Hz: 400 rows of 406 numbers (1.30 MB) instead of 400 × 28 × 28 (2.51 MB)."""
+    """4 s of covariances at 100 Hz: 400 rows of 435 numbers (1.39 MB) instead of 400 × 29 × 29 (2.69 MB)."""
     f = hf.HookFilter(hf.HookFilterSettings())
     _, hist_p, *_ = f._rings(DT_S)
-    assert hist_p.shape == (round(f.settings.move_rollback_max_s / DT_S), hf.N_PACKED) and hf.N_PACKED == 406
+    assert hist_p.shape == (round(f.settings.move_rollback_max_s / DT_S), hf.N_PACKED) and hf.N_PACKED == 435
