@@ -11,14 +11,15 @@ the pendulum, so they are fed into the model as a measured input instead of bein
 axis reads the tension `T/m = g n_z + l |n'|² - l''`, which carries the swing amplitude and the hoist's
 acceleration `l''`.
 
-State (28): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
+State (29): `p = (n_x, n_y)`, the horizontal part of the rope direction `n` (ENU, hook -> boom tip,
 `n_z = sqrt(1 - |p|²)`); `v = p'`; the hook heading about the rope `α` (swing-twist split
 `q = q_swing(n) ⊗ q_z(α)`, see gateway.fusion.hook) and its rate `α'`; the gyroscope bias `b` (rad/s, body);
 the offset of the tension channel (m/s²); the accelerometer x/y bias (m/s², body); the gyroscope's x/y
 sensitivity `c` to the z rate (cross-axis coupling); the rope: `ln l`, `l'` (m/s) and `l''` (m/s²); the boom
 tip's horizontal acceleration (m/s², ENU); the IMU's x/y offset from the rope axis (m); the magnetometer's hard
 iron (µT, body) and the parts of its soft iron that turn with the twist (`S`: in body x/y, and the z axis's
-pick-up of the horizontal field).
+pick-up of the horizontal field); the z gyro's scale error `s` (it reads `(1 + s) ω_z`: a hook twisting fast turns
+its heading by that share of each twist).
 
 * Predict: RK4 of the pendulum with a moving rope length,
   `p'' = -(g n_z p + W)/l - 2 (l'/l) p' - |n'|² p`, where `W` is the horizontal part of the measured non-tension
@@ -71,7 +72,7 @@ pick-up of the horizontal field).
   that the rope's speed and hoist acceleration take corrections from the tension channel only (a consider-style gain
   restriction filterpy cannot express), so the filter runs its own `ekf_step`: `update()` one sample, `run()` a
   numba loop of the same step (tests check they agree). The arithmetic is sparse and allocation-free (issue 16):
-  F is the identity but for the pendulum, heading and rope rows and H sees 19 of the 28 states, so `F P Fᵀ`,
+  F is the identity but for the pendulum, heading and rope rows and H sees 20 of the 29 states, so `F P Fᵀ`,
   `H P` and `H P Hᵀ` run over their non-zeros (the swing-rate block before the gating for the NIS and whitening,
   all rows after it for the surprise test and the Cholesky gain, kept in step by the surprise inflation);
   Joseph's form for the restricted gain K = K_opt + D is computed exactly as `P - P Hᵀ S⁻¹ H P + D S Dᵀ` (D lives
@@ -1313,7 +1314,7 @@ def _process_noise_into(x: FloatArray, dt_s: float, q_psd: FloatArray, params: F
 
 
 # --- covariance arithmetic: F and H are sparse (F is the identity but for the pendulum, heading and rope rows; H
-# sees 19 of the 28 states), so the products run over their non-zero entries only, in preallocated buffers ---------
+# sees 20 of the 29 states), so the products run over their non-zero entries only, in preallocated buffers ---------
 
 
 @njit
