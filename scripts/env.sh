@@ -15,10 +15,14 @@ if [ ! -f "$STAMP" ]; then
   touch "$STAMP"
 fi
 # numba compiles the fusion kernels on first use (~40 s on 2 cores, minutes on a loaded box) and caches them in
-# gateway/fusion/__pycache__: do it here, once per checkout, with a progress line, so the first gateway start is fast.
-if ! ls "$ROOT"/gateway/fusion/__pycache__/*.nbi >/dev/null 2>&1; then
-  echo "[env] compiling the fusion kernels once (cached for later starts)" >&2
+# __pycache__: do it here, with a progress line, so a gateway start is fast. Again whenever a gateway source changed
+# since (an update recompiles the kernels it touched; with nothing to compile this takes ~2 s): a shard that compiles
+# at its start under load falls behind and drops packets for minutes.
+KSTAMP="$ROOT/.venv/.kernels-prepared"
+if [ ! -f "$KSTAMP" ] || [ -n "$(find "$ROOT/gateway" -name '*.py' -newer "$KSTAMP" -print -quit)" ]; then
+  echo "[env] compiling the fusion kernels (cached for later starts)" >&2
   (cd "$ROOT" && "$ROOT/.venv/bin/python" -m gateway --prepare) >&2
+  touch "$KSTAMP"
 fi
 export PATH="$ROOT/.venv/bin:$PATH"
 cd "$ROOT"
