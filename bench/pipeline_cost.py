@@ -218,9 +218,8 @@ def measure_ingest(n: int, seconds: float, skip_s: float, seed: int, spp: int = 
 
         batches = [[(key, schemas.imu_to_binary(schemas.decode(key, payload)))  # type: ignore[arg-type]
                     for key, payload in batch] for batch in batches]  # fmt: skip
-    period_s = spp / RATE_HZ
     batches = join_periods(batches, periods_per_batch)
-    period_s *= periods_per_batch
+    period_s = spp / RATE_HZ * periods_per_batch
     skip = int(round(skip_s / period_s))
     offered = sum(len(b) for b in batches[skip:])
     if drop > 0.0:
