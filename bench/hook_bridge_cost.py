@@ -16,6 +16,7 @@ and the CPU per packet *offered*, which a call that sheds its lost packets' work
 from __future__ import annotations
 
 import argparse
+import copy
 import time
 from typing import Any
 
@@ -73,6 +74,9 @@ def replay(seed: int, duration_s: float, drop: float, after_s: float) -> dict[st
     tol = np.full(SPP, (GAP_FACTOR - 1.0) * DT_S)
     out: dict[str, list[float]] = {"run": [0, 0.0, 0.0], "bridged": [0, 0.0, 0.0], "offered": [0, 0.0]}
     first = int(after_s / DT_S)
+    # compiled before the clock wraps the kernels: `ekf_run` compiled with `ekf_run_led` wrapped sees a Python
+    # function there and fails to type (a cold numba cache, e.g. a fresh worktree without `--prepare`)
+    copy.deepcopy(f).run_with_length(gyr[warm:warm + SPP], acc[warm:warm + SPP], mag[warm:warm + SPP], DT_S)
     with _KernelClock() as kernel:
         for a in range(warm, gyr.shape[0] - SPP + 1, SPP):
             b = a + SPP
