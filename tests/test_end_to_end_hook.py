@@ -68,9 +68,11 @@ def test_a_compass_calibrated_by_the_twist_through_rest_reads_the_torsion_better
     """Fresh suite crane 2203 on an MPU-6050/HMC5883L-class board (its compass uncalibrated), 30 s: the calibration a
     twist by hand of that hook gives (`calibrate --hook-mount`) set with `PUT /api/devices/{id}/settings` before the
     device starts. Through zenoh the torsion matches the same packets in process with the calibration (within 0.3°)
-    and is under half of what they give without it (in process, measured 2026-12-05: 6.20° → 0.32°, Θ 0.061° →
+    and is under 0.75 of what they give without it (in process, measured 2026-12-05: 6.20° → 0.32°, Θ 0.061° →
     0.064°; over six such cranes the 30-s torsion went 0.53 → 2.58, 1.23 → 1.21, 1.00 → 1.72, 6.20 → 0.32,
-    1.41 → 1.75 and 5.30 → 0.56°, docs/fusion.md)."""
+    1.41 → 1.75 and 5.30 → 0.56°, docs/fusion.md). Since the filter learns the iron in the first twist (2026-12-07's
+    thirty-second session: compass noise 1.5 µT, hard-iron prior 6 µT once told) the board as is reads 0.74°, and
+    through zenoh calibrated 0.44°."""
     duration_s, seed, scenario = 30.0, 1, "suite:2203"
     case = make_case(scenario, duration_s, 0.0, seed, None, "legacy")
     cal = twist_calibration(scenario, duration_s, "legacy", seed)
@@ -83,5 +85,5 @@ def test_a_compass_calibrated_by_the_twist_through_rest_reads_the_torsion_better
     r = analyse(rec, 0.0, 12.0)["all"]
     assert r["n"] >= 0.9 * ref["n"], (r["n"], ref["n"])
     assert abs(r["torsion_rmse_deg"] - ref["torsion_rmse_deg"]) < 0.3, (r, ref)
-    assert r["torsion_rmse_deg"] < 0.5 * as_is["torsion_rmse_deg"], (r, as_is)
+    assert r["torsion_rmse_deg"] < 0.75 * as_is["torsion_rmse_deg"], (r, as_is)
     assert abs(r["swing_angle_rmse_deg"] - ref["swing_angle_rmse_deg"]) < 0.05, (r, ref)

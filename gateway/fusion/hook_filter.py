@@ -181,8 +181,17 @@ class HookFilterSettings:
     gyro_noise_rad_s: float = 0.0015  # MPU-6050: 0.05 °/s rms at 100 Hz, plus quantisation and scale errors
     acc_noise_m_s2: float = 0.15  # tension channel: white noise plus unmodelled lever-arm and scale terms
     force_noise_m_s2: float = 0.06  # accelerometer x/y as the force input: noise + lever-arm derivative noise
-    mag_noise_uT: float = 3.0  # a calibrated compass (hard iron ~0.5 µT): 30 µT left the z bias of a hook twisting at
-    # start unlearnt (torsion drifted ~1 °/s, bench.hook_suite seed 5); 1 µT couples its errors into the swing
+    mag_noise_uT: float = 1.5  # a calibrated compass (hard iron ~0.5 µT): 30 µT left the z bias of a hook twisting at
+    # start unlearnt (torsion drifted ~1 °/s, bench.hook_suite seed 5); 1 µT couples its errors into the swing. 1.5
+    # (3 before 2026-12-07's thirty-second session, `MAG_NOISE_ROUND`), with `mag_hard_iron_std_uT` 6: an
+    # uncalibrated board's hard iron (~10 µT, tens of degrees of heading at start) is learnt in the first twist, not
+    # over tens of seconds (fresh cranes 3072-3111, MPU-6050-class board: torsion 1.15 -> 0.93°, Θ 0.136 -> 0.134°;
+    # calibrated torsion 0.54 -> 0.60°; 1 µT cost tuning crane 24 0.06° of Θ)
+    mag_noise_not_told_uT: float = 3.0  # ... at least this while the rope length is not told (as
+    # `mag_hard_iron_std_not_told_uT`; a start redone told its length takes `mag_noise_uT` for its replay): a
+    # not-told start is levelled as if plumb, so its compass reference is off by any swing, and a compass trusted
+    # more misled it (crane 1696 through the pipeline, swinging 6.3° at start: direction 4.8 -> 12.0°, torsion 0.9 ->
+    # 6.5° at 1.5 µT; not-told tuning crane 1, hanging still, Θ 0.101 -> 0.209°)
     tip_accel_std_m_s2: float = 0.03  # boom-tip acceleration (trolley, slewing): stationary std of its state (and its
     # prior). 0.06 before issue 11's tenth round (`HOIST_ROUND`): between moves the tip state wandered by that much
     # (0.35° of swing centre), took part of every swing's error and absorbed a small step slowly enough to keep it
@@ -333,13 +342,15 @@ class HookFilterSettings:
     tip_turn_psd: float = 0.05  # rad²/s: the tip acceleration's direction random-walks with this PSD, i.e. process
     # noise perpendicular to the tip estimate `a` of `tip_turn_psd |a|²` (a slew's acceleration turns with the boom at
     # up to ~0.1 rad/s; a still crane's zero tip estimate gets none) (0: off)
-    mag_hard_iron_std_uT: float = 3.0  # prior std of the magnetometer's residual hard iron, per body axis (0: not
+    mag_hard_iron_std_uT: float = 6.0  # prior std of the magnetometer's residual hard iron, per body axis (0: not
     # estimated). A calibrated board keeps ~0.5 µT (devices.common.ImuErrorModel.calibrated): 1-4° of heading; an
     # MPU-6050/HMC5883L-class board never calibrated ~5 µT, a raw one ~15 µT. 3 µT (0.5 before 2026-12-06's
     # twenty-eighth session, `IRON_PRIOR_ROUND`): the hard iron of a board nobody calibrated is learnt as the hook
     # twists instead of held near 0 (tuning 1-30 told, MPU-6050-class board: torsion 2.96 -> 1.75°; raw board Θ
     # 0.175 -> 0.120°, its 30 µT learnt and its compass kept), a calibrated board level (0.114 -> 0.115°). 6 µT ran a
-    # raw not-told crane away (tuning seed 29) and 12 µT a told one (seed 10): no wider (docs/fusion.md)
+    # raw not-told crane away (tuning seed 29) and 12 µT a told one (seed 10). 6 µT with `mag_noise_uT` 1.5 since
+    # 2026-12-07's thirty-second session (`MAG_NOISE_ROUND` is the filter before; a not-told start still takes
+    # `mag_hard_iron_std_not_told_uT`): tuning 1-30 MPU-6050-class torsion 1.47 -> 1.09°, raw board 4.89 -> 2.57°
     mag_hard_iron_std_not_told_uT: float = 0.5  # ... at most this while the rope length is not told (the provisional
     # start; the start redone told its length takes `mag_hard_iron_std_uT`): 3 µT there mended not-told runaways on
     # the suite (MPU-6050-class 1-30 0.212 -> 0.149°), but crane 1696's rope had not settled when its twin dropped
@@ -543,6 +554,9 @@ LEVER_ROUND: dict[str, float] = {"lever_in_tension": 0.0}
 
 # The z gyro's scale error not estimated (`gyro_z_scale_std` 0), the filter before 2026-12-07's thirty-first session.
 ZSCALE_ROUND: dict[str, float] = {"gyro_z_scale_std": 0.0}
+# The compass's noise 3 µT and hard-iron prior 3 µT once told the rope, the filter before 2026-12-07's thirty-second
+# session (`mag_noise_uT`, `mag_hard_iron_std_uT`; not told, the noise stays 3 µT, `mag_noise_not_told_uT`).
+MAG_NOISE_ROUND: dict[str, float] = {"mag_noise_uT": 3.0, "mag_hard_iron_std_uT": 3.0}
 
 # A steady wind at start split from the accelerometer bias by priors (`start_wind_std_m_s2`), off by default: for a
 # windy site with light loads (bench.hook_suite's windy family 1-12: Θ RMSE 0.235 -> 0.180°) it costs the suite's
@@ -2246,7 +2260,8 @@ class HookFilter(AttitudeFilter):
 
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings
-        sig = [s.gyro_noise_rad_s] * 3 + [s.acc_noise_m_s2] + [s.mag_noise_uT] * 3
+        mag = s.mag_noise_uT if s.rope_length_known else max(s.mag_noise_uT, s.mag_noise_not_told_uT)
+        sig = [s.gyro_noise_rad_s] * 3 + [s.acc_noise_m_s2] + [mag] * 3
         out: FloatArray = np.square(np.array(sig[:m]))
         return out
 

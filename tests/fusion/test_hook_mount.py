@@ -523,10 +523,11 @@ def test_a_hook_turned_less_than_90_degrees_or_a_field_that_traces_no_circle_giv
 def test_an_uncalibrated_compass_calibrated_by_the_twist_reads_the_torsion_within_a_degree() -> None:
     """Tuning seed 1 on the MPU-6050/HMC5883L-class board (14 µT of hard iron in the hook's plane, 3 % soft iron),
     120 s, rope told: its twist session's ellipse (`twist_iron`, the calibration `calibrate --hook-mount` prints)
-    taken out of the magnetometer before fusion, as the gateway applies a device calibration. Measured: torsion
-    7.96 → 0.44° RMS (0.86° with the circle's centre alone, 0.47° with the ellipse before the gyroscope's), Θ 0.099
-    → 0.097°; with the true hard iron taken out instead, 0.92° (docs/fusion.md, "An uncalibrated compass on the
-    hook")."""
+    taken out of the magnetometer before fusion, as the gateway applies a device calibration. Measured when written:
+    torsion 7.96 → 0.44° RMS (0.86° with the circle's centre alone, 0.47° with the ellipse before the gyroscope's), Θ
+    0.099 → 0.097°; with the true hard iron taken out instead, 0.92° (docs/fusion.md, "An uncalibrated compass on the
+    hook"). Since the filter learns the hard iron in the first twist (2026-12-07's thirty-second session: compass
+    noise 1.5 µT, hard-iron prior 6 µT) the board as is reads 2.33° (3.77° before), calibrated 0.38°."""
     case, truth, gyr, acc, mag = hs.simulate_seed(1, 120.0, "legacy", True)
     assert mag is not None
     cal = hs.twist_iron(case, "legacy")
@@ -539,5 +540,5 @@ def test_an_uncalibrated_compass_calibrated_by_the_twist_reads_the_torsion_withi
         q, _ = hs.hook_estimate(gyr, acc, m, case.physics.rope_length_m)
         scores[name] = hs.score(q, truth, keep, True)
     assert scores["calibrated"]["torsion_rmse"] < 0.7, scores
-    assert scores["as is"]["torsion_rmse"] > 8.0 * scores["calibrated"]["torsion_rmse"], scores
+    assert scores["as is"]["torsion_rmse"] > 4.0 * scores["calibrated"]["torsion_rmse"], scores
     assert scores["calibrated"]["swing_rmse"] < 1.1 * scores["as is"]["swing_rmse"], scores
