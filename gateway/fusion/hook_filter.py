@@ -2970,3 +2970,8 @@ class HookFilter(AttitudeFilter):
         """Current gyroscope bias estimate, rad/s, body frame."""
         out: FloatArray = self.x[_BIAS].copy()
         return out
+
+    @property
+    def gyro_z_scale(self) -> float:
+        """Current estimate of the z gyro's scale error `s` (it reads `(1 + s) ω_z + b_z`), relative."""
+        return float(self.x[_GYR_Z_SCALE])
