@@ -20,6 +20,7 @@ from gateway.alarm.hook import HookAlarms, hook_rules
 from gateway.config import HookThresholds
 from gateway.fusion import hook as hook_geo
 from gateway.fusion.crane_feed import MAX_HOLD_S, CraneFeed
+from gateway.fusion.gaps import gap_tol_s
 from gateway.kinds.base import (
     TWO_PI,
     Fused,
@@ -44,7 +45,7 @@ _SWING_SET = frozenset(schemas.Swing.model_fields) - {"v"}  # the fields `HookKi
 # the heading is least known (an uncalibrated compass's hard iron is learnt in the first twists). After this many
 # seconds of samples without a gap, the reference is read again: the heading then, carried back to the first sample by
 # the gyroscope's twist with the bias and scale the filter has learnt by then (fresh cranes 3072-3083 through the
-# pipeline, MPU-6050-class board: torsion RMSE 0.86 -> 0.64°; crane 2863 1.73 -> 0.60°).
+# pipeline, MPU-6050-class board: torsion RMSE from 1 s 0.86 -> 0.68°; crane 2863 1.73 -> 0.71°).
 REFERENCE_SETTLE_S = 10.0
 
 
@@ -152,7 +153,7 @@ class HookKind(KindBase):
             st: HookState = f.dev.state
             if st.rest_heading_rad is None:
                 st.rest_heading_rad = float(hook_geo.twist_heading(f.q[0]))
-                st.settle_from_s, st.settle_last_s = float(f.t_s[0]), float(f.t_s[0])
+                st.settle_from_s = float(f.t_s[0])
             if not st.rest_heading_redone and (q0 := getattr(f.dev.filt, "start_redone_q0", None)) is not None:
                 # the filter started again told the rope length it found: its better estimate of the same sample
                 st.rest_heading_rad, st.rest_heading_redone = float(hook_geo.twist_heading(q0)), True
@@ -220,14 +221,18 @@ class HookKind(KindBase):
 def _settle_reference(st: HookState, f: Fused) -> None:
     """Integrate the z gyro over `f`'s samples; once `REFERENCE_SETTLE_S` of them followed on from the first fused
     sample (and no re-start of the filter is pending), take the reference again: the heading now, less the output's
-    North turn and the twist since, with the filter's bias and z scale as learnt now. A gap (a lost packet, a late
-    `t0_us`) leaves the first reading: the twist across it is not known."""
+    North turn and the twist since, with the filter's bias and z scale as learnt now. A gap as the fusion bank tells
+    it (`gaps.gap_tol_s`: a lost packet, a `t0_us` off by more than the jitter tolerance) or a sample that far back
+    in time leaves the first reading: the twist across it is not known."""
     t, dt = f.t_s, f.dev.dt_s
     if t.shape[0] == 0:
         return
     first = st.settle_time_s == 0.0 and float(t[0]) == st.settle_from_s  # the block holding the first sample
-    steps = np.diff(t) if first else np.diff(np.concatenate(([st.settle_last_s], t)))
-    if steps.shape[0] and (float(steps.max()) > 1.5 * dt or float(steps.min()) <= 0.0):
+    # a step off the period by more than the fusion bank's gap tolerance, either way (a jittery t0_us between
+    # packets that follow on is within it, as it is no gap to the filter)
+    steps = np.diff(t) if first else np.diff(t, prepend=st.settle_last_s)
+    tol = gap_tol_s(dt, all(f.dev.follows))
+    if steps.shape[0] and float(np.max(np.abs(steps - dt))) > tol:
         st.settle_from_s = None
         return
     rates = f.gyr[1:, 2] if first else f.gyr[:, 2]  # the first sample's rate turns nothing before it

@@ -67,13 +67,26 @@ def test_the_settled_reference_is_the_true_first_heading_whatever_the_packets(ra
 
 def test_a_gap_leaves_the_first_reading() -> None:
     """One lost packet in the first seconds (a 50-ms gap in device time): the twist across it is not known, so the
-    reference stays as first read and no longer settles; a sample out of order does the same."""
+    reference stays as first read and no longer settles; samples 50 ms back in time do the same (further than a
+    jittery `t0_us` goes, below)."""
     q, t = _twisting(0.0, 0.2, 2000, 0.0)
-    for bad_t in (np.delete(t, range(500, 505)), np.concatenate((t[:500], t[499:]))):
+    for bad_t in (np.delete(t, range(500, 505)), np.concatenate((t[:500], t[495:]))):
         dev, st_ = _device(0.0, 0.0, 0.0), _state(0.5, 0.0)
         for a in range(0, bad_t.shape[0], 10):
             _settle_reference(st_, _block(dev, q[a:a + 10], bad_t[a:a + 10], np.full(10, 0.2)))
         assert st_.settle_from_s is None and not st_.rest_heading_redone and st_.rest_heading_rad == 0.5
+
+
+def test_a_jittery_t0_between_packets_that_follow_on_still_settles() -> None:
+    """A device that stamps `t0_us` when it sends, ±9 ms around its sample clock, none of its packets lost: the fusion
+    bank bridges nothing there (`gaps.JITTER_TOL_S`), so the reference settles as on a steady clock."""
+    q, t = _twisting(0.0, 0.2, 1500, 0.0)
+    jitter = np.repeat(np.random.default_rng(3).uniform(-0.009, 0.009, 150), 10)
+    dev, st_ = _device(0.0, 0.0, 0.0), _state(0.5, float(t[0] + jitter[0]))
+    for a in range(0, 1500, 10):
+        _settle_reference(st_, _block(dev, q[a:a + 10], t[a:a + 10] + jitter[a:a + 10], np.full(10, 0.2)))
+    assert st_.settle_from_s is None and st_.rest_heading_redone
+    assert st_.rest_heading_rad == pytest.approx(0.0, abs=1e-9)
 
 
 def test_a_pending_restart_delays_the_settle() -> None:
