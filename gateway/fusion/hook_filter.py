@@ -443,7 +443,14 @@ class HookFilterSettings:
     init_cross_axis_std: float = 0.01  # gyro x/y sensitivity to the z rate (MPU-6050 cross-axis ±2 %)
     moving_swing_std: float = 0.3  # rad, per axis: priors after `assume_moving()` (started while swinging)
     moving_rate_std_rad_s: float = 0.3
-    moving_acc_offset_std_m_s2: float = 0.5  # the window's mean tension is not g when swinging
+    moving_acc_offset_std_m_s2: float = 0.5  # the window's mean tension is not g when swinging (~0.1 m/s² at 8°)
+    # ... not told the rope length. 0.5 too before 2026-12-07's thirty-third session (`ACC_OFFSET_ROUND`): swinging at
+    # start, the tension's shortfall (the prior 10 m's `l p'²` against a 2.3-m rope's) went into that offset and the
+    # swing read 4-10× too large until the length came (tuning crane 29: 25-41° for 1.5 s, 2.13° RMSE over 2 min;
+    # 0.15° now, max 3.3°). Held near the window's, the offset anchors the swing's size. Not told, tuning 1-30
+    # (MPU-6050-class) 0.211 / 0.172 / 0.150 / 0.144 / 0.143° at 0.5 / 0.1 / 0.05 / 0.03 / 0.02. Told, the swing is
+    # read right and a big one's offset is not the window's: 0.03 cost tuning crane 7 (6.7° at start) 0.049 -> 0.062°.
+    moving_acc_offset_not_told_std_m_s2: float = 0.03
     rest_gyr_std_rad_s: float = 0.01  # `start()`: a warm-up window counts as rest below this gyro std per axis
     rest_acc_tol_m_s2: float = 0.5  # ... and with |acc| within this of g
     # `start()` with a magnetometer also starts a twin without it (`compass_trusted`): when the twin's swing-rate
@@ -542,6 +549,9 @@ IRON_ROUND: dict[str, float] = {"mag_reference_hard_iron": False}
 PRIOR_ROUND: dict[str, float] = {"rope_known_rel_std": 0.05}
 # No re-start told the learnt length (`restart_told_std`), the filter before issue 11's start round.
 RESTART_ROUND: dict[str, float] = {"restart_told_max_s": 0.0}
+# The tension offset's prior after a swinging start not told the rope length, before 2026-12-07's thirty-third
+# session: `HookFilterSettings(**ACC_OFFSET_ROUND)`.
+ACC_OFFSET_ROUND: dict[str, float] = {"moving_acc_offset_not_told_std_m_s2": 0.5}
 
 # The hard-iron prior of a calibrated board (0.5 µT) also when told the rope length, the filter before 2026-12-06's
 # twenty-eighth session: `HookFilterSettings(**IRON_PRIOR_ROUND)`.
@@ -2959,8 +2969,9 @@ class HookFilter(AttitudeFilter):
         tension-offset priors to `settings.moving_*`, so the pendulum dynamics find the swing instead of a tight
         "hanging still" prior holding it near plumb for many periods."""
         s = self.settings
+        offset_std = s.moving_acc_offset_std_m_s2 if s.rope_length_known else s.moving_acc_offset_not_told_std_m_s2
         for i, std in ((0, s.moving_swing_std), (1, s.moving_swing_std), (2, s.moving_rate_std_rad_s),
-                       (3, s.moving_rate_std_rad_s), (_ACC_BIAS, s.moving_acc_offset_std_m_s2)):  # fmt: skip
+                       (3, s.moving_rate_std_rad_s), (_ACC_BIAS, offset_std)):  # fmt: skip
             self.P[i, :] = 0.0
             self.P[:, i] = 0.0
             self.P[i, i] = std**2
