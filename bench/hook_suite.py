@@ -31,6 +31,7 @@
     python -m bench.hook_suite --settings iron05            # a calibrated board's hard-iron prior (IRON_PRIOR_ROUND)
     python -m bench.hook_suite --settings mag3              # compass noise and hard-iron prior 3 µT (MAG_NOISE_ROUND)
     python -m bench.hook_suite --settings offset05          # a swinging start's offset prior 0.5 (ACC_OFFSET_ROUND)
+    python -m bench.hook_suite --settings pending0          # a pending start's compass at 3 µT (PENDING_COMPASS_ROUND)
     python -m bench.hook_suite --length-factor 2            # the rope length told 2x too long at t = 0
     python -m bench.hook_suite --told-m 10                  # told 10 m whatever the rope (the gateway's default)
     python -m bench.hook_suite --offset-told 0.005          # the IMU's offset from the rope told, measured to 5 mm
@@ -109,6 +110,7 @@ from gateway.fusion.hook_filter import (
     IRON_ROUND,
     LEVER_ROUND,
     MAG_NOISE_ROUND,
+    PENDING_COMPASS_ROUND,
     PREVIOUS_DEFAULT,
     PRIOR_ROUND,
     REST_ROUND,
@@ -584,7 +586,8 @@ PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JU
            "steady": STEADY_ROUND, "bias0": BIAS_ROUND, "warmup04": WARMUP_ROUND,
            "rest3": REST_ROUND, "iron05": IRON_PRIOR_ROUND, "soft0": SOFT_IRON_ROUND,
            "lever0": LEVER_ROUND, "zscale0": ZSCALE_ROUND,
-           "mag3": MAG_NOISE_ROUND, "offset05": ACC_OFFSET_ROUND}
+           "mag3": MAG_NOISE_ROUND, "offset05": ACC_OFFSET_ROUND,
+           "pending0": PENDING_COMPASS_ROUND}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -664,7 +667,9 @@ def main(argv: list[str] | None = None) -> int:
                    "(ZSCALE_ROUND: the z gyro's scale not learnt, the filter before 2026-12-07's thirty-first "
                    "session), mag3 (MAG_NOISE_ROUND: the compass's noise and hard-iron prior 3 µT, the filter before "
                    "2026-12-07's thirty-second session), offset05 (ACC_OFFSET_ROUND: the tension offset's prior after "
-                   "a swinging start 0.5 m/s², the filter before 2026-12-07's thirty-third session)")
+                   "a swinging start 0.5 m/s², the filter before 2026-12-07's thirty-third session), pending0 "
+                   "(PENDING_COMPASS_ROUND: a not-told swinging start's compass at its usual noise until the start is "
+                   "redone, the filter before the same session)")
     p.add_argument("--worst", action="store_true",
                    help=f"also say where each seed's worst Θ error is (start, during or after which event, free "
                    f"swing) and the share of its samples above {WORST_LIMIT_DEG:g}°, and count the seeds over it by "

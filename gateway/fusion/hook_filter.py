@@ -192,6 +192,13 @@ class HookFilterSettings:
     # not-told start is levelled as if plumb, so its compass reference is off by any swing, and a compass trusted
     # more misled it (crane 1696 through the pipeline, swinging 6.3° at start: direction 4.8 -> 12.0°, torsion 0.9 ->
     # 6.5° at 1.5 µT; not-told tuning crane 1, hanging still, Θ 0.101 -> 0.209°)
+    # ... at least this while a not-told swinging start may still be redone (`start_pending`, 2-15 s): its compass
+    # reference was levelled as if plumb, off by the swing's tilt times the field (50 µT × sin 8° ≈ 7 µT at the
+    # suite's largest start swing), and at 3 µT that error pulled the swing and the z bias (fresh crane 3226,
+    # calibrated, 4.7 m swinging 2.6°: z bias to 8 °/s, Θ 7-11° for 4.5 s; 6D read it at 1°). The redone start
+    # replays every sample with the compass at its own noise. 0: as 3 µT (`PENDING_COMPASS_ROUND`, the filter before
+    # 2026-12-07's thirty-third session).
+    mag_noise_pending_uT: float = 10.0
     tip_accel_std_m_s2: float = 0.03  # boom-tip acceleration (trolley, slewing): stationary std of its state (and its
     # prior). 0.06 before issue 11's tenth round (`HOIST_ROUND`): between moves the tip state wandered by that much
     # (0.35° of swing centre), took part of every swing's error and absorbed a small step slowly enough to keep it
@@ -549,6 +556,9 @@ IRON_ROUND: dict[str, float] = {"mag_reference_hard_iron": False}
 PRIOR_ROUND: dict[str, float] = {"rope_known_rel_std": 0.05}
 # No re-start told the learnt length (`restart_told_std`), the filter before issue 11's start round.
 RESTART_ROUND: dict[str, float] = {"restart_told_max_s": 0.0}
+# A not-told swinging start's compass at its usual noise until the start is redone, the filter before 2026-12-07's
+# thirty-third session: `HookFilterSettings(**PENDING_COMPASS_ROUND)`.
+PENDING_COMPASS_ROUND: dict[str, float] = {"mag_noise_pending_uT": 0.0}
 # The tension offset's prior after a swinging start not told the rope length, before 2026-12-07's thirty-third
 # session: `HookFilterSettings(**ACC_OFFSET_ROUND)`.
 ACC_OFFSET_ROUND: dict[str, float] = {"moving_acc_offset_not_told_std_m_s2": 0.5}
@@ -2271,6 +2281,8 @@ class HookFilter(AttitudeFilter):
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings
         mag = s.mag_noise_uT if s.rope_length_known else max(s.mag_noise_uT, s.mag_noise_not_told_uT)
+        if self._replay is not None and s.mag_noise_pending_uT > 0.0:
+            mag = max(mag, s.mag_noise_pending_uT)
         sig = [s.gyro_noise_rad_s] * 3 + [s.acc_noise_m_s2] + [mag] * 3
         out: FloatArray = np.square(np.array(sig[:m]))
         return out
@@ -2807,6 +2819,7 @@ class HookFilter(AttitudeFilter):
         ref = b"" if self.mag_ref_uT is None else self.mag_ref_uT.tobytes()
         ref += b"" if self.mag_ref_frame is None else self.mag_ref_frame.tobytes()
         c = self._constants
+        ref += b"p" if self._replay is not None else b""  # a pending start's compass weighs less (`_r_diag`)
         if c is None or c[0] is not self.settings or c[1] != use_mag or c[2] != m or c[3] != ref:
             c = self._constants = (self.settings, use_mag, m, ref, self._params(use_mag), self._r_diag(m))
         return c[4], c[5]
