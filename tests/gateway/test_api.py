@@ -232,13 +232,21 @@ def test_paper_filter_variants_are_selectable_per_device(running: Callable[[], R
     assert got["effective"]["filter_name"] == name
 
 
-def test_a_hooks_dropped_compass_shows_in_its_device_detail(running: Callable[[], Running]) -> None:
+def test_a_hooks_dropped_compass_shows_in_its_device_detail(running: Callable[[], Running],
+                                                           monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
     """A hook whose compass misleads its swing (crane suite seed 2413, calibrated board, no rope length configured:
     its start is levelled as if plumb, so the compass reference is wrong; tests/fusion/test_hook_compass.py): the
     filter drops it (docs/fusion.md, "A compass the hook filter cannot trust") and `GET /api/devices/{id}` says so
-    and when."""
+    and when. The gateway's hook filters are made with the compass at its usual noise while the start is pending
+    (`PENDING_COMPASS_ROUND`): the default weighs it less then and this crane's compass no longer misleads."""
+    import functools
+
     from bench.hook_suite import simulate_seed
+    from gateway.fusion import hook_filter
     from tests.fusion.test_hook_compass import _packets
+
+    before = functools.partial(hook_filter.HookFilterSettings, **hook_filter.PENDING_COMPASS_ROUND)
+    monkeypatch.setattr(hook_filter, "HookFilterSettings", before)  # what `bank.make_filter` builds
 
     _, _, gyr, acc, mag = simulate_seed(2413, 120.0, "calibrated", True)  # the draws depend on the duration
     assert mag is not None
