@@ -454,8 +454,8 @@ class HookFilterSettings:
     # ... not told the rope length. 0.5 too before 2026-12-07's thirty-third session (`ACC_OFFSET_ROUND`): swinging at
     # start, the tension's shortfall (the prior 10 m's `l p'²` against a 2.3-m rope's) went into that offset and the
     # swing read 4-10× too large until the length came (tuning crane 29: 25-41° for 1.5 s, 2.13° RMSE over 2 min;
-    # 0.15° now, max 3.3°). Held near the window's, the offset anchors the swing's size. Not told, tuning 1-30
-    # (MPU-6050-class) 0.211 / 0.172 / 0.150 / 0.144 / 0.143° at 0.5 / 0.1 / 0.05 / 0.03 / 0.02. Told, the swing is
+    # 0.15°, max 3.3° with this alone). Held near the window's, the offset anchors the swing's size. Not told, tuning
+    # 1-30 (MPU-6050-class) 0.211 / 0.172 / 0.150 / 0.144 / 0.143° at 0.5 / 0.1 / 0.05 / 0.03 / 0.02. Told, the swing is
     # read right and a big one's offset is not the window's: 0.03 cost tuning crane 7 (6.7° at start) 0.049 -> 0.062°.
     moving_acc_offset_not_told_std_m_s2: float = 0.03
     rest_gyr_std_rad_s: float = 0.01  # `start()`: a warm-up window counts as rest below this gyro std per axis
@@ -2818,8 +2818,8 @@ class HookFilter(AttitudeFilter):
         the measurement width change (building them cost more Python time than a 10-sample packet's own)."""
         ref = b"" if self.mag_ref_uT is None else self.mag_ref_uT.tobytes()
         ref += b"" if self.mag_ref_frame is None else self.mag_ref_frame.tobytes()
-        c = self._constants
         ref += b"p" if self._replay is not None else b""  # a pending start's compass weighs less (`_r_diag`)
+        c = self._constants
         if c is None or c[0] is not self.settings or c[1] != use_mag or c[2] != m or c[3] != ref:
             c = self._constants = (self.settings, use_mag, m, ref, self._params(use_mag), self._r_diag(m))
         return c[4], c[5]

@@ -8,6 +8,7 @@ import pytest
 from bench.hook_suite import RATE_HZ, WARMUP_S, simulate_seed
 from gateway.fusion import hook
 from gateway.fusion.hook_filter import ACC_OFFSET_ROUND, HookFilter, HookFilterSettings
+from tests.fusion.test_hook_compass import _run
 
 Crane = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # true Θ (rad), gyr, acc, mag
 FIRST_S = 8.0  # the start and the re-start told the length found (`restart_told_std`: at 3.0 s here)
@@ -23,15 +24,12 @@ def crane_29() -> Crane:
 
 
 def _errors_deg(settings: HookFilterSettings, crane: Crane, calls: int) -> tuple[np.ndarray, HookFilter]:
-    """|Θ error| after the warm-up, the filter started as the gateway starts it and fed `calls` samples at a time;
-    and the filter."""
+    """|Θ error| after the warm-up, the filter started as the gateway starts it and fed `calls` samples at a time
+    (`test_hook_compass._run`); and the filter."""
     swing_rad, gyr, acc, mag = crane
     f = HookFilter(settings)
-    w = round(WARMUP_S * RATE_HZ)
-    f.start(gyr[:w], acc[:w], mag[:w], 1.0 / RATE_HZ)
-    q = np.concatenate([f.run(gyr[a:a + calls], acc[a:a + calls], mag[a:a + calls], 1.0 / RATE_HZ)
-                        for a in range(0, gyr.shape[0], calls)])  # fmt: skip
-    return np.abs(np.degrees(hook.swing_angle(q) - swing_rad))[w:], f
+    q = _run(f, gyr, acc, mag, calls)
+    return np.abs(np.degrees(hook.swing_angle(q) - swing_rad))[round(WARMUP_S * RATE_HZ):], f
 
 
 @pytest.mark.parametrize("calls", [800, 10, 7])
