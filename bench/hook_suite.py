@@ -32,6 +32,8 @@
     python -m bench.hook_suite --settings mag3              # compass noise and hard-iron prior 3 µT (MAG_NOISE_ROUND)
     python -m bench.hook_suite --settings offset05          # a swinging start's offset prior 0.5 (ACC_OFFSET_ROUND)
     python -m bench.hook_suite --settings pending0          # a pending start's compass at 3 µT (PENDING_COMPASS_ROUND)
+    python -m bench.hook_suite --settings tilt1             # the compass's full gain on the swing (TILT_GAIN_ROUND)
+    python -m bench.hook_suite --steel 2                    # the field disturbed by 2 µT RMS where the hook goes
     python -m bench.hook_suite --length-factor 2            # the rope length told 2x too long at t = 0
     python -m bench.hook_suite --told-m 10                  # told 10 m whatever the rope (the gateway's default)
     python -m bench.hook_suite --offset-told 0.005          # the IMU's offset from the rope told, measured to 5 mm
@@ -120,6 +122,7 @@ from gateway.fusion.hook_filter import (
     SOFT_IRON_ROUND,
     START_ROUND,
     STEADY_ROUND,
+    TILT_GAIN_ROUND,
     TIP_ROUND,
     TRACKING,
     TRIAL_JUMP,
@@ -131,6 +134,7 @@ from gateway.fusion.hook_filter import (
     HookFilterSettings,
 )
 from gateway.fusion.hook_mount import TiltedHookFilter, fit_hard_iron, fit_hook_mount, hook_axes_fit, tilt_matrix
+from gateway.fusion.quaternion import rotate_inverse
 
 RATE_HZ = 100.0  # the IMU's sampling rate unless `rate_hz` / `--rate-hz` says otherwise (the filters take dt from it)
 WARMUP_S = 0.5
@@ -407,7 +411,8 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
              sensor_draw: int = 0, told_m: float | None = None, lever_x_m: float | None = None,
              offset_told: float | str | None = None, mount_tilt_deg: float = 0.0, feed: str | None = None,
              feed_bearing_error_deg: float = 0.0, bias_told: float | None = None, iron_told: bool = False,
-             score_from_s: float = WARMUP_S) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+             score_from_s: float = WARMUP_S, steel_uT: float = 0.0
+             ) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
     """`{filter: {phase or "all": figures}}` for one seed, its IMU sampled at `rate_hz`; the filter is told
     `length_factor` × the true rope length at t = 0 (a wrongly configured length when not 1), or `told_m` whatever
     the rope (the gateway's 10 m for a hook whose length nobody configured); `sensor_draw`, `lever_x_m`,
@@ -419,9 +424,10 @@ def run_seed(seed: int, duration_s: float, imu: str, use_mag: bool, tell_length:
     `twist_bias`; with `offset_told="twist"`, in the axes its tilt turns to); None: not told. `iron_told`: the
     magnetometer's offset the twist fits taken out of its samples before fusion, as the device calibration
     `calibrate --hook-mount` prints does in the gateway (`twist_iron`), for VQF too (the same samples).
-    `score_from_s`: the figures over the samples from this time on (default: the warm-up's end)."""
+    `score_from_s`: the figures over the samples from this time on (default: the warm-up's end); `steel_uT`: see
+    `simulate_seed`."""
     case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, use_mag, family, rate_hz, suite_version,
-                                               sensor_draw, lever_x_m, mount_tilt_deg)  # fmt: skip
+                                               sensor_draw, lever_x_m, mount_tilt_deg, steel_uT)  # fmt: skip
     cal = twist_iron(case, imu, rate_hz, sensor_draw) if iron_told and mag is not None else None
     if cal is not None:
         acc, mag = DeviceCalibration.from_json(cal).apply(acc, mag)
@@ -532,16 +538,41 @@ def twist_iron(case: SuiteCase, imu: str, rate_hz: float = RATE_HZ, sensor_draw:
         return None
 
 
+STEEL_MODES = 4  # plane waves in `steel_field`
+STEEL_WAVELENGTH_M = (8.0, 30.0)
+
+
+def steel_field(seed: int, pos_m: np.ndarray, rms_uT: float) -> np.ndarray:
+    """A smooth disturbance (N, 3) of the earth's field (ENU, µT) at the hook's positions `pos_m` (N, 3): what the
+    steel of a crane, its load and the ground's rebar add to the field where the hook goes. `STEEL_MODES` plane
+    waves of 8-30 m wavelength, their directions, phases and field vectors drawn from the seed alone, `rms_uT` over
+    space. A trolley move, a slew or a hoist carries the hook through it; the filter's reference, read at the start,
+    does not know it."""
+    rng = np.random.default_rng(70_000 + seed)
+    out = np.zeros((pos_m.shape[0], 3))
+    for _ in range(STEEL_MODES):
+        k = rng.normal(size=3)
+        k *= 2.0 * math.pi / (np.linalg.norm(k) * rng.uniform(*STEEL_WAVELENGTH_M))
+        b = rng.normal(size=3)
+        b *= rms_uT * math.sqrt(2.0 / STEEL_MODES) / np.linalg.norm(b)
+        out += np.sin(pos_m @ k + rng.uniform(0.0, 2.0 * math.pi))[:, None] * b
+    return out
+
+
 def simulate_seed(seed: int, duration_s: float, imu: str, use_mag: bool, family: str = "crane",
                   rate_hz: float = RATE_HZ, suite_version: int = SUITE_VERSION, sensor_draw: int = 0,
-                  lever_x_m: float | None = None, mount_tilt_deg: float = 0.0
+                  lever_x_m: float | None = None, mount_tilt_deg: float = 0.0, steel_uT: float = 0.0
                   ) -> tuple[SuiteCase, HookTruth, np.ndarray, np.ndarray, np.ndarray | None]:  # fmt: skip
     """The crane of `seed`, its ground truth and the IMU's samples (gyr, acc, mag or None, at `rate_hz`) as the suite
     (`suite_version`, see `make_case`) draws them. `sensor_draw` > 0: the same crane and motion with another board
     of the same preset (its biases, scales and noise drawn afresh; 0: the suite's own board for the seed);
-    `lever_x_m`, `mount_tilt_deg`: see `make_case`."""
+    `lever_x_m`, `mount_tilt_deg`: see `make_case`; `steel_uT` > 0: the earth's field disturbed where the hook
+    goes by this much (RMS, `steel_field`)."""
     case = make_case(seed, duration_s, family, rate_hz, suite_version, lever_x_m, mount_tilt_deg)
     truth = simulate(case.physics, case.scenario)
+    if steel_uT > 0.0:
+        extra = rotate_inverse(truth.quat, steel_field(seed, truth.hook_pos_m, steel_uT))
+        truth = dataclasses.replace(truth, mag_uT=truth.mag_uT + extra)
     sensor = suite_board(seed, imu, sensor_draw)
     gyr, acc, mag = sensor.measure(*mounted(case, truth.gyr_rad_s, truth.acc_m_s2, truth.mag_uT), 1.0 / rate_hz)
     return case, truth, gyr, acc, mag if use_mag else None
@@ -587,7 +618,7 @@ PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JU
            "rest3": REST_ROUND, "iron05": IRON_PRIOR_ROUND, "soft0": SOFT_IRON_ROUND,
            "lever0": LEVER_ROUND, "zscale0": ZSCALE_ROUND,
            "mag3": MAG_NOISE_ROUND, "offset05": ACC_OFFSET_ROUND,
-           "pending0": PENDING_COMPASS_ROUND}
+           "pending0": PENDING_COMPASS_ROUND, "tilt1": TILT_GAIN_ROUND}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -669,7 +700,8 @@ def main(argv: list[str] | None = None) -> int:
                    "2026-12-07's thirty-second session), offset05 (ACC_OFFSET_ROUND: the tension offset's prior after "
                    "a swinging start 0.5 m/s², the filter before 2026-12-07's thirty-third session), pending0 "
                    "(PENDING_COMPASS_ROUND: a not-told swinging start's compass at its usual noise until the start is "
-                   "redone, the filter before the same session)")
+                   "redone, the filter before the same session), tilt1 (TILT_GAIN_ROUND: the compass's full Kalman "
+                   "gain on the swing, rope and boom tip, the filter before 2026-12-07's thirty-fourth session)")
     p.add_argument("--worst", action="store_true",
                    help=f"also say where each seed's worst Θ error is (start, during or after which event, free "
                    f"swing) and the share of its samples above {WORST_LIMIT_DEG:g}°, and count the seeds over it by "
@@ -696,6 +728,9 @@ def main(argv: list[str] | None = None) -> int:
                    "per axis, or 'twist': the offset and the tilt as `gateway.calibrate --hook-mount` fits them from "
                    "the seed's hook twisted by hand for 40 s (HookThresholds.imu_offset_m, imu_tilt_deg; default: "
                    "not told)")
+    p.add_argument("--steel", type=float, default=0.0, metavar="UT",
+                   help="the earth's field disturbed where the hook goes by UT µT RMS (steel of the crane, the load, "
+                   "rebar: `steel_field`, drawn per seed; default 0), for VQF too")
     p.add_argument("--iron-told", action="store_true",
                    help="take the magnetometer's offset that the twist by hand fits (the device calibration `calibrate "
                    "--hook-mount` prints) out of its samples before fusion, for VQF too")
@@ -731,6 +766,7 @@ def main(argv: list[str] | None = None) -> int:
         board += ", its offset told as a 40-s twist by hand fits it"
     board += "" if args.bias_told is None else f", its x/y bias told as the twist fits it ± {args.bias_told:g} m/s²"
     board += ", the magnetometer's offset from the twist taken out" if args.iron_told else ""
+    board += f", the field disturbed by steel {args.steel:g} µT RMS" if args.steel else ""
     board += "" if args.crane_feed is None else f", crane feed {args.crane_feed}"
     board += f" {args.crane_bearing_error:g}° off North" if args.crane_feed and args.crane_bearing_error else ""
     print(f"hook suite v{args.suite_version} ({args.family}), {'6D' if args.six_d else '9D'}, IMU {args.imu}{board}, "
@@ -748,7 +784,7 @@ def main(argv: list[str] | None = None) -> int:
                      args.tracking, parse_settings(args.settings), args.rate_hz, args.length_factor,
                      args.suite_version, args.sensor_draw, args.told_m, args.lever_x, args.offset_told,
                      args.mount_tilt, args.crane_feed, args.crane_bearing_error, args.bias_told, args.iron_told,
-                     args.score_from)
+                     args.score_from, args.steel)
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]

@@ -113,6 +113,9 @@ _HARD_IRON = slice(21, 24)  # the magnetometer's residual hard iron (µT, body),
 _SOFT_IRON = slice(24, 28)  # its soft iron, the parts that turn with the twist: (d, s, c_x, c_y) of
 # `S = [[d, s, 0], [s, -d, 0], [c_x, c_y, 0]]` (`(S_xx - S_yy) / 2`, `S_xy`, and the z axis's pick-up of the
 # horizontal field `S_zx`, `S_zy`), learnt as the hook twists
+# the states `mag_tilt_gain` scales the compass's gain on: swing, tension offset, accelerometer x/y bias and cross
+# terms, rope, boom tip, lever arm (not the twist, its rate, the gyro bias, the iron states or the z gyro's scale)
+_MAG_TILT_ROWS = np.array([0, 1, 2, 3, *range(_ACC_BIAS, _LEVER.stop)])
 _GYR_Z_SCALE = 28  # the z gyro's scale error (relative): a hook twisting fast turns by (1 + it) × what it reads
 N_INPUT = 10  # per-sample process input: accelerometer x/y, gyroscope (3), its backward difference (3), the
 # boom tip's known acceleration (2, the filter's frame; 0 unless a crane feed tells it: `run_with_length`'s `tip_enu`)
@@ -124,9 +127,9 @@ N_INPUT = 10  # per-sample process input: accelerometer x/y, gyroscope (3), its 
  _ROLLBACK, _TRIAL_WIN, _TRIAL_QUIET, _HOLD_TAU, _HOLD_MIN, _HOLD_GATE, _HOLD_MAX, _STOP_STD, _STOP_MIN,
  _STOP_LR, _STOP_RATIO, _L_OBS_SWING, _HOIST_GATE, _HOIST_MEAN_TAU, _HOIST_OPEN, _HOIST_HOLD, _HOIST_CRUISE,
  _HOIST_KEEP, _HOIST_STOP, _L_FORCE_TAU, _HOIST_BACK, _ONSET_GATE, _ROLLBACK_MAX, _ONSET_LR, _ONSET_QUIET,
- _LENGTH_HOLD_GATE, _BIAS_JUMP_GATE, _BIAS_JUMP_QUIET, _BIAS_JUMP_MIN, _LEVER_TENSION,
- _MAG_FRAME) = range(71)  # _MAG_FRAME: a flag, then the 3×3 `mag_ref_frame` by rows (71-79)
-N_PARAMS = 80
+ _LENGTH_HOLD_GATE, _BIAS_JUMP_GATE, _BIAS_JUMP_QUIET, _BIAS_JUMP_MIN, _LEVER_TENSION, _MAG_TILT_GAIN,
+ _MAG_FRAME) = range(72)  # _MAG_FRAME: a flag, then the 3×3 `mag_ref_frame` by rows (72-80)
+N_PARAMS = 81
 N_MONITOR = 22  # `ekf_step`'s innovation statistics, move and hoist timers, the tip estimate's, the swing energy's and
 # the force input's means
 
@@ -199,6 +202,16 @@ class HookFilterSettings:
     # replays every sample with the compass at its own noise. 0: as 3 µT (`PENDING_COMPASS_ROUND`, the filter before
     # 2026-12-07's thirty-third session).
     mag_noise_pending_uT: float = 10.0
+    mag_tilt_gain: float = 0.3  # the compass's Kalman gain on the swing, the tension offset, the accelerometer's
+    # x/y bias, the rope and the boom tip's acceleration × this (a consider-style update, its covariance exact by
+    # Joseph's form); on the twist, the gyro bias and its own iron states it keeps its full gain. At 1.5 µT of
+    # noise per sample the compass reads the tilt to 0.06° in 10 s (45 µT of field across it), as if its field
+    # were known to 0.05 µT; a field off by 0.5 µT (iron the filter has not learnt yet, the steel where the hook
+    # goes) then holds the swing 0.6° off: fresh crane 3197 (legacy board, told) held a stale boom-tip acceleration
+    # through a trolley's cruise that way (0.8° for 10 s) until the compass test dropped a sound compass (torsion
+    # 5.6°). While a not-told start is pending (`start_pending`) the full gain: the swing's model does not know its
+    # length yet and the compass already weighs 10 µT. 1: the filter before 2026-12-07's thirty-fourth session
+    # (`TILT_GAIN_ROUND`); docs/fusion.md, "The compass's pull on the swing".
     tip_accel_std_m_s2: float = 0.03  # boom-tip acceleration (trolley, slewing): stationary std of its state (and its
     # prior). 0.06 before issue 11's tenth round (`HOIST_ROUND`): between moves the tip state wandered by that much
     # (0.35° of swing centre), took part of every swing's error and absorbed a small step slowly enough to keep it
@@ -559,6 +572,9 @@ RESTART_ROUND: dict[str, float] = {"restart_told_max_s": 0.0}
 # A not-told swinging start's compass at its usual noise until the start is redone, the filter before 2026-12-07's
 # thirty-third session: `HookFilterSettings(**PENDING_COMPASS_ROUND)`.
 PENDING_COMPASS_ROUND: dict[str, float] = {"mag_noise_pending_uT": 0.0}
+# The compass at its full Kalman gain on the swing, offset, rope and boom tip (`mag_tilt_gain` 1), the filter before
+# 2026-12-07's thirty-fourth session: `HookFilterSettings(**TILT_GAIN_ROUND)`.
+TILT_GAIN_ROUND: dict[str, float] = {"mag_tilt_gain": 1.0}
 # The tension offset's prior after a swinging start not told the rope length, before 2026-12-07's thirty-third
 # session: `HookFilterSettings(**ACC_OFFSET_ROUND)`.
 ACC_OFFSET_ROUND: dict[str, float] = {"moving_acc_offset_not_told_std_m_s2": 0.5}
@@ -1816,6 +1832,10 @@ def _ekf_step_into(
         for j in range(m):
             if j != 3:
                 k[_LOG_L, j] = 0.0
+    if m == 7 and params[_MAG_TILT_GAIN] < 1.0:  # the compass's pull on the swing, offset, rope and tip, scaled
+        for j in (4, 5, 6):
+            for i in _MAG_TILT_ROWS:
+                k[i, j] *= params[_MAG_TILT_GAIN]
     if (moving or jump) and params[_MOVE_FREEZE] > 0.0:
         for j in range(k.shape[1]):
             for i in (14, 15, 16):
@@ -2269,6 +2289,7 @@ class HookFilter(AttitudeFilter):
                          s.move_rollback_max_s, s.jump_onset_lr, s.jump_onset_quiet_s,
                          s.jump_length_hold_gate, s.bias_jump_gate, s.bias_jump_quiet_s, s.bias_jump_min_rad_s,
                          1.0 if s.lever_in_tension else 0.0,
+                         1.0 if self._replay is not None else s.mag_tilt_gain,
                          *self._frame_params(flag)])  # fmt: skip
 
     def _frame_params(self, use_mag: float) -> list[float]:

@@ -81,7 +81,7 @@ def _start_error(seed: int, over: dict[str, float]) -> float:
 @pytest.mark.parametrize("seed", [2516, 2519])
 def test_a_long_rope_swinging_at_start_no_longer_takes_the_bias_for_swing(seed: int) -> None:
     """Cranes 2516 (11.9 m, 5.8° at start, twisting 11-44 °/s) and 2519 (23.9 m, 3.9°) with gyro biases of 2.4 and
-    2.2 °/s: their first 1.5 s read 1.26° and 1.35° off at most with the bias at 0 (the default); from the field's
-    turn (`FIELD_START`) 0.33° and 0.71°."""
-    assert _start_error(seed, {}) > 1.2
+    2.2 °/s: their first 1.5 s read 1.14° and 1.21° off at most with the bias at 0 (the default; 1.22° and 1.43° with
+    the compass's full gain on the swing, `TILT_GAIN_ROUND`); from the field's turn (`FIELD_START`) 0.31° and 0.71°."""
+    assert _start_error(seed, {}) > 1.0
     assert _start_error(seed, FIELD_START) < 0.75
