@@ -280,9 +280,12 @@ class FishWalkingController:
         reason: Reason = "cascade"
         if tension >= release and speed > 0.0:
             speed, reason = 0.0, "tension_hold"
-        if max(bend, raw_bend) >= s.theta2_rad and speed > -s.min_payout_m_s:  # raw too: a spike never reels in
+        at_cap = max(bend, raw_bend) >= s.theta2_rad  # raw too: a spike never reels in
+        if at_cap and speed > -s.min_payout_m_s:
             speed, reason = -s.min_payout_m_s, "theta2_cap"
-        return self._emit(t_s, speed, reason, force=reason == "theta2_cap")
+        # at θ2 no reversal dwell: the cascade's own pay-out there was held to a stop when it came within
+        # `reverse_dwell_s` of reeling in (found by hypothesis: bend 0.375 rad at 3 rad/s, then 1.0 rad)
+        return self._emit(t_s, speed, reason, force=at_cap)
 
     def _bend_rate(self, obs: Observation, bend: float) -> float:
         if obs.pitch_rate_rad_s is not None:
