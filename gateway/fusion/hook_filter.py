@@ -298,6 +298,10 @@ class HookFilterSettings:
     # held tracking it keeps the raw board's seeds level (1-10: 0.2623 without, 0.2597 with, 0.2569 before both)
     jump_rope_rel_std: float = 0.1  # a jump also opens the rope length by this (relative): a wrong configured length
     # trips the jump test as a move does, and the two explanations must compete (0.3: 0.49° on the 12 m/6 m case)
+    jump_rope_told_rel_std: float = 0.03  # ... this instead while the length is told (`rope_length_known`). 0.1
+    # before 2026-12-07's thirty-fifth session (`JUMP_ROPE_ROUND`): a trolley traverse's jump opened a right told
+    # length, which took the move's acceleration and ran 8.8 -> 5.6 m (the e2e crane 3197-121, error-free board:
+    # 0.335 -> 0.059°); a wrongly told length (2x) still gets out at 0.03 (tuning 0.221 -> 0.225°), not at 0 (0.228°)
     move_mean_tau_s: float = 0.5  # running mean of the whitened swing-rate innovation *vector*: a boom-tip
     # acceleration the model lacks biases the innovation one way for as long as it lasts, which its mean shows
     # √(2τ/dt) times more clearly than the squared innovation (the NIS test above stayed below its gate through
@@ -575,6 +579,9 @@ PENDING_COMPASS_ROUND: dict[str, float] = {"mag_noise_pending_uT": 0.0}
 # The compass at its full Kalman gain on the swing, offset, rope and boom tip (`mag_tilt_gain` 1), the filter before
 # 2026-12-07's thirty-fourth session: `HookFilterSettings(**TILT_GAIN_ROUND)`.
 TILT_GAIN_ROUND: dict[str, float] = {"mag_tilt_gain": 1.0}
+# A jump opening a told rope length by 10 % as a learnt one, the filter before 2026-12-07's thirty-fifth session:
+# `HookFilterSettings(**JUMP_ROPE_ROUND)`.
+JUMP_ROPE_ROUND: dict[str, float] = {"jump_rope_told_rel_std": 0.1}
 # The tension offset's prior after a swinging start not told the rope length, before 2026-12-07's thirty-third
 # session: `HookFilterSettings(**ACC_OFFSET_ROUND)`.
 ACC_OFFSET_ROUND: dict[str, float] = {"moving_acc_offset_not_told_std_m_s2": 0.5}
@@ -2276,7 +2283,7 @@ class HookFilter(AttitudeFilter):
                          1.0 if s.use_force_input else 0.0, s.max_rope_length_m, s.move_nis_tau_s, s.move_nis_gate,
                          s.tip_accel_move_std_m_s2, s.tip_accel_std_m_s2, s.tip_move_gate, s.move_freeze,
                          s.move_hold_s, s.tip_gate_move_std_m_s2, s.move_mean_tau_s,
-                         s.move_mean_gate, s.rope_rate_tau_s, s.jump_rope_rel_std, s.slow_mean_tau_s,
+                         s.move_mean_gate, s.rope_rate_tau_s, self._jump_rope_std(), s.slow_mean_tau_s,
                          s.slow_mean_gate, s.slow_open_std_m_s2, s.move_track_s, s.move_track_psd,
                          s.tip_turn_psd, s.move_track_cap_m_s2, s.tip_turn_cap_m_s2, s.jump_trial_gate,
                          s.jump_trial_lr, s.jump_trial_every_s, s.jump_trial_open_std_m_s2, s.move_rollback_s,
@@ -2291,6 +2298,11 @@ class HookFilter(AttitudeFilter):
                          1.0 if s.lever_in_tension else 0.0,
                          1.0 if self._replay is not None else s.mag_tilt_gain,
                          *self._frame_params(flag)])  # fmt: skip
+
+    def _jump_rope_std(self) -> float:
+        """The rope length's opening at a jump (relative): a told length is opened less than a learnt one."""
+        s = self.settings
+        return s.jump_rope_told_rel_std if s.rope_length_known else s.jump_rope_rel_std
 
     def _frame_params(self, use_mag: float) -> list[float]:
         """`_MAG_FRAME`'s flag and `mag_ref_frame` row by row (zeros when unused)."""
@@ -2812,7 +2824,8 @@ class HookFilter(AttitudeFilter):
                                              and seen_s < s.restart_told_max_s):  # fmt: skip
             return None
         self._replay = None
-        told_s = replace(s, rope_length_m=math.exp(float(self.x[_LOG_L])), rope_length_known=True)
+        told_s = replace(s, rope_length_m=math.exp(float(self.x[_LOG_L])), rope_length_known=True,
+                         jump_rope_told_rel_std=s.jump_rope_rel_std)  # a learnt length, opened as one at a jump
         told = HookFilter(told_s, use_mag=self.use_mag)
         told.start(*replay.window)
         r_gyr, r_acc, r_mag, r_tip = replay.samples_since()

@@ -24,6 +24,7 @@ from gateway.fusion.hook_filter import (
     FOURTH_ROUND,
     HOIST_ROUND,
     IRON_PRIOR_ROUND,
+    JUMP_ROPE_ROUND,
     MAG_NOISE_ROUND,
     N_STATE,
     PREVIOUS_DEFAULT,
@@ -479,13 +480,14 @@ def test_a_board_nobody_calibrated_has_its_hard_iron_learnt_with_the_wider_prior
     board's 0.5 µT with that noise (`IRON_PRIOR_ROUND`) it stays a heading error (9.98°). Crane 23 on a raw board
     (15 µT), its first 30 s: the 0.5-µT prior let the compass mislead the swing (Θ RMSE 1.32°, max 3.0°; 2.06° /
     5.9° when written; 0.85° with the compass's gain on the swing at 0.3, so the filter before is taken with its full
-    gain, `TILT_GAIN_ROUND`); the default 0.18° (3 µT then: 0.19°)."""
+    gain, `TILT_GAIN_ROUND`, and 1.00° with a jump opening the told length by 3 %, so with `JUMP_ROPE_ROUND` too);
+    the default 0.18° (3 µT then: 0.19°)."""
     from bench.hook_suite import hook_estimate, score, simulate_seed
 
     for seed, imu, duration_s in ((26, "legacy", 120.0), (23, "uncalibrated", 30.0)):
         case, truth, gyr, acc, mag = simulate_seed(seed, duration_s, imu, True)
         keep = truth.t_s > 0.5
-        before_over = {**MAG_NOISE_ROUND, **IRON_PRIOR_ROUND, **TILT_GAIN_ROUND}
+        before_over = {**MAG_NOISE_ROUND, **IRON_PRIOR_ROUND, **TILT_GAIN_ROUND, **JUMP_ROPE_ROUND}
         figures = [score(hook_estimate(gyr, acc, mag, case.physics.rope_length_m, overrides=over)[0], truth, keep,
                          True) for over in ({}, before_over)]  # fmt: skip
         if imu == "legacy":
@@ -672,11 +674,12 @@ def test_a_stops_re_run_from_a_zero_tip_estimate_helps_after_a_trolley_stop():
     0.180 vs 0.200° on two draws, the same on the other two), on the filter of its round (`ROPE_ROUND`, the rope
     settings before the hoist round, `PRIOR_ROUND`, the rope prior before the prior round, and `START_ROUND`, the start
     swing before the start-swing round: with it the re-run is not needed on these draws, 0.133° either way; with the
-    hoist round's defaults 0.182° vs 0.187°, 2.7 % lower)."""
+    hoist round's defaults 0.182° vs 0.187°, 2.7 % lower), and a jump opening the told length by 10 %
+    (`JUMP_ROPE_ROUND`: at 3 % the stop's jump no longer shortens the rope here, 0.145° with or without the re-run)."""
     on, off = [], []
     for seed in (41, 42, 43, 44):
         truth, gyr, acc = trolley_stop_data(seed)
-        its_round = ROPE_ROUND | HOIST_ROUND | PRIOR_ROUND | START_ROUND
+        its_round = ROPE_ROUND | HOIST_ROUND | PRIOR_ROUND | START_ROUND | JUMP_ROPE_ROUND
         on.append(swing_rmse_from(truth, gyr, acc, 3.0, its_round | {"jump_stop_std_m_s2": 0.2}, 21.0))
         off.append(swing_rmse_from(truth, gyr, acc, 3.0, its_round, 21.0))
     assert np.mean(off) > 1.05 * np.mean(on), (on, off)
