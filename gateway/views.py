@@ -65,7 +65,8 @@ def device_view(service: GatewayService, device_id: str, *, detail: bool) -> dic
         if isinstance(compass, str):  # the hook filter's magnetometer: tested, trusted or dropped (docs/fusion.md)
             out["compass"] = compass
             out["compass_dropped_s"] = getattr(filt, "compass_dropped_s", None)
-            out["start_redone_s"] = getattr(filt, "start_redone_s", None)  # not told its rope: started again told it
+            out["start_redone_s"] = getattr(filt, "start_redone_s", None)  # not told its rope, or told one the swing
+            # disagreed with: started again told the length it found
             out["start_pending"] = bool(getattr(filt, "start_pending", False))  # ... still may: its alarms wait
             # the warm-up's mean x/y force and whether the start took it for the accelerometer's offset (a hook held
             # aside at start would be misread as one up to `max_warmup_acc_bias_m_s2`: docs/fusion.md)

@@ -146,6 +146,7 @@ class _Replay:
 
     def __init__(self, window: tuple[FloatArray, FloatArray, FloatArray, float, bool]) -> None:
         self.window = window
+        self.told = False  # a told length the swing may disagree with (`told_doubt_sigmas`): redone only then
         self.chunks: list[tuple[FloatArray, FloatArray, FloatArray, FloatArray]] = []  # gyr, acc, mag, tip
         self.samples = 0
 
@@ -177,6 +178,19 @@ class HookFilterSettings:
     restart_told_std: float = 0.05
     restart_told_min_s: float = 2.0
     restart_told_max_s: float = 15.0
+    # Told a length and swinging at start, the start reads the swing on that length: told twice the true one, the
+    # swing's wrong period tripped the jump test within 0.5 s and the boom-tip state held 1-2 m/s² for the rest of the
+    # run (fresh crane 3440 told 2x: Θ 9.7-20.6° over 2 min). So the same re-start machinery tests, at each compass
+    # check from `restart_told_min_s` to `restart_told_max_s`, whether the swing disagrees with the told length: once
+    # the learnt ln-length is more than this many σ from the told one (σ² = the prior's variance less the estimate's,
+    # the spread of a posterior mean about a right prior) the start is redone told the learnt length; at
+    # `restart_told_max_s`, or once a hoist is seen (the length then changes for real: fresh cranes 3443 and 3473,
+    # told right, passed 3.5σ in a hoist at 9-15 s and their torsion went 0.49 -> 2.05° and 1.14 -> 9.82°), the
+    # samples kept are let go and nothing changes. 0: never. Told twice the length, the swinging cranes passed 3.5σ
+    # by 2-5 s (tuning 1-30 told 2x: 0.225 -> 0.196°; fresh 3434-3473 told 2x 0.788 -> 0.263°, crane 3440 20.6 ->
+    # 0.53°; told half, tuning 0.230 -> 0.181°); told the right length, every seed of tuning 1-30 and fresh
+    # 3434-3473 the same bit for bit.
+    told_doubt_sigmas: float = 3.5
     min_rope_length_m: float = 0.5
     max_rope_length_m: float = 200.0
     gravity_m_s2: float = 9.80665
@@ -2296,7 +2310,7 @@ class HookFilter(AttitudeFilter):
                          s.move_rollback_max_s, s.jump_onset_lr, s.jump_onset_quiet_s,
                          s.jump_length_hold_gate, s.bias_jump_gate, s.bias_jump_quiet_s, s.bias_jump_min_rad_s,
                          1.0 if s.lever_in_tension else 0.0,
-                         1.0 if self._replay is not None else s.mag_tilt_gain,
+                         1.0 if self._pending_not_told else s.mag_tilt_gain,
                          *self._frame_params(flag)])  # fmt: skip
 
     def _jump_rope_std(self) -> float:
@@ -2314,7 +2328,7 @@ class HookFilter(AttitudeFilter):
     def _r_diag(self, m: int) -> FloatArray:
         s = self.settings
         mag = s.mag_noise_uT if s.rope_length_known else max(s.mag_noise_uT, s.mag_noise_not_told_uT)
-        if self._replay is not None and s.mag_noise_pending_uT > 0.0:
+        if self._pending_not_told and s.mag_noise_pending_uT > 0.0:
             mag = max(mag, s.mag_noise_pending_uT)
         sig = [s.gyro_noise_rad_s] * 3 + [s.acc_noise_m_s2] + [mag] * 3
         out: FloatArray = np.square(np.array(sig[:m]))
@@ -2428,9 +2442,10 @@ class HookFilter(AttitudeFilter):
             self._twin_t_s = self._twin_evidence_s = 0.0
             self._to_check = max(1, round(COMPASS_CHECK_S / dt_s))
             self._start_twin()
-        if (swing is not None and not s.rope_length_known and s.restart_told_max_s > 0.0 and self.use_mag
-                and mag_uT is not None):  # fmt: skip
+        if (swing is not None and (not s.rope_length_known or s.told_doubt_sigmas > 0.0) and s.restart_told_max_s > 0.0
+                and self.use_mag and mag_uT is not None):  # fmt: skip
             self._replay = _Replay((gyr.copy(), acc.copy(), np.array(mag_uT, dtype=np.float64), dt_s, seed_bias))
+            self._replay.told = s.rope_length_known
 
     def _bias_from_field(self, gyr: FloatArray, mag_uT: FloatArray | None, dt_s: float) -> bool:
         """A hook not at rest at start: seed the x/y gyro bias and its covariance from the field's turn over the
@@ -2500,8 +2515,13 @@ class HookFilter(AttitudeFilter):
     def start_pending(self) -> bool:
         """True while the start may still be redone told the rope length the filter finds (not told its length and
         swinging at start, `restart_told_std`): until then the swing can read several degrees off (the start at
-        plumb on a length it does not know), so the hook's alarms wait for it (2-15 s of samples)."""
-        return self._replay is not None
+        plumb on a length it does not know), so the hook's alarms wait for it (2-15 s of samples). A told start that
+        may still be redone (`told_doubt_sigmas`) is not pending: it is redone only when the swing disagrees."""
+        return self._pending_not_told
+
+    @property
+    def _pending_not_told(self) -> bool:
+        return self._replay is not None and not self._replay.told
 
     @property
     def compass_trusted(self) -> bool:
@@ -2820,12 +2840,21 @@ class HookFilter(AttitudeFilter):
         if self._twin is not None and self._to_check > gyr.shape[0]:
             return None  # decided where the compass test runs (calls are cut there): the same whatever the packets
         seen_s = replay.samples * dt_s
-        if seen_s < s.restart_told_min_s or (math.sqrt(self.P[_LOG_L, _LOG_L]) >= s.restart_told_std
-                                             and seen_s < s.restart_told_max_s):  # fmt: skip
+        if replay.told:  # tested at every check from `restart_told_min_s`, let go at `restart_told_max_s`
+            if self._monitor[16] > 0.0:  # a hoist seen: the rope's length changed since the start, let go
+                self._replay = None
+                return None
+            if seen_s < s.restart_told_min_s or not self._length_doubted():
+                if seen_s >= s.restart_told_max_s:
+                    self._replay = None
+                return None
+        elif seen_s < s.restart_told_min_s or (math.sqrt(self.P[_LOG_L, _LOG_L]) >= s.restart_told_std
+                                               and seen_s < s.restart_told_max_s):  # fmt: skip
             return None
         self._replay = None
         told_s = replace(s, rope_length_m=math.exp(float(self.x[_LOG_L])), rope_length_known=True,
-                         jump_rope_told_rel_std=s.jump_rope_rel_std)  # a learnt length, opened as one at a jump
+                         jump_rope_told_rel_std=s.jump_rope_rel_std,  # a learnt length, opened as one at a jump
+                         told_doubt_sigmas=0.0)  # fmt: skip
         told = HookFilter(told_s, use_mag=self.use_mag)
         told.start(*replay.window)
         r_gyr, r_acc, r_mag, r_tip = replay.samples_since()
@@ -2840,6 +2869,14 @@ class HookFilter(AttitudeFilter):
         n = gyr.shape[0]
         return quats[-n:], lengths[-n:]
 
+    def _length_doubted(self) -> bool:
+        """True when the learnt ln-length is more than `told_doubt_sigmas` σ from the told one, σ² the prior's
+        variance less the estimate's (how far a posterior mean strays from a right prior)."""
+        s = self.settings
+        d = float(self.x[_LOG_L]) - math.log(max(s.rope_length_m, s.min_rope_length_m))
+        var = max(s.rope_known_rel_std**2 - float(self.P[_LOG_L, _LOG_L]), 1e-6)
+        return d * d > s.told_doubt_sigmas**2 * var
+
     _constants: tuple[HookFilterSettings, bool, int, bytes, FloatArray, FloatArray] | None = None
 
     @property
@@ -2852,7 +2889,7 @@ class HookFilter(AttitudeFilter):
         the measurement width change (building them cost more Python time than a 10-sample packet's own)."""
         ref = b"" if self.mag_ref_uT is None else self.mag_ref_uT.tobytes()
         ref += b"" if self.mag_ref_frame is None else self.mag_ref_frame.tobytes()
-        ref += b"p" if self._replay is not None else b""  # a pending start's compass weighs less (`_r_diag`)
+        ref += b"p" if self._pending_not_told else b""  # a pending start's compass weighs less (`_r_diag`)
         c = self._constants
         if c is None or c[0] is not self.settings or c[1] != use_mag or c[2] != m or c[3] != ref:
             c = self._constants = (self.settings, use_mag, m, ref, self._params(use_mag), self._r_diag(m))
