@@ -34,6 +34,7 @@
     python -m bench.hook_suite --settings pending0          # a pending start's compass at 3 µT (PENDING_COMPASS_ROUND)
     python -m bench.hook_suite --settings tilt1             # the compass's full gain on the swing (TILT_GAIN_ROUND)
     python -m bench.hook_suite --settings jump1             # a jump opens a told length by 10 % (JUMP_ROPE_ROUND)
+    python -m bench.hook_suite --settings doubt0            # a told length never doubted at start (DOUBT_ROUND)
     python -m bench.hook_suite --steel 2                    # the field disturbed by 2 µT RMS where the hook goes
     python -m bench.hook_suite --length-factor 2            # the rope length told 2x too long at t = 0
     python -m bench.hook_suite --told-m 10                  # told 10 m whatever the rope (the gateway's default)
@@ -104,6 +105,7 @@ from gateway.fusion.hook_filter import (
     ACC_OFFSET_ROUND,
     BIAS_ROUND,
     COMPASS_ROUND,
+    DOUBT_ROUND,
     DROP_ROUND,
     FOURTH_ROUND,
     HARD_IRON_REFERENCE,
@@ -621,7 +623,7 @@ PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JU
            "lever0": LEVER_ROUND, "zscale0": ZSCALE_ROUND,
            "mag3": MAG_NOISE_ROUND, "offset05": ACC_OFFSET_ROUND,
            "pending0": PENDING_COMPASS_ROUND, "tilt1": TILT_GAIN_ROUND,
-           "jump1": JUMP_ROPE_ROUND}
+           "jump1": JUMP_ROPE_ROUND, "doubt0": DOUBT_ROUND}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -706,7 +708,8 @@ def main(argv: list[str] | None = None) -> int:
                    "redone, the filter before the same session), tilt1 (TILT_GAIN_ROUND: the compass's full Kalman "
                    "gain on the swing, rope and boom tip, the filter before 2026-12-07's thirty-fourth session), jump1 "
                    "(JUMP_ROPE_ROUND: a jump opens a told rope length by 10 %, the filter before 2026-12-07's "
-                   "thirty-fifth session)")
+                   "thirty-fifth session), doubt0 (DOUBT_ROUND: a told length never doubted at a swinging start, the "
+                   "filter before the same session)")
     p.add_argument("--worst", action="store_true",
                    help=f"also say where each seed's worst Θ error is (start, during or after which event, free "
                    f"swing) and the share of its samples above {WORST_LIMIT_DEG:g}°, and count the seeds over it by "

@@ -186,10 +186,10 @@ class HookFilterSettings:
     # the spread of a posterior mean about a right prior) the start is redone told the learnt length; at
     # `restart_told_max_s`, or once a hoist is seen (the length then changes for real: fresh cranes 3443 and 3473,
     # told right, passed 3.5σ in a hoist at 9-15 s and their torsion went 0.49 -> 2.05° and 1.14 -> 9.82°), the
-    # samples kept are let go and nothing changes. 0: never. Told twice the length, the swinging cranes passed 3.5σ
-    # by 2-5 s (tuning 1-30 told 2x: 0.225 -> 0.196°; fresh 3434-3473 told 2x 0.788 -> 0.263°, crane 3440 20.6 ->
-    # 0.53°; told half, tuning 0.230 -> 0.181°); told the right length, every seed of tuning 1-30 and fresh
-    # 3434-3473 the same bit for bit.
+    # samples kept are let go and nothing changes. 0: never (`DOUBT_ROUND`). Told twice the length, the swinging
+    # cranes passed 3.5σ by 2-5 s (tuning 1-30 told 2x: 0.225 -> 0.196°; fresh 3434-3473 told 2x 0.788 -> 0.263°,
+    # crane 3440 20.6 -> 0.53°; told half, tuning 0.230 -> 0.181°); told the right length, every seed of tuning 1-30
+    # (three boards) and fresh 3434-3473 the same bit for bit.
     told_doubt_sigmas: float = 3.5
     min_rope_length_m: float = 0.5
     max_rope_length_m: float = 200.0
@@ -596,6 +596,9 @@ TILT_GAIN_ROUND: dict[str, float] = {"mag_tilt_gain": 1.0}
 # A jump opening a told rope length by 10 % as a learnt one, the filter before 2026-12-07's thirty-fifth session:
 # `HookFilterSettings(**JUMP_ROPE_ROUND)`.
 JUMP_ROPE_ROUND: dict[str, float] = {"jump_rope_told_rel_std": 0.1}
+# A told rope length never doubted at start, the filter before 2026-12-07's thirty-fifth session:
+# `HookFilterSettings(**DOUBT_ROUND)`.
+DOUBT_ROUND: dict[str, float] = {"told_doubt_sigmas": 0.0}
 # The tension offset's prior after a swinging start not told the rope length, before 2026-12-07's thirty-third
 # session: `HookFilterSettings(**ACC_OFFSET_ROUND)`.
 ACC_OFFSET_ROUND: dict[str, float] = {"moving_acc_offset_not_told_std_m_s2": 0.5}
