@@ -290,12 +290,14 @@ def device_args(case_name: str, duration_s: float, still_s: float, seed: int, tw
 def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenario: str = "free",
                 twist_torque_n_m: float | None = None, record_imu: bool = False,
                 link: common.LinkModel | None = None, tell_length: bool = True, crane_feed: bool = False,
-                imu: str | None = None, iron_told: bool = False) -> tuple[Recorder, int]:  # fmt: skip
+                imu: str | None = None, iron_told: bool = False, length_factor: float = 1.0
+                ) -> tuple[Recorder, int]:  # fmt: skip
     """Gateway + hook processes with an observer session; returns what it saw and the device's exit code
     (`tell_length` False: a suite crane's rope length is not set, the gateway's default; `crane_feed`: the device
     process also plays the crane, `rig/hook/{id}/crane`; `imu`: the board's preset instead of the scenario's;
     `iron_told`: a suite crane's compass calibration from its twist by hand (`twist_calibration`) is set over REST
-    first, as a user would after `calibrate --hook-mount`)."""
+    first, as a user would after `calibrate --hook-mount`; `length_factor`: the rope length set that many times the
+    true one, a user's wrong measure)."""
     import subprocess
 
     zport, hport = free_port(), free_port()
@@ -307,7 +309,7 @@ def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenar
         wait_http(hport)
         case = make_case(scenario, duration_s, still_s, seed, twist_torque_n_m, imu)
         if case.physics is not None and tell_length:  # a suite crane: its rope length, as a user would set it
-            set_rope_length(hport, work / "data", case.physics.rope_length_m)
+            set_rope_length(hport, work / "data", case.physics.rope_length_m * length_factor)
         if iron_told:
             cal = twist_calibration(scenario, duration_s, case.imu, seed)
             if cal is None:
@@ -364,7 +366,8 @@ def _put(http_port: int, data_dir: Path, path: str, body: dict[str, object]) -> 
 
 
 def run_in_process(case: Case, duration_s: float, seed: int, tell_length: bool = True, crane_feed: bool = False,
-                   calibration: dict[str, object] | None = None) -> tuple[Recorder, float, int]:  # fmt: skip
+                   calibration: dict[str, object] | None = None, length_factor: float = 1.0
+                   ) -> tuple[Recorder, float, int]:  # fmt: skip
     """The same packets straight into a `Pipeline` (no zenoh, no processes): recorder, pipeline CPU seconds, packets.
     `calibration`: the device's IMU calibration (`twist_calibration`), as `PUT /api/devices/{id}/settings` sets it."""
     from gateway.config import DeviceSettings, HookThresholds
@@ -374,7 +377,7 @@ def run_in_process(case: Case, duration_s: float, seed: int, tell_length: bool =
     hooks = HookFleet(fleet, case, seed, crane_feed)
     pipe = Pipeline()
     if case.physics is not None and tell_length:
-        pipe.set_defaults("hook", HookThresholds(rope_length_m=case.physics.rope_length_m))
+        pipe.set_defaults("hook", HookThresholds(rope_length_m=case.physics.rope_length_m * length_factor))
     if calibration is not None:
         pipe.set_device_settings(fleet.ids[0], "hook", DeviceSettings(calibration=calibration))
     pipe.warm_up()
@@ -427,6 +430,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--burst", type=float, default=2.0, help="with --loss: mean burst length, packets (default 2)")
     p.add_argument("--no-length", action="store_true",
                    help="suite:SEED: do not set the rope length (the gateway's default: the filter finds it)")
+    p.add_argument("--length-factor", type=float, default=1.0,
+                   help="a suite crane's rope length set over REST this many times the true one (default 1; 2: a "
+                   "user's measure twice too long)")
     p.add_argument("--crane-feed", action="store_true",
                    help="the device also plays the crane: its boom tip's acceleration on rig/hook/{id}/crane")
     p.add_argument("--imu", default=None, help="the board's error preset (calibrated, uncalibrated, legacy, ideal; "
@@ -447,7 +453,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.in_process and link is not None:
         p.error("--loss needs the zenoh run (the device process's link drops the packets)")
     if args.in_process:
-        rec, busy_s, n_packets = run_in_process(case, args.duration, args.seed, not args.no_length, args.crane_feed)
+        rec, busy_s, n_packets = run_in_process(case, args.duration, args.seed, not args.no_length, args.crane_feed,
+                                                length_factor=args.length_factor)  # fmt: skip
         code = 0
         print(f"pipeline cost: {busy_s / n_packets * 1e3:.3f} CPU ms per hook packet of {SAMPLES_PER_PACKET} samples "
               f"({n_packets * SAMPLES_PER_PACKET / busy_s:,.0f} samples per CPU-second, one hook, after warm_up())")
@@ -457,7 +464,7 @@ def main(argv: list[str] | None = None) -> int:
             rec, code = run_session(args.duration, args.still, args.seed, Path(tmp), args.scenario,
                                     args.twist_torque, record_imu=args.compare, link=link,
                                     tell_length=not args.no_length, crane_feed=args.crane_feed, imu=args.imu,
-                                    iron_told=args.iron_told)  # fmt: skip
+                                    iron_told=args.iron_told, length_factor=args.length_factor)  # fmt: skip
     if not args.compare:
         rec.samples = [s for s in rec.samples if not s[1].endswith("/imu")]
     r = analyse(rec, case.excitation_end_s, args.settle)

@@ -186,11 +186,12 @@ class HookFilterSettings:
     # the spread of a posterior mean about a right prior) the start is redone told the learnt length; at
     # `restart_told_max_s`, or once a hoist is seen (the length then changes for real: fresh cranes 3443 and 3473,
     # told right, passed 3.5σ in a hoist at 9-15 s and their torsion went 0.49 -> 2.05° and 1.14 -> 9.82°), the
-    # samples kept are let go and nothing changes. 0: never (`DOUBT_ROUND`). Told twice the length, the swinging
-    # cranes passed 3.5σ by 2-5 s (tuning 1-30 told 2x: 0.225 -> 0.196°; fresh 3434-3473 told 2x 0.788 -> 0.263°,
-    # crane 3440 20.6 -> 0.53°; told half, tuning 0.230 -> 0.181°); told the right length, every seed of tuning 1-30
-    # (three boards) and fresh 3434-3473 the same bit for bit.
-    told_doubt_sigmas: float = 3.5
+    # samples kept are let go and nothing changes. 0: never (`DOUBT_ROUND`). Told right, no swinging crane of tuning
+    # 1-30 and 3434-3473 (three boards) passed 1.0σ before a hoist; told twice the length, 3.0 caught two more than
+    # 3.5 (3466 1.57 -> 0.60°; 3434-3473 told 2x 0.263 -> 0.233°, told 10 m 0.394 -> 0.362°, tuning told half
+    # 0.181 -> 0.188°). Fresh 3504-3543, never used: told 2x 0.468 -> 0.393°, told half 0.353 -> 0.226°, told 10 m
+    # 0.882 -> 0.780°, told right the same bit for bit.
+    told_doubt_sigmas: float = 3.0
     min_rope_length_m: float = 0.5
     max_rope_length_m: float = 200.0
     gravity_m_s2: float = 9.80665
