@@ -56,8 +56,10 @@ its heading by that share of each twist).
   (`_check_compass`).
 * Rope length: the pendulum frequency (gravity's restoring term) and the response of the rope rate to a
   measured pull (`W / l`) make `l` observable whenever the hook swings or is pushed; a configured length is the
-  prior (`rope_length_known`), not a constraint. On a hook that hardly swings (below `rope_observe_swing_rad`)
-  the swing rate says nothing about `l`, so it does not correct `l` (nor the tension offset); the length then
+  prior (`rope_length_known`), not a constraint: a swinging start that disagrees with it is redone told the length
+  learnt (`told_doubt_sigmas`), as a start not told one is (`restart_told_std`). On a hook that hardly swings
+  (below `rope_observe_swing_rad`) the swing rate says nothing about `l`, so it does not correct `l` (nor the
+  tension offset); the length then
   follows only the hoist states (`_length_observability`). In the length's column of the process Jacobian the
   measured force enters through its running mean (`length_force_tau_s`): its sample noise there biased the length
   long (errors in variables).
