@@ -59,10 +59,9 @@ its heading by that share of each twist).
   prior (`rope_length_known`), not a constraint: a swinging start that disagrees with it is redone told the length
   learnt (`told_doubt_sigmas`), as a start not told one is (`restart_told_std`). On a hook that hardly swings
   (below `rope_observe_swing_rad`) the swing rate says nothing about `l`, so it does not correct `l` (nor the
-  tension offset); the length then
-  follows only the hoist states (`_length_observability`). In the length's column of the process Jacobian the
-  measured force enters through its running mean (`length_force_tau_s`): its sample noise there biased the length
-  long (errors in variables).
+  tension offset); the length then follows only the hoist states (`_length_observability`). In the length's
+  column of the process Jacobian the measured force enters through its running mean (`length_force_tau_s`): its
+  sample noise there biased the length long (errors in variables).
 * Hoisting: a hoist drive's ramp is a sustained vertical acceleration for 2-4 s. A running mean of the tension
   channel's whitened innovation tests for it (`_hoist_test`, `hoist_gate`); while a ramp is on, `l''` is held wide
   and the tension offset takes no corrections (a ramp's first samples, which the test needed, run again as a
@@ -146,9 +145,9 @@ class _Replay:
     """`HookFilter.start()`'s arguments and the samples run since (with their known tip acceleration, the filter's
     frame), for `HookFilter._replay_start`."""
 
-    def __init__(self, window: tuple[FloatArray, FloatArray, FloatArray, float, bool]) -> None:
+    def __init__(self, window: tuple[FloatArray, FloatArray, FloatArray, float, bool], told: bool) -> None:
         self.window = window
-        self.told = False  # a told length the swing may disagree with (`told_doubt_sigmas`): redone only then
+        self.told = told  # a told length the swing may disagree with (`told_doubt_sigmas`): redone only then
         self.chunks: list[tuple[FloatArray, FloatArray, FloatArray, FloatArray]] = []  # gyr, acc, mag, tip
         self.samples = 0
 
@@ -318,7 +317,8 @@ class HookFilterSettings:
     jump_rope_told_rel_std: float = 0.03  # ... this instead while the length is told (`rope_length_known`). 0.1
     # before 2026-12-07's thirty-fifth session (`JUMP_ROPE_ROUND`): a trolley traverse's jump opened a right told
     # length, which took the move's acceleration and ran 8.8 -> 5.6 m (the e2e crane 3197-121, error-free board:
-    # 0.335 -> 0.059°); a wrongly told length (2x) still gets out at 0.03 (tuning 0.221 -> 0.225°), not at 0 (0.228°)
+    # 0.334 -> 0.059°); a wrongly told length (2x) still gets out at 0.03 (tuning 0.221 -> 0.225°; at 0 0.228°,
+    # measured the session before)
     move_mean_tau_s: float = 0.5  # running mean of the whitened swing-rate innovation *vector*: a boom-tip
     # acceleration the model lacks biases the innovation one way for as long as it lasts, which its mean shows
     # √(2τ/dt) times more clearly than the squared innovation (the NIS test above stayed below its gate through
@@ -2450,8 +2450,8 @@ class HookFilter(AttitudeFilter):
             self._start_twin()
         if (swing is not None and (not s.rope_length_known or s.told_doubt_sigmas > 0.0) and s.restart_told_max_s > 0.0
                 and self.use_mag and mag_uT is not None):  # fmt: skip
-            self._replay = _Replay((gyr.copy(), acc.copy(), np.array(mag_uT, dtype=np.float64), dt_s, seed_bias))
-            self._replay.told = s.rope_length_known
+            self._replay = _Replay((gyr.copy(), acc.copy(), np.array(mag_uT, dtype=np.float64), dt_s, seed_bias),
+                                   told=s.rope_length_known)  # fmt: skip
 
     def _bias_from_field(self, gyr: FloatArray, mag_uT: FloatArray | None, dt_s: float) -> bool:
         """A hook not at rest at start: seed the x/y gyro bias and its covariance from the field's turn over the
@@ -2846,13 +2846,12 @@ class HookFilter(AttitudeFilter):
         if self._twin is not None and self._to_check > gyr.shape[0]:
             return None  # decided where the compass test runs (calls are cut there): the same whatever the packets
         seen_s = replay.samples * dt_s
-        if replay.told:  # tested at every check from `restart_told_min_s`, let go at `restart_told_max_s`
-            if self._monitor[16] > 0.0:  # a hoist seen: the rope's length changed since the start, let go
+        if replay.told:  # tested at every check from `restart_told_min_s`; let go at `restart_told_max_s`, or once a
+            # hoist was seen (`monitor[16]`, the hoist's time left: the rope's length changed since the start)
+            doubted = seen_s >= s.restart_told_min_s and self._length_doubted()
+            if self._monitor[16] > 0.0 or (not doubted and seen_s >= s.restart_told_max_s):
                 self._replay = None
-                return None
-            if seen_s < s.restart_told_min_s or not self._length_doubted():
-                if seen_s >= s.restart_told_max_s:
-                    self._replay = None
+            if self._replay is None or not doubted:
                 return None
         elif seen_s < s.restart_told_min_s or (math.sqrt(self.P[_LOG_L, _LOG_L]) >= s.restart_told_std
                                                and seen_s < s.restart_told_max_s):  # fmt: skip
