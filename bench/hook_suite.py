@@ -707,7 +707,7 @@ def main(argv: list[str] | None = None) -> int:
                    "(PENDING_COMPASS_ROUND: a not-told swinging start's compass at its usual noise until the start is "
                    "redone, the filter before the same session), tilt1 (TILT_GAIN_ROUND: the compass's full Kalman "
                    "gain on the swing, rope and boom tip, the filter before 2026-12-07's thirty-fourth session), jump1 "
-                   "(JUMP_ROPE_ROUND: a jump opens a told rope length by 10 %, the filter before 2026-12-07's "
+                   "(JUMP_ROPE_ROUND: a jump opens a told rope length by 10 %%, the filter before 2026-12-07's "
                    "thirty-fifth session), doubt0 (DOUBT_ROUND: a told length never doubted at a swinging start, the "
                    "filter before the same session)")
     p.add_argument("--worst", action="store_true",
