@@ -150,7 +150,7 @@ def examples() -> dict[str, tuple[str, WireModel]]:
                     height_m=1.84, at_rest=False, aided="rest")
     swing = Swing(device_id="hook-1", seq=7, t_us=80_000, wall_t_us=wall + 86_000, swing_angle_rad=0.087,
                   swing_direction_rad=1.2, torsion_rad=0.15, swing_phi_rad=0.6764, rest_heading_rad=0.5236,
-                  rope_length_m=9.87)  # the worked example of section 3.5
+                  rope_length_m=9.87, torsion_std_rad=0.0157)  # the worked example of section 3.5
     alarm = AlarmEvent(
         alarm_id="3f2b9c0d5e8a4b7c9d1e2f3a4b5c6d7e", device_id="rod-1", kind="rod", alarm="bite", state="raised",
         severity="major", t_us=10_425_000, wall_t_us=wall + 10_436_000, source_wall_us=wall + 10_425_000, value=-12.0,
@@ -268,6 +268,11 @@ MODEL_FIELD_NOTES: Final[dict[tuple[str, str], str]] = {
     ("Swing", "provisional"): "true while the hook filter may still start again told the rope length it finds (a "
                               "hook not told its rope, swinging at start: its first 2-15 s, section 3.5): the angles "
                               "can be several degrees off and the hook's alarms wait; absent otherwise",
+    ("Swing", "torsion_std_rad"): "1σ of `torsion_rad` as the hook filter holds it at the end of the packets it fused "
+                                  "with this one (its covariance and a 0.5° floor; tens of degrees while an "
+                                  "uncalibrated compass's hard iron is still being learnt), sent with a configured "
+                                  "rest heading only: torsion from the first fused heading is a twist since then, "
+                                  "which that covariance does not hold (section 3.5)",
     ("HookTruth", "swing_direction_rad"): "bearing of the hook's horizontal displacement, CCW from East (ENU)",
 }
 

@@ -589,6 +589,7 @@ class Swing(WireModel):
     rest_heading_rad: _Angle | None = None
     rope_length_m: Annotated[float, Field(gt=0.0, le=1000.0, allow_inf_nan=False)] | None = None
     provisional: bool | None = None
+    torsion_std_rad: NonNeg | None = None
 
 
 class Height(WireModel):

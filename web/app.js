@@ -390,7 +390,7 @@ function updateDevice(d, c) {
     const sw = c.swing;
     facts.push(["swing Θ", `${fmt(sw.swing_angle_rad * DEG)}°${sw.provisional ? " (provisional: rope length not known yet, alarms wait)" : ""}`],
       ["displacement bearing", `${fmt(sw.swing_direction_rad * DEG)}° CCW from E`],
-      ["torsion φ", `${fmt(sw.torsion_rad * DEG)}° CCW from above`]);
+      ["torsion φ", `${fmt(sw.torsion_rad * DEG)}°${sw.torsion_std_rad != null ? ` ± ${fmt(sw.torsion_std_rad * DEG)}° (1σ)` : ""} CCW from above`]);
     if (sw.swing_phi_rad != null) facts.push(["Φ (paper 001 eq. 7)", `${fmt(sw.swing_phi_rad * DEG)}° from ψ`]);
     if (sw.rope_length_m != null) facts.push(["rope (estimated)", `${fmt(sw.rope_length_m, 1)} m`]);
   }

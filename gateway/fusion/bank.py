@@ -305,6 +305,7 @@ class FusionBank:
             f.initialise(acc, mag)
             step = getattr(f, "update_block", None) or f.run
             step(np.zeros((n, 3)), np.tile(acc, (n, 1)), np.tile(mag, (n, 1)), 0.01)
+            getattr(f, "torsion_std_rad", None)  # the hook filter's torsion σ (`_heading_gradient`), compiled too
 
     def bias(self, dev: FusedDevice) -> FloatArray | None:
         """The device filter's gyro bias estimate (3,), rad/s, or None; a view, no copy (per-block use)."""

@@ -549,6 +549,10 @@ class HookFilterSettings:
     # turned to ENU by the start tilt and the twist (`level_mag_reference`); False: the body-frame mean (the filter
     # before the fifth round: a 5° swing put 4 µT of the vertical field into the heading, 11°, and the z gyro bias
     # went wrong with it for 10 s, tuning seed 17)
+    torsion_std_floor_deg: float = 0.5  # `torsion_std_rad`: added in quadrature to the covariance's 1σ, for what
+    # the states do not hold (the soft iron's z row, a boom tip's acceleration taken for swing, the field's errors).
+    # Chosen on tuning cranes 1-30 with four more MPU-6050-class boards each (`python -m bench.hook_torsion_std`):
+    # after the first 5 s the error fell within 2σ on 79 % of samples with none, 91 % with 0.3°, 95 % with 0.5°
 
     def with_imu_offset(self, imu_offset_m: tuple[float, float, float] | None) -> HookFilterSettings:
         """These settings told the IMU's measured offset from the rope axis (m, body x/y/z): the lever arm's prior
@@ -2180,6 +2184,33 @@ def _output_quaternion(x: FloatArray, params: FloatArray) -> tuple[float, float,
     return qw, qx, qy, qz
 
 
+# the states the output's heading about the rope moves with: α, and the iron through the output's North
+# (`_output_quaternion`; the swing-twist split leaves the swing out of it)
+_TORSION_STATES = np.array([_ALPHA, *range(_HARD_IRON.start, _SOFT_IRON.stop)])
+_HEADING_STEP = 1e-6  # `_heading_gradient`'s central difference (rad, µT, relative: all well inside their scales)
+
+
+@njit
+def _output_heading(x: FloatArray, params: FloatArray) -> float:
+    """The output's heading about the rope (`hook.twist_heading` of `_output_quaternion`), rad."""
+    qw, _, _, qz = _output_quaternion(x, params)
+    return 2.0 * math.atan2(qz, qw)
+
+
+@njit
+def _heading_gradient(x: FloatArray, params: FloatArray, states: NDArray[np.int64], out: FloatArray) -> None:
+    """∂(output heading)/∂x over `states` into `out`, by central differences of `_output_heading` (x is restored)."""
+    for j in range(states.shape[0]):
+        i = states[j]
+        xi = x[i]
+        x[i] = xi + _HEADING_STEP
+        up = _output_heading(x, params)
+        x[i] = xi - _HEADING_STEP
+        d = up - _output_heading(x, params)
+        x[i] = xi
+        out[j] = ((d + math.pi) % (2.0 * math.pi) - math.pi) / (2.0 * _HEADING_STEP)
+
+
 @njit
 def process_inputs(gyr: FloatArray, acc: FloatArray, gyr_prev: FloatArray, dt_s: float) -> FloatArray:
     """Process input rows (N, N_INPUT): accelerometer x/y, gyroscope, and its backward difference (`gyr_prev` is
@@ -3036,6 +3067,18 @@ class HookFilter(AttitudeFilter):
             east, north, _ = _field_held(self.x, params)
             return math.atan2(east, north)
         return 0.0
+
+    @property
+    def torsion_std_rad(self) -> float:
+        """1σ of the output's heading about the rope, so of the torsion from a configured rest heading: the
+        covariance of α and of the magnetometer's iron carried through the output's North (`_heading_gradient`),
+        with `torsion_std_floor_deg` added in quadrature for what the model leaves out. Large while an uncalibrated
+        compass's hard iron is still being learnt (tens of degrees in the first seconds); in 6D or after a compass
+        drop it grows with the gyroscope's z bias."""
+        grad = np.empty(_TORSION_STATES.shape[0])
+        _heading_gradient(self.x.copy(), self._output_params(), _TORSION_STATES, grad)
+        cov = self.P[np.ix_(_TORSION_STATES, _TORSION_STATES)]
+        return math.sqrt(max(0.0, float(grad @ cov @ grad)) + math.radians(self.settings.torsion_std_floor_deg) ** 2)
 
     @property
     def rope_length_m(self) -> float:

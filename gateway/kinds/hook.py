@@ -201,14 +201,19 @@ class HookKind(KindBase):
                     rope = getattr(dev.filt, "rope_length_m", None)  # the hook filter's estimate at the batch's end
                     rope = None if rope is None else float(rope)
                     heading = math.remainder(float(refs[i]), 2.0 * math.pi)
-                    fast = trusted and abs(heading) <= TWO_PI and (rope is None or 0.0 < rope <= 1000.0)
+                    # the torsion's 1σ: from a configured rest heading only (the covariance holds the heading, not
+                    # the twist since the first fused one); at the batch's end, as the rope
+                    std = getattr(dev.filt, "torsion_std_rad", None) if st.rest_heading_set_rad is not None else None
+                    std = None if std is None else float(std)
+                    fast = (trusted and abs(heading) <= TWO_PI and (rope is None or 0.0 < rope <= 1000.0)
+                            and (std is None or 0.0 <= std < math.inf))  # fmt: skip
                 for m in range(first, stop):
                     _, _, seq, t_us = picks[m]
                     fields = {"device_id": dev.device_id, "seq": seq, "t_us": t_us,
                               "wall_t_us": t_us + dev.wall_offset_us, "swing_angle_rad": angle[m],
                               "swing_direction_rad": bearing[m], "torsion_rad": twist[m], "swing_phi_rad": phi[m],
                               "rest_heading_rad": heading, "rope_length_m": rope,
-                              "provisional": True if held[i] else None}  # fmt: skip
+                              "provisional": True if held[i] else None, "torsion_std_rad": std}  # fmt: skip
                     st.swing = (schemas.prevalidated(schemas.Swing, {"v": 1, **fields}, _SWING_SET) if fast
                                 else schemas.Swing(**fields))  # fmt: skip
                     out.swings.append(st.swing)

@@ -127,6 +127,31 @@ def test_hook_cards_show_the_angles_the_rope_and_the_crane_feed(hooks: System, p
     assert not page.errors(), page.errors()
 
 
+def test_a_configured_rest_heading_brings_the_torsion_sigma_to_the_card(hooks: System, page: Browser) -> None:
+    """With `rest_heading_deg` set over REST the hook's Swing carries `torsion_std_rad` (docs/protocol.md 3.5) and
+    the card shows it as "± σ° (1σ)" after the torsion; the other hook, torsion from its first fused heading, has
+    neither."""
+    import httpx
+
+    p = page.page
+    p.goto(hooks.base + "/")
+    p.get_by_test_id(f"fleet-{FED}").wait_for(timeout=15_000)
+    token = (hooks.data_dir / "api_token").read_text().strip()
+    r = httpx.put(f"{hooks.base}/api/devices/{FED}/settings", headers={"Authorization": f"Bearer {token}"},
+                  json={"kind": "hook", "thresholds": {"rest_heading_deg": 20.0}}, timeout=10.0)  # fmt: skip
+    assert r.status_code == 200, r.text
+    wait_js(p, f"""[...document.querySelectorAll('[data-testid="facts-{FED}"] [data-field="torsion φ"] b')]
+            .some((b) => b.textContent.includes('(1σ)'))""", timeout=30_000)  # fmt: skip
+    sigma_deg = float(re.findall(r"± (\d+(?:\.\d+)?)°", _facts(page, FED)["torsion φ"])[0])
+    swing = get_json(hooks.base + f"/api/devices/{FED}")["swing"]
+    assert swing["rest_heading_rad"] == pytest.approx(math.radians(20.0))
+    # the gateway's σ: at least the 0.5° floor, and the card's within what the σ moves between frame and read
+    assert 0.5 <= swing["torsion_std_rad"] * DEG < 90.0 and 0.5 <= sigma_deg < 90.0, (swing, sigma_deg)
+    assert "±" not in _facts(page, UNFED)["torsion φ"]
+    assert get_json(hooks.base + f"/api/devices/{UNFED}")["swing"].get("torsion_std_rad") is None
+    assert not page.errors(), page.errors()
+
+
 def test_a_calibration_set_over_rest_shows_on_the_hook_card(hooks: System, page: Browser) -> None:
     """The compass calibration `calibrate --hook-mount` prints, set with `PUT /api/devices/{id}/settings`: the card
     says "IMU calibration: applied" and REST's card `imu_calibration` true; the other hook's says "none". (Its fusion
