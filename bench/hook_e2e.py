@@ -25,7 +25,9 @@ Scenarios (the hook hangs still for `--still` s first; the gateway warms up on t
 Windows, in scenario time (device time since its first sample): *free swing* from the end of the excitation plus
 `--settle` s (default 12 s, as bench.hook_accuracy) to the end; *all* from 1 s after the first swing message.
 Torsion is compared as the gateway reports it: relative to the hook's heading at the first fused sample (unless a
-rest heading is configured), against the truth's twist relative to its value at that sample.
+rest heading is configured), against the truth's twist relative to its value at that sample. `--rest-heading`
+(suite:SEED): the crane's true rest heading is set over REST with its rope length, so the torsion is compared as it
+is, and each Swing's `torsion_std_rad` is scored too: the shares of torsion errors within 1, 2 and 3 of its σ.
 
 With `--compare` the received IMU packets are also run through VQF (offline, same samples, same geometry
 functions, same windows) for comparison. `--in-process` skips zenoh and both processes (same packets straight
@@ -213,10 +215,14 @@ def score(est: np.ndarray[Any, Any], ref: np.ndarray[Any, Any], t_s: np.ndarray[
     }  # fmt: skip
 
 
-def analyse(rec: Recorder, excitation_end_s: float, settle_s: float = 12.0) -> dict[str, dict[str, float]]:
+def analyse(rec: Recorder, excitation_end_s: float, settle_s: float = 12.0, rest_heading: bool = False
+            ) -> dict[str, dict[str, float]]:  # fmt: skip
     """`{"free": ..., "all": ...}` RMSEs (see `score`) over matched (seq) swing / truth pairs; `free` from
     `excitation_end_s + settle_s`, `all` from 1 s after the first swing message; plus `"vqf_free"`/`"vqf_all"`
-    when the recorder also holds the IMU packets."""
+    when the recorder also holds the IMU packets. `rest_heading`: the gateway was told the simulator's rest heading
+    (`--rest-heading`), so its torsion is compared with the true one as it is (not from the first sample's), and the
+    Swings' `torsion_std_rad` is scored too: the shares of torsion errors within 1, 2 and 3 σ
+    (`torsion_within_{k}sigma`, of `n_sigma` Swings that carried one)."""
     truth = {p.seq: p for _, p in rec.decoded("/truth") if isinstance(p, schemas.HookTruth)}
     swings = [s for _, s in rec.decoded("/swing")]
     pairs = [(s, truth[s["seq"]]) for s in swings if s["seq"] in truth]
@@ -225,7 +231,8 @@ def analyse(rec: Recorder, excitation_end_s: float, settle_s: float = 12.0) -> d
     est = np.array([[s["swing_angle_rad"], s["swing_direction_rad"], s["torsion_rad"]] for s, _ in pairs])
     ref = np.array([[t.swing_angle_rad[-1], t.swing_direction_rad[-1], t.torsion_rad[-1]] for _, t in pairs])
     t_s = np.array([_scenario_t_s(t) for _, t in pairs])
-    tors0 = truth[0].torsion_rad[0]  # the gateway's torsion reference: the first fused sample (seq 0, sample 0)
+    # the gateway's torsion reference: the first fused sample (seq 0, sample 0), or the configured true rest heading
+    tors0 = 0.0 if rest_heading else truth[0].torsion_rad[0]
     # The gateway's reference heading (twist heading minus torsion, from the attitude of the same packet) against the
     # true heading at the first sample: an absolute heading error (e.g. magnetometer hard iron) shifts every bearing.
     att = {a["seq"]: a for _, a in rec.decoded("/attitude")}
@@ -234,9 +241,19 @@ def analyse(rec: Recorder, excitation_end_s: float, settle_s: float = 12.0) -> d
             for k in att if k in swing_by_seq]  # fmt: skip
     true_ref = float(hook_geo.twist_heading(np.array(truth[0].quat_wxyz[0])))
     offset = float(np.angle(np.mean(np.exp(1j * np.array(refs))))) - true_ref if refs else math.nan
+    if rest_heading:  # the reference is the true rest heading, told
+        offset = 0.0
     start_free, start_all = excitation_end_s + settle_s, t_s[0] + 1.0
     out = {"free": score(est, ref, t_s, start_free, tors0, offset),
            "all": score(est, ref, t_s, start_all, tors0, offset)}
+    if rest_heading:
+        std = np.array([math.nan if s.get("torsion_std_rad") is None else s["torsion_std_rad"] for s, _ in pairs])
+        for key, start in (("free", start_free), ("all", start_all)):
+            sel = (t_s >= start) & np.isfinite(std)
+            z = np.abs(np.remainder(est[sel, 2] - ref[sel, 2] + math.pi, 2 * math.pi) - math.pi) / std[sel]
+            out[key]["n_sigma"] = float(sel.sum())
+            for k in (1, 2, 3):
+                out[key][f"torsion_within_{k}sigma"] = float(np.mean(z <= k)) if sel.any() else math.nan
     imu = {p.seq: p for _, p in rec.decoded("/imu") if isinstance(p, schemas.ImuPacket)}
     if imu and _vqf_available():
         seqs = sorted(imu)
@@ -290,14 +307,15 @@ def device_args(case_name: str, duration_s: float, still_s: float, seed: int, tw
 def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenario: str = "free",
                 twist_torque_n_m: float | None = None, record_imu: bool = False,
                 link: common.LinkModel | None = None, tell_length: bool = True, crane_feed: bool = False,
-                imu: str | None = None, iron_told: bool = False, length_factor: float = 1.0
-                ) -> tuple[Recorder, int]:  # fmt: skip
+                imu: str | None = None, iron_told: bool = False, length_factor: float = 1.0,
+                rest_heading: bool = False) -> tuple[Recorder, int]:  # fmt: skip
     """Gateway + hook processes with an observer session; returns what it saw and the device's exit code
     (`tell_length` False: a suite crane's rope length is not set, the gateway's default; `crane_feed`: the device
     process also plays the crane, `rig/hook/{id}/crane`; `imu`: the board's preset instead of the scenario's;
     `iron_told`: a suite crane's compass calibration from its twist by hand (`twist_calibration`) is set over REST
     first, as a user would after `calibrate --hook-mount`; `length_factor`: the rope length set that many times the
-    true one, a user's wrong measure)."""
+    true one, a user's wrong measure; `rest_heading`: a suite crane's true rest heading set with it, as a user who
+    measured it would)."""
     import subprocess
 
     zport, hport = free_port(), free_port()
@@ -309,7 +327,8 @@ def run_session(duration_s: float, still_s: float, seed: int, work: Path, scenar
         wait_http(hport)
         case = make_case(scenario, duration_s, still_s, seed, twist_torque_n_m, imu)
         if case.physics is not None and tell_length:  # a suite crane: its rope length, as a user would set it
-            set_rope_length(hport, work / "data", case.physics.rope_length_m * length_factor)
+            set_rope_length(hport, work / "data", case.physics.rope_length_m * length_factor,
+                            math.degrees(case.physics.rest_heading_rad) if rest_heading else None)  # fmt: skip
         if iron_told:
             cal = twist_calibration(scenario, duration_s, case.imu, seed)
             if cal is None:
@@ -350,9 +369,13 @@ def put_device_settings(http_port: int, data_dir: Path, device_id: str, body: di
     _put(http_port, data_dir, f"/api/devices/{device_id}/settings", body)
 
 
-def set_rope_length(http_port: int, data_dir: Path, rope_length_m: float) -> None:
-    """`PUT /api/thresholds/hook` with the rope length."""
-    _put(http_port, data_dir, "/api/thresholds/hook", {"rope_length_m": rope_length_m})
+def set_rope_length(http_port: int, data_dir: Path, rope_length_m: float, rest_heading_deg: float | None = None
+                    ) -> None:  # fmt: skip
+    """`PUT /api/thresholds/hook` with the rope length (and the rest heading, when given)."""
+    body: dict[str, object] = {"rope_length_m": rope_length_m}
+    if rest_heading_deg is not None:
+        body["rest_heading_deg"] = rest_heading_deg
+    _put(http_port, data_dir, "/api/thresholds/hook", body)
 
 
 def _put(http_port: int, data_dir: Path, path: str, body: dict[str, object]) -> None:
@@ -366,10 +389,11 @@ def _put(http_port: int, data_dir: Path, path: str, body: dict[str, object]) -> 
 
 
 def run_in_process(case: Case, duration_s: float, seed: int, tell_length: bool = True, crane_feed: bool = False,
-                   calibration: dict[str, object] | None = None, length_factor: float = 1.0
-                   ) -> tuple[Recorder, float, int]:  # fmt: skip
+                   calibration: dict[str, object] | None = None, length_factor: float = 1.0,
+                   rest_heading: bool = False) -> tuple[Recorder, float, int]:  # fmt: skip
     """The same packets straight into a `Pipeline` (no zenoh, no processes): recorder, pipeline CPU seconds, packets.
-    `calibration`: the device's IMU calibration (`twist_calibration`), as `PUT /api/devices/{id}/settings` sets it."""
+    `calibration`: the device's IMU calibration (`twist_calibration`), as `PUT /api/devices/{id}/settings` sets it;
+    `rest_heading`: a suite crane's true rest heading configured with its rope length (`run_session`)."""
     from gateway.config import DeviceSettings, HookThresholds
     from gateway.pipeline import Pipeline
 
@@ -377,7 +401,9 @@ def run_in_process(case: Case, duration_s: float, seed: int, tell_length: bool =
     hooks = HookFleet(fleet, case, seed, crane_feed)
     pipe = Pipeline()
     if case.physics is not None and tell_length:
-        pipe.set_defaults("hook", HookThresholds(rope_length_m=case.physics.rope_length_m * length_factor))
+        rest = math.degrees(case.physics.rest_heading_rad) if rest_heading else None
+        pipe.set_defaults("hook", HookThresholds(rope_length_m=case.physics.rope_length_m * length_factor,
+                                                 rest_heading_deg=rest))  # fmt: skip
     if calibration is not None:
         pipe.set_device_settings(fleet.ids[0], "hook", DeviceSettings(calibration=calibration))
     pipe.warm_up()
@@ -407,6 +433,10 @@ def _print(label: str, r: dict[str, float]) -> None:
           f"{r['direction_rmse_deg']:6.2f}° (rel. to start heading {r['direction_rel_rmse_deg']:5.2f}°, heading off "
           f"by {r['heading_offset_deg']:.1f}°)  torsion RMSE {r['torsion_rmse_deg']:6.2f}° (max "
           f"{r['torsion_max_deg']:.0f}°)")
+    if r.get("n_sigma"):
+        print(f"{'':<34} torsion within 1σ / 2σ / 3σ of its torsion_std_rad: {100 * r['torsion_within_1sigma']:.1f} / "
+              f"{100 * r['torsion_within_2sigma']:.1f} / {100 * r['torsion_within_3sigma']:.1f} % of "
+              f"{r['n_sigma']:.0f} Swings (Gaussian: 68 / 95 / 99.7 %)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -440,12 +470,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iron-told", action="store_true",
                    help="suite:SEED: set the compass calibration a twist by hand of that hook gives (`calibrate "
                    "--hook-mount`) over REST first")
+    p.add_argument("--rest-heading", action="store_true",
+                   help="suite:SEED: set the crane's true rest heading with its rope length over REST, so the torsion "
+                   "is absolute and the Swings carry its 1σ (`torsion_std_rad`), which is scored too")
     p.add_argument("--device", action="store_true", help="(internal) run the hook device process")
     p.add_argument("--port", type=int, default=7447, help="(with --device) gateway zenoh port")
     args = p.parse_args(argv)
     case = make_case(args.scenario, args.duration, args.still, args.seed, args.twist_torque, args.imu)
     if args.iron_told and (case.physics is None or args.in_process):
         p.error("--iron-told needs a suite:SEED scenario through zenoh")
+    if args.rest_heading and (case.physics is None or args.no_length):
+        p.error("--rest-heading needs a suite:SEED scenario whose rope length is set")
     link = common.LinkModel(args.loss, args.burst) if args.loss > 0 else None
     if args.device:
         run_device(args.port, case, args.duration, args.seed, link, args.crane_feed)
@@ -454,7 +489,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--loss needs the zenoh run (the device process's link drops the packets)")
     if args.in_process:
         rec, busy_s, n_packets = run_in_process(case, args.duration, args.seed, not args.no_length, args.crane_feed,
-                                                length_factor=args.length_factor)  # fmt: skip
+                                                length_factor=args.length_factor,
+                                                rest_heading=args.rest_heading)  # fmt: skip
         code = 0
         print(f"pipeline cost: {busy_s / n_packets * 1e3:.3f} CPU ms per hook packet of {SAMPLES_PER_PACKET} samples "
               f"({n_packets * SAMPLES_PER_PACKET / busy_s:,.0f} samples per CPU-second, one hook, after warm_up())")
@@ -464,10 +500,11 @@ def main(argv: list[str] | None = None) -> int:
             rec, code = run_session(args.duration, args.still, args.seed, Path(tmp), args.scenario,
                                     args.twist_torque, record_imu=args.compare, link=link,
                                     tell_length=not args.no_length, crane_feed=args.crane_feed, imu=args.imu,
-                                    iron_told=args.iron_told, length_factor=args.length_factor)  # fmt: skip
+                                    iron_told=args.iron_told, length_factor=args.length_factor,
+                                    rest_heading=args.rest_heading)  # fmt: skip
     if not args.compare:
         rec.samples = [s for s in rec.samples if not s[1].endswith("/imu")]
-    r = analyse(rec, case.excitation_end_s, args.settle)
+    r = analyse(rec, case.excitation_end_s, args.settle, args.rest_heading)
     start = case.excitation_end_s + args.settle
     print(f"scenario {args.scenario}, seed {args.seed}, {args.duration:g} s, device exit code {code}; excitation ends "
           f"at {case.excitation_end_s:g} s; free-swing window {start:g}-{args.duration:g} s")

@@ -2307,6 +2307,7 @@ class HookFilter(AttitudeFilter):
         self.start_force_m_s2: tuple[float, float] | None = None  # `start()`: the warm-up's mean x/y force (body)
         self.start_force_is_offset = False  # ... taken for the accelerometer's offset (False: for a real force)
         self._north_kept_rad: float | None = None  # β at a drop that kept the heading (`north_turn_rad`)
+        self._heading_doubt_rad = 0.0  # at a drop, how far the twin's heading and the one published disagreed
         self._samples_run = 0  # samples through `run_with_length` / `run_bridged` (where a crane feed's β is read)
         hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
         self._q_psd = np.array(
@@ -2623,9 +2624,13 @@ class HookFilter(AttitudeFilter):
             if 0.0 < s.compass_check_evidence_s <= self._twin_evidence_s:
                 self._twin = None  # trusted through enough swinging: the compass is kept, the twin's cost ends
             return out
+        # the twin's heading less the one published (both about the vertical): a compass that misled the twist may
+        # have misled the heading too, and from here on nothing tells which was right (`torsion_std_rad`)
+        disagree_rad = float(hook_geo.torsion(twin.quaternion, hook_geo.twist_heading(self.quaternion)))
+        self._heading_doubt_rad = abs(disagree_rad)
         turn_rad = 0.0
-        if s.compass_drop_keeps_heading:  # the twin's heading less the one published (both about the vertical)
-            turn_rad = float(hook_geo.torsion(twin.quaternion, hook_geo.twist_heading(self.quaternion)))
+        if s.compass_drop_keeps_heading:
+            turn_rad = disagree_rad
             self._north_kept_rad = self.north_turn_rad  # the output's North stays where it was
         self.x, self.P, self._monitor, self._history = twin.x, twin.P, twin._monitor, twin._history
         self._gyr_prev, self.use_mag, self._twin, self.compass_dropped_s = twin._gyr_prev, False, None, now
@@ -3074,11 +3079,14 @@ class HookFilter(AttitudeFilter):
         covariance of α and of the magnetometer's iron carried through the output's North (`_heading_gradient`),
         with `torsion_std_floor_deg` added in quadrature for what the model leaves out. Large while an uncalibrated
         compass's hard iron is still being learnt (tens of degrees in the first seconds); in 6D or after a compass
-        drop it grows with the gyroscope's z bias."""
+        drop it grows with the gyroscope's z bias. After a drop it also holds, in quadrature, how far the heading
+        published then and the twin's (the gyroscope's since the start) disagreed: the compass misled the swing, so
+        its heading may be wrong too, and from then on nothing tells which one was right."""
         grad = np.empty(_TORSION_STATES.shape[0])
         _heading_gradient(self.x.copy(), self._output_params(), _TORSION_STATES, grad)
         cov = self.P[np.ix_(_TORSION_STATES, _TORSION_STATES)]
-        return math.sqrt(max(0.0, float(grad @ cov @ grad)) + math.radians(self.settings.torsion_std_floor_deg) ** 2)
+        var = float(grad @ cov @ grad) + self._heading_doubt_rad**2
+        return math.sqrt(max(0.0, var) + math.radians(self.settings.torsion_std_floor_deg) ** 2)
 
     @property
     def rope_length_m(self) -> float:
