@@ -44,6 +44,7 @@
     python -m bench.hook_suite --mount-tilt 2               # the IMU tilted 2° on the hook (a twist fits it too)
     python -m bench.hook_suite --crane-feed drive           # the crane tells its boom tip's acceleration (drive refs)
     python -m bench.hook_suite --sensor-draw 1              # the same cranes with another board of the preset
+    python -m bench.hook_suite --sensor-draw 0-3            # each crane on four boards: over all runs and by board
     python -m bench.hook_suite --suite-version 1            # the cranes before the hoist fix (earlier figures)
 
 Each seed draws a crane (issue 11): rope 2-30 m (log-uniform), hook + load 0.5-20 t, torsion stiffness and
@@ -717,9 +718,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--paper-ekf", action="store_true", help="also run paper 001's EKF as published (ekf001)")
     p.add_argument("--rate-hz", type=float, default=RATE_HZ,
                    help="IMU sampling rate (default 100; the suite was tuned at 100 only)")
-    p.add_argument("--sensor-draw", type=int, default=0,
+    p.add_argument("--sensor-draw", default="0",
                    help="another board for the same cranes: its errors and noise drawn afresh (default 0: the "
-                   "suite's own; figures tuned on draw 0 say nothing of another draw's)")
+                   "suite's own; figures tuned on draw 0 say nothing of another draw's); several, e.g. 0-3: each "
+                   "crane on each board, summed over all and by board")
     p.add_argument("--length-factor", type=float, default=1.0,
                    help="tell the filter this times the true rope length (a wrongly configured length; default 1)")
     p.add_argument("--told-m", type=float, metavar="L",
@@ -758,10 +760,10 @@ def main(argv: list[str] | None = None) -> int:
                    f"{WARMUP_S:g}: the warm-up's end; e.g. 20: after the start's hard iron is learnt)")
     add_suite_version_argument(p)
     args = p.parse_args(argv)
-    seeds = parse_seeds(args.seeds)
+    seeds, draws = parse_seeds(args.seeds), parse_seeds(args.sensor_draw)
     told = ("not told" if args.no_length else f"{args.told_m:g} m told at t = 0" if args.told_m is not None
             else f"{args.length_factor:g}x told at t = 0")
-    board = f" (board draw {args.sensor_draw})" if args.sensor_draw else ""
+    board = f" (board draw {args.sensor_draw})" if draws != [0] else ""
     board += "" if args.lever_x is None else f", IMU {args.lever_x:g} m off the rope axis"
     board += f", IMU tilted {args.mount_tilt:g}° on the hook" if args.mount_tilt else ""
     if args.offset_told is not None and args.offset_told != "twist":
@@ -785,34 +787,41 @@ def main(argv: list[str] | None = None) -> int:
     rows: dict[str, list[dict[str, dict[str, float]]]] = {n: [] for n in names}
     t0 = time.perf_counter()
     causes: dict[str, list[str]] = {}  # cause of the worst error -> seeds whose max exceeds WORST_LIMIT_DEG
-    for seed in seeds:
+    runs = [(seed, draw) for seed in seeds for draw in draws]
+    by_draw: dict[int, list[dict[str, float]]] = {d: [] for d in draws}  # the hook's whole-run figures per board
+    for seed, draw in runs:
         case = make_case(seed, args.duration, args.family, args.rate_hz, args.suite_version, args.lever_x,
                          args.mount_tilt)
         r = run_seed(seed, args.duration, args.imu, not args.six_d, not args.no_length, args.paper_ekf, args.family,
                      args.tracking, parse_settings(args.settings), args.rate_hz, args.length_factor,
-                     args.suite_version, args.sensor_draw, args.told_m, args.lever_x, args.offset_told,
+                     args.suite_version, draw, args.told_m, args.lever_x, args.offset_told,
                      args.mount_tilt, args.crane_feed, args.crane_bearing_error, args.bias_told, args.iron_told,
                      args.score_from, args.steel)
+        by_draw[draw].append(r["hook"]["all"])
+        run_label = str(seed) if len(draws) == 1 else f"{seed}/{draw}"
         for name in names:
             rows[name].append(r[name])
             a = r[name]["all"]
             rope = f"{a['rope_rms_m']:8.2f}" if "rope_rms_m" in a else ""
             label = case.describe() if name == "hook" else ""
-            print(f"{seed if name == 'hook' else '':>4} {label:<44}{name:>6}{a['swing_rmse']:8.3f}{a['swing_max']:7.2f}"
+            first = run_label if name == "hook" else ""
+            print(f"{first:>4} {label:<44}{name:>6}{a['swing_rmse']:8.3f}{a['swing_max']:7.2f}"
                   f"{a['dir_rmse']:7.2f}{a['torsion_rmse']:7.2f}{rope}")
             if args.worst and name == "hook":
                 cause = case.cause_at(a["worst_t_s"])
                 print(f"{'':>4} {'':<44}{'worst':>6} at {a['worst_t_s']:.1f} s ({cause}); "
                       f"{100 * a['over_share']:.2f} % of samples above {WORST_LIMIT_DEG:g}°")
                 if a["swing_max"] > WORST_LIMIT_DEG:
-                    causes.setdefault(cause.removeprefix("after "), []).append(str(seed))
+                    causes.setdefault(cause.removeprefix("after "), []).append(run_label)
             if args.phases:
                 for ph in PHASES:
                     f = r[name][ph]
                     if f:
                         print(f"{'':>4} {'':<44}{ph:>6}{f['swing_rmse']:8.3f}{f['swing_max']:7.2f}"
                               f"{f['dir_rmse']:7.2f}{f['torsion_rmse']:7.2f}")
-    print(f"summary over {len(seeds)} seeds (mean of RMSEs, worst max; phases pooled by seed)")
+    unit = "seeds" if len(draws) == 1 else "runs"
+    over_what = f"{len(seeds)} seeds" if len(draws) == 1 else f"{len(runs)} runs ({len(seeds)} x {len(draws)} boards)"
+    print(f"summary over {over_what} (mean of RMSEs, worst max; phases pooled by seed)")
     for name in names:
         for ph in ("all", *PHASES):
             vals = [r[ph] for r in rows[name] if r.get(ph)]
@@ -826,11 +835,16 @@ def main(argv: list[str] | None = None) -> int:
     pairs = zip(rows["hook"], rows["vqf"], strict=True)
     beaten = sum(h["all"]["swing_rmse"] < v["all"]["swing_rmse"] for h, v in pairs)
     rope_rel = [r["all"]["rope_rel"] for r in rows["hook"]]
-    print(f"  hook below VQF (whole-run Θ RMSE) on {beaten}/{len(seeds)} seeds; rope length RMS error "
+    if len(draws) > 1:
+        for d, figs in by_draw.items():
+            print(f"  hook   board draw {d}: Θ RMSE {np.mean([f['swing_rmse'] for f in figs]):.3f} (worst seed "
+                  f"{max(f['swing_rmse'] for f in figs):.3f})  Θ max {max(f['swing_max'] for f in figs):.2f}  torsion "
+                  f"{np.mean([f['torsion_rmse'] for f in figs]):.2f}")
+    print(f"  hook below VQF (whole-run Θ RMSE) on {beaten}/{len(runs)} {unit}; rope length RMS error "
           f"{100 * float(np.mean(rope_rel)):.1f} % of the true length (mean over seeds)")
     if args.worst:
         over = sum(len(v) for v in causes.values())
-        print(f"  hook Θ max above {WORST_LIMIT_DEG:g}° on {over}/{len(seeds)} seeds; its worst error by what the "
+        print(f"  hook Θ max above {WORST_LIMIT_DEG:g}° on {over}/{len(runs)} {unit}; its worst error by what the "
               "crane was doing (an event, or after it): "
               + ("; ".join(f"{k} {len(v)} ({', '.join(v)})" for k, v in sorted(causes.items())) or "none"))
     print(f"  ({time.perf_counter() - t0:.0f} s)")

@@ -114,6 +114,24 @@ def test_another_board_draw_keeps_the_crane_and_redraws_only_the_sensor() -> Non
     assert np.abs(gyr1 - gyr0).max() < 0.2  # the same motion read by another board (biases ~1 deg/s)
 
 
+def test_several_board_draws_run_each_crane_on_each_board(capsys: pytest.CaptureFixture[str]) -> None:
+    """`--sensor-draw 0-1`: each crane on each board, its line labelled seed/draw with the figures a single-draw run
+    of that board prints, a summary line per board, and the counts over all runs."""
+    import re
+
+    def hook_rows(out: str) -> dict[str, str]:
+        return {m[0]: m[1] for m in re.findall(r"^\s*(\d+(?:/\d)?) l\d.*?hook\s+([\d.]+)", out, re.M)}
+
+    assert main(["--seeds", "5", "--duration", "4", "--imu", "legacy", "--sensor-draw", "0-1"]) == 0
+    both = capsys.readouterr().out
+    assert set(hook_rows(both)) == {"5/0", "5/1"}, both
+    assert "summary over 2 runs (1 x 2 boards)" in both and "on " in both and "/2 runs" in both
+    assert re.search(r"board draw 0: Θ RMSE [\d.]+", both) and re.search(r"board draw 1: Θ RMSE [\d.]+", both)
+    for draw in (0, 1):
+        assert main(["--seeds", "5", "--duration", "4", "--imu", "legacy", "--sensor-draw", str(draw)]) == 0
+        assert hook_rows(capsys.readouterr().out) == {"5": hook_rows(both)[f"5/{draw}"]}
+
+
 def test_cause_at_names_the_start_the_event_going_on_or_just_ended_and_free_swing() -> None:
     """`SuiteCase.cause_at` (`--worst`): the first `START_S` are the start's, an event owns its span and the
     `AFTER_EVENT_S` after it (the last event to begin wins), later it is "after" that event, before any "free"."""
