@@ -54,6 +54,7 @@ import zenoh
 from tqdm import tqdm
 
 from bench.bite_latency import REPO, Recorder, free_port, observer_config, start_gateway, stop_process, wait_http
+from bench.hook_torsion_std import coverage
 from devices import common
 from devices.common import FleetSettings, ImuErrorModel, Message, SensorModel
 from devices.hook_physics import HookPhysicsSettings, HookScenario, TrolleyMove, simulate, trolley_traverse
@@ -241,8 +242,7 @@ def analyse(rec: Recorder, excitation_end_s: float, settle_s: float = 12.0, rest
             for k in att if k in swing_by_seq]  # fmt: skip
     true_ref = float(hook_geo.twist_heading(np.array(truth[0].quat_wxyz[0])))
     offset = float(np.angle(np.mean(np.exp(1j * np.array(refs))))) - true_ref if refs else math.nan
-    if rest_heading:  # the reference is the true rest heading, told
-        offset = 0.0
+    offset = 0.0 if rest_heading else offset  # told, the reference is the true rest heading
     start_free, start_all = excitation_end_s + settle_s, t_s[0] + 1.0
     out = {"free": score(est, ref, t_s, start_free, tors0, offset),
            "all": score(est, ref, t_s, start_all, tors0, offset)}
@@ -250,10 +250,10 @@ def analyse(rec: Recorder, excitation_end_s: float, settle_s: float = 12.0, rest
         std = np.array([math.nan if s.get("torsion_std_rad") is None else s["torsion_std_rad"] for s, _ in pairs])
         for key, start in (("free", start_free), ("all", start_all)):
             sel = (t_s >= start) & np.isfinite(std)
-            z = np.abs(np.remainder(est[sel, 2] - ref[sel, 2] + math.pi, 2 * math.pi) - math.pi) / std[sel]
+            shares = coverage(wrap(est[sel, 2] - ref[sel, 2]), std[sel]) if sel.any() else (math.nan,) * 3
             out[key]["n_sigma"] = float(sel.sum())
-            for k in (1, 2, 3):
-                out[key][f"torsion_within_{k}sigma"] = float(np.mean(z <= k)) if sel.any() else math.nan
+            for k, share in zip((1, 2, 3), shares, strict=True):
+                out[key][f"torsion_within_{k}sigma"] = share
     imu = {p.seq: p for _, p in rec.decoded("/imu") if isinstance(p, schemas.ImuPacket)}
     if imu and _vqf_available():
         seqs = sorted(imu)

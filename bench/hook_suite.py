@@ -788,7 +788,6 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     causes: dict[str, list[str]] = {}  # cause of the worst error -> seeds whose max exceeds WORST_LIMIT_DEG
     runs = [(seed, draw) for seed in seeds for draw in draws]
-    by_draw: dict[int, list[dict[str, float]]] = {d: [] for d in draws}  # the hook's whole-run figures per board
     for seed, draw in runs:
         case = make_case(seed, args.duration, args.family, args.rate_hz, args.suite_version, args.lever_x,
                          args.mount_tilt)
@@ -797,7 +796,6 @@ def main(argv: list[str] | None = None) -> int:
                      args.suite_version, draw, args.told_m, args.lever_x, args.offset_told,
                      args.mount_tilt, args.crane_feed, args.crane_bearing_error, args.bias_told, args.iron_told,
                      args.score_from, args.steel)
-        by_draw[draw].append(r["hook"]["all"])
         run_label = str(seed) if len(draws) == 1 else f"{seed}/{draw}"
         for name in names:
             rows[name].append(r[name])
@@ -836,7 +834,8 @@ def main(argv: list[str] | None = None) -> int:
     beaten = sum(h["all"]["swing_rmse"] < v["all"]["swing_rmse"] for h, v in pairs)
     rope_rel = [r["all"]["rope_rel"] for r in rows["hook"]]
     if len(draws) > 1:
-        for d, figs in by_draw.items():
+        for d in draws:  # the hook's whole-run figures on each board
+            figs = [r["all"] for (_, draw), r in zip(runs, rows["hook"], strict=True) if draw == d]
             print(f"  hook   board draw {d}: Θ RMSE {np.mean([f['swing_rmse'] for f in figs]):.3f} (worst seed "
                   f"{max(f['swing_rmse'] for f in figs):.3f})  Θ max {max(f['swing_max'] for f in figs):.2f}  torsion "
                   f"{np.mean([f['torsion_rmse'] for f in figs]):.2f}")
