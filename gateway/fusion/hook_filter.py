@@ -130,7 +130,8 @@ N_INPUT = 10  # per-sample process input: accelerometer x/y, gyroscope (3), its 
  _HOIST_KEEP, _HOIST_STOP, _L_FORCE_TAU, _HOIST_BACK, _ONSET_GATE, _ROLLBACK_MAX, _ONSET_LR, _ONSET_QUIET,
  _LENGTH_HOLD_GATE, _BIAS_JUMP_GATE, _BIAS_JUMP_QUIET, _BIAS_JUMP_MIN, _LEVER_TENSION, _MAG_TILT_GAIN,
  _MAG_FRAME) = range(72)  # _MAG_FRAME: a flag, then the 3×3 `mag_ref_frame` by rows (72-80)
-N_PARAMS = 81
+_LOOSE_GATE = 81  # a dropped compass kept loose: its rows skipped on a sample whose field is this far off, µT
+N_PARAMS = 82
 N_MONITOR = 22  # `ekf_step`'s innovation statistics, move and hoist timers, the tip estimate's, the swing energy's and
 # the force input's means
 
@@ -520,6 +521,20 @@ class HookFilterSettings:
     # carried by the gyroscope alone, off by its z bias times the time since the start (legacy board 1740: 60° after
     # 23 s). False: the twin's heading, the filter before issue 11's drop-heading round.
     compass_drop_keeps_heading: bool = True
+    # ... and the dropped compass stays as a loose anchor of the heading: its rows with this noise (µT), no pull on
+    # the swing, rope or tip (`mag_tilt_gain` 0), the iron frozen as learnt, the z gyro bias opened by how far this
+    # filter's and the twin's disagreed, and a sample whose field is more than `compass_dropped_gate_uT` off what the
+    # filter expects not heard at all. Without it the heading runs on the twin's z bias, which nothing observes (fresh
+    # legacy crane 3610 on board 1: a sound compass dropped at 21 s, the twin's z bias -3.97 ± 0.40 °/s for a true
+    # 0.33, torsion 100° RMS; 3.4° with it). The compass that misled the swing must not go on doing it: raw crane 7
+    # held to a 0.5-µT hard-iron prior, Θ after the drop 0.07° dropped altogether, 1.02° kept loose without the gate,
+    # 0.07° with it (`tests/fusion/test_hook_compass.py`); the raw board's 17 dropped runs found on 3544-3613 and
+    # tuning 1-30 not told: Θ 1.534 → 1.533° RMS over them, torsion 74.8 → 73.6° (15 µT without the gate: one of
+    # them 0.53 → 10.8°). The heading is then kept by α staying this filter's (`compass_drop_keeps_heading` is for
+    # the drop altogether). 0: dropped altogether (`LOOSE_ROUND`, the filter before 2026-12-07's thirty-seventh
+    # session).
+    compass_dropped_noise_uT: float = 50.0
+    compass_dropped_gate_uT: float = 10.0
     # While the field's magnitude holds steady (the std of its 1-s means over the test window under this, µT) the bar
     # stays `compass_check_early_excess` after `compass_check_after_s` too. A hard iron that turns with the hook moves
     # |m| as the hook twists (raw boards' drops: 0.6-11 µT), a calibrated compass's does not (0.01-0.28 µT); there
@@ -645,7 +660,9 @@ FIELD_START: dict[str, float] = {"start_bias_from_field": True}
 START_ROUND: dict[str, float] = {"start_swing_turns": False}
 
 # A dropped compass before issue 11's drop-heading round (`compass_drop_keeps_heading`): the twin's own heading.
-DROP_ROUND: dict[str, float] = {"compass_drop_keeps_heading": False}
+DROP_ROUND: dict[str, float] = {"compass_drop_keeps_heading": False, "compass_dropped_noise_uT": 0.0}
+# A dropped compass dropped altogether (`compass_dropped_noise_uT`), before 2026-12-07's thirty-seventh session.
+LOOSE_ROUND: dict[str, float] = {"compass_dropped_noise_uT": 0.0}
 # A compass dropped whatever its field's magnitude did (`compass_steady_field_uT`), before 2026-12-06.
 STEADY_ROUND: dict[str, float] = {"compass_steady_field_uT": 0.0}
 
@@ -1774,9 +1791,13 @@ def _ekf_step_into(
     _process_noise_into(x, dt_s, q_psd, params, q)
     _predict_covariance(f_jac, p, q, scratch, p_pred)
     _measurement_jacobian_into(x_pred, params, hx, h_jac, scratch)
-    _nonzero_columns(h_jac, m, idx, cnt)
     for i in range(m):
         y[i] = z[i] - hx[i]
+    if m == 7 and params[_LOOSE_GATE] > 0.0 and y[4] * y[4] + y[5] * y[5] + y[6] * y[6] > params[_LOOSE_GATE] ** 2:
+        for i in (4, 5, 6):  # a loose compass this far off is not heard on this sample: its rows say nothing
+            y[i] = 0.0
+            h_jac[i, :] = 0.0
+    _nonzero_columns(h_jac, m, idx, cnt)
     _innovation_covariance(p_pred, h_jac, 2, r_diag, idx, cnt, hp, s)
     s2 = s[:2, :2]
     w0, w1 = _whiten(y, s2)
@@ -2308,6 +2329,7 @@ class HookFilter(AttitudeFilter):
         self.start_force_is_offset = False  # ... taken for the accelerometer's offset (False: for a real force)
         self._north_kept_rad: float | None = None  # β at a drop that kept the heading (`north_turn_rad`)
         self._heading_doubt_rad = 0.0  # at a drop, how far the twin's heading and the one published disagreed
+        self._compass_loose = False  # dropped but kept as a loose heading anchor (`compass_dropped_noise_uT`)
         self._samples_run = 0  # samples through `run_with_length` / `run_bridged` (where a crane feed's β is read)
         hoist_std = s.hoist_quiet_std_m_s2 if s.hoist_gate > 0.0 else s.hoist_accel_std_m_s2
         self._q_psd = np.array(
@@ -2348,8 +2370,9 @@ class HookFilter(AttitudeFilter):
                          s.move_rollback_max_s, s.jump_onset_lr, s.jump_onset_quiet_s,
                          s.jump_length_hold_gate, s.bias_jump_gate, s.bias_jump_quiet_s, s.bias_jump_min_rad_s,
                          1.0 if s.lever_in_tension else 0.0,
-                         1.0 if self._pending_not_told else s.mag_tilt_gain,
-                         *self._frame_params(flag)])  # fmt: skip
+                         1.0 if self._pending_not_told else (0.0 if self._compass_loose else s.mag_tilt_gain),
+                         *self._frame_params(flag),
+                         s.compass_dropped_gate_uT if self._compass_loose else 0.0])  # fmt: skip
 
     def _jump_rope_std(self) -> float:
         """The rope length's opening at a jump (relative): a told length is opened less than a learnt one."""
@@ -2368,6 +2391,8 @@ class HookFilter(AttitudeFilter):
         mag = s.mag_noise_uT if s.rope_length_known else max(s.mag_noise_uT, s.mag_noise_not_told_uT)
         if self._pending_not_told and s.mag_noise_pending_uT > 0.0:
             mag = max(mag, s.mag_noise_pending_uT)
+        if self._compass_loose:
+            mag = s.compass_dropped_noise_uT
         sig = [s.gyro_noise_rad_s] * 3 + [s.acc_noise_m_s2] + [mag] * 3
         out: FloatArray = np.square(np.array(sig[:m]))
         return out
@@ -2628,6 +2653,8 @@ class HookFilter(AttitudeFilter):
         # have misled the heading too, and from here on nothing tells which was right (`torsion_std_rad`)
         disagree_rad = float(hook_geo.torsion(twin.quaternion, hook_geo.twist_heading(self.quaternion)))
         self._heading_doubt_rad = abs(disagree_rad)
+        if s.compass_dropped_noise_uT > 0.0:
+            return self._keep_compass_loose(twin, twin_out, now, disagree_rad)
         turn_rad = 0.0
         if s.compass_drop_keeps_heading:
             turn_rad = disagree_rad
@@ -2639,6 +2666,25 @@ class HookFilter(AttitudeFilter):
             self._turn_state(turn_rad)
             return multiply(from_axis_angle([0.0, 0.0, 1.0], -turn_rad), twin_out[0]), twin_out[1]
         return twin_out
+
+    def _keep_compass_loose(self, twin: HookFilter, twin_out: tuple[FloatArray, FloatArray], now: float,
+                            disagree_rad: float) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+        """The drop with the compass kept loose (`compass_dropped_noise_uT`): the twin's state turned about the
+        vertical into this filter's frame (α this filter's, so the compass's rows still hold), the iron as this
+        filter learnt it and frozen, the z gyro bias's variance opened by the two's disagreement. Returns the twin's
+        output of this call turned to the heading published."""
+        iron = slice(_HARD_IRON.start, _SOFT_IRON.stop)
+        iron_x, bias_z = self.x[iron].copy(), float(self.x[_BIAS.start + 2])
+        turn_rad = float((twin.x[_ALPHA] - self.x[_ALPHA] + math.pi) % (2.0 * math.pi) - math.pi)
+        self.x, self.P, self._monitor, self._history = twin.x.copy(), twin.P.copy(), twin._monitor, twin._history
+        self._gyr_prev, self._twin, self.compass_dropped_s = twin._gyr_prev, None, now
+        self.x[iron] = iron_x
+        self.P[iron, :] = 0.0
+        self.P[:, iron] = 0.0
+        self.P[_BIAS.start + 2, _BIAS.start + 2] += (bias_z - float(self.x[_BIAS.start + 2])) ** 2
+        self._compass_loose, self._constants = True, None
+        self._turn_state(turn_rad)
+        return multiply(from_axis_angle([0.0, 0.0, 1.0], -disagree_rad), twin_out[0]), twin_out[1]
 
     def _field_steady(self) -> bool:
         """Whether the field's magnitude held steady over the compass test's window: the std of its 1-s means
@@ -2931,6 +2977,7 @@ class HookFilter(AttitudeFilter):
         ref = b"" if self.mag_ref_uT is None else self.mag_ref_uT.tobytes()
         ref += b"" if self.mag_ref_frame is None else self.mag_ref_frame.tobytes()
         ref += b"p" if self._pending_not_told else b""  # a pending start's compass weighs less (`_r_diag`)
+        ref += b"l" if self._compass_loose else b""  # a dropped compass kept loose (`_r_diag`, `_params`)
         c = self._constants
         if c is None or c[0] is not self.settings or c[1] != use_mag or c[2] != m or c[3] != ref:
             c = self._constants = (self.settings, use_mag, m, ref, self._params(use_mag), self._r_diag(m))
