@@ -26,6 +26,7 @@
     python -m bench.hook_suite --settings zseed             # the z bias seeded from the warm-up in 9D (ZSEED_ROUND)
     python -m bench.hook_suite --settings steady            # a compass dropped though its field held (STEADY_ROUND)
     python -m bench.hook_suite --settings loose0            # a dropped compass dropped altogether (LOOSE_ROUND)
+    python -m bench.hook_suite --settings restprior0        # a rest start's swing prior not widened (REST_PRIOR_ROUND)
     python -m bench.hook_suite --settings bias0             # a missed move onset left to the gyro bias (BIAS_ROUND)
     python -m bench.hook_suite --settings warmup04          # a warm-up force over 0.4 m/s² not bias (WARMUP_ROUND)
     python -m bench.hook_suite --settings rest3             # a quiet warm-up under the 3σ bar is rest (REST_ROUND)
@@ -122,6 +123,7 @@ from gateway.fusion.hook_filter import (
     PENDING_COMPASS_ROUND,
     PREVIOUS_DEFAULT,
     PRIOR_ROUND,
+    REST_PRIOR_ROUND,
     REST_ROUND,
     RESTART_ROUND,
     ROPE_ROUND,
@@ -627,7 +629,7 @@ PRESETS = {"tracking": TRACKING, "previous": PREVIOUS_DEFAULT, "trial": TRIAL_JU
            "mag3": MAG_NOISE_ROUND, "offset05": ACC_OFFSET_ROUND,
            "pending0": PENDING_COMPASS_ROUND, "tilt1": TILT_GAIN_ROUND,
            "jump1": JUMP_ROPE_ROUND, "doubt0": DOUBT_ROUND,
-           "loose0": LOOSE_ROUND}
+           "loose0": LOOSE_ROUND, "restprior0": REST_PRIOR_ROUND}
 
 
 def parse_settings(text: str) -> dict[str, float]:
@@ -714,7 +716,9 @@ def main(argv: list[str] | None = None) -> int:
                    "(JUMP_ROPE_ROUND: a jump opens a told rope length by 10 %%, the filter before 2026-12-07's "
                    "thirty-fifth session), doubt0 (DOUBT_ROUND: a told length never doubted at a swinging start, the "
                    "filter before the same session), loose0 (LOOSE_ROUND: a dropped compass dropped altogether, "
-                   "not kept as a loose heading anchor, the filter before 2026-12-07's thirty-seventh session)")
+                   "not kept as a loose heading anchor, the filter before 2026-12-07's thirty-seventh session), "
+                   "restprior0 (REST_PRIOR_ROUND: a window taken for rest starts with the swing held to its rest "
+                   "prior whatever it read, the filter before the same session)")
     p.add_argument("--worst", action="store_true",
                    help=f"also say where each seed's worst Θ error is (start, during or after which event, free "
                    f"swing) and the share of its samples above {WORST_LIMIT_DEG:g}°, and count the seeds over it by "

@@ -469,6 +469,15 @@ class HookFilterSettings:
     # 2026-12-06's twenty-seventh session: crane 2672 at 50 Hz, 19.6 m swinging 7.8° and twisting fast, read 8.67° for
     # a bar of 8.72°, was started at plumb with its swing's rate as gyro bias, Θ 5.1° off)
     rest_cross_sigmas: float = 2.0
+    # ... and a window taken for rest whose swing reads over 3σ of noise (under that bar: the twist's pick-up may be all
+    # of it) starts at plumb with the swing's prior widened to the reading's σ, not `init_swing_std`: a long rope at
+    # its turning point barely changes its rate in 0.5 s (fresh crane 3680, 29.5 m swinging 7° and twisting 0.24
+    # rad/s, read 4.9° against a cross-axis σ of 2.9°: started at plumb held to 1.1°, Θ 2.5° RMS over its first 5 s
+    # and 0.4° to 20 s; widened, 0.388 -> 0.168° over the run on board 0, 0.473 -> 0.237° on board 2). Seeding the
+    # swing from the reading instead cost tuning 1-30 (a still hook twisting reads a swing that is not there); the
+    # widened prior changed no run of tuning 1-30 × 4 boards (MPU-6050-class, calibrated) nor of fresh 3764-3823 × 4.
+    # False: `init_swing_std` (`REST_PRIOR_ROUND`, the filter before 2026-12-08's thirty-seventh session).
+    rest_prior_from_read: bool = True
     # `start()`: the prior std of a steady horizontal force per unit mass (wind) at start. The warm-up's mean x/y force
     # is bias plus that force, which a hook that does not twist cannot tell apart: it is split by the two priors
     # (`init_acc_xy_bias_std_m_s2` for the bias), the force's share leaning the rope. 0: all of it is bias.
@@ -676,6 +685,9 @@ BIAS_ROUND: dict[str, float] = {"bias_jump_gate": 0.0}
 # A quiet warm-up whose swing misses the 3σ detection bar taken for rest however large it reads (the filter before
 # 2026-12-06's twenty-seventh session): `HookFilterSettings(**REST_ROUND)`.
 REST_ROUND: dict[str, float] = {"rest_cross_sigmas": 0.0}
+# A window taken for rest started with the swing held to `init_swing_std` whatever it read (`rest_prior_from_read`),
+# the filter before 2026-12-08's thirty-seventh session.
+REST_PRIOR_ROUND: dict[str, float] = {"rest_prior_from_read": False}
 
 # A warm-up mean x/y force above 0.4 m/s² taken for a force, not bias (the filter before 2026-12-06's twenty-seventh
 # session): `HookFilterSettings(**WARMUP_ROUND)`.
@@ -2491,6 +2503,10 @@ class HookFilter(AttitudeFilter):
             self.assume_moving()
             if seed_bias and self._bias_from_field(gyr, mag_uT, dt_s):
                 swing = self.swing_from_window(gyr, dt_s)
+        if rest and s.rest_prior_from_read and read is not None and 3.0 * read.sigma_noise < read.norm <= 0.5:
+            std = math.hypot(read.sigma_noise, read.sigma_cross)
+            for i in (0, 1):
+                self.P[i, i] = max(self.P[i, i], std * std)
         swinging = not rest and self._set_start_swing(swing)
         if s.start_mag_levelled and self.mag_ref_uT is not None and mag_uT is not None:
             mag = np.asarray(mag_uT, dtype=np.float64)

@@ -29,6 +29,7 @@ from gateway.fusion.hook_filter import (
     N_STATE,
     PREVIOUS_DEFAULT,
     PRIOR_ROUND,
+    REST_PRIOR_ROUND,
     REST_ROUND,
     ROPE_ROUND,
     SLEW_ROUND,
@@ -806,18 +807,47 @@ def test_a_warm_up_force_beyond_any_offset_is_not_taken_for_bias():
     assert g.x[10] == pytest.approx(0.6, abs=0.05)
 
 
+def test_a_rest_start_whose_swing_reads_over_the_noise_is_not_held_at_plumb():
+    """Fresh crane 3680 (29.5 m, swinging 7.0° at its turning point and twisting 0.24 rad/s) on its MPU-6050-class
+    board: its 0.5-s window reads 4.9° of swing against a cross-axis σ of 2.9° (a long rope's rate barely changes in
+    0.5 s), under the 3σ bar and not too large for rest, so the start is rest, at plumb. Held there by the rest prior
+    (`REST_PRIOR_ROUND`) Θ reads 1.78° RMS over 0.5-5 s and 0.44° over 5-20 s (max 0.75°); with the prior widened
+    to the reading's σ (`rest_prior_from_read`) 0.46° and 0.21° (max 0.29°), 10-sample packets. A still hook whose
+    reading is under 3σ of noise (suite crane 4) keeps the tight rest prior."""
+    from bench.hook_suite import simulate_seed
+
+    case, truth, gyr, acc, mag = simulate_seed(3680, 120.0, "legacy", True)  # (the timeline is drawn over 120 s)
+    n = 2000
+    first, later = [], []
+    for over in ({}, REST_PRIOR_ROUND):
+        f = HookFilter(HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True, **over))
+        f.start(gyr[:50], acc[:50], mag[:50], 0.01)
+        q = np.concatenate([f.run_with_length(gyr[a:a + 10], acc[a:a + 10], mag[a:a + 10], 0.01)[0]
+                            for a in range(0, n, 10)])  # fmt: skip
+        err = np.degrees(np.abs(hook.swing_angle(q) - truth.swing_rad[:n]))
+        first.append(float(np.sqrt(np.mean(err[50:500] ** 2))))
+        later.append(float(np.sqrt(np.mean(err[500:] ** 2))))
+    assert first[0] < 0.8 < 1.2 < first[1], first
+    assert later[0] < 0.3 < 0.35 < later[1], later
+    case, truth, gyr, acc, mag = simulate_seed(4, 120.0, "legacy", True)
+    f = HookFilter(HookFilterSettings(rope_length_m=case.physics.rope_length_m, rope_length_known=True))
+    f.start(gyr[:50], acc[:50], mag[:50], 0.01)
+    assert f.P[0, 0] == pytest.approx(f.settings.init_swing_std**2, rel=1e-12)
+
+
 def test_a_swing_under_the_detection_bar_of_a_fast_twist_is_not_taken_for_rest():
     """Suite crane 2672 at 50 Hz (19.6 m, swinging 7.8° and twisting at 145 °/s² at start): the twist's cross-axis
     pick-up puts the start swing test's σ at 2.9°, and the swing reads 8.67° for a 3σ bar of 8.72°. With
-    `REST_ROUND` the quiet window was rest: its swing's rate seeded as gyro bias and the start at plumb (Θ 5.1° off in
-    the first 3 s). Over 3σ of noise plus 2σ of cross-axis pick-up it is not rest (measured max 1.29°). A still hook
+    `REST_ROUND` (and `REST_PRIOR_ROUND`) the quiet window was rest: its swing's rate seeded as gyro bias and the
+    start at plumb (Θ 5.1° off in the first 3 s). Over 3σ of noise plus 2σ of cross-axis pick-up it is not rest
+    (measured max 1.29°; taken for rest but with the swing's prior widened to its reading, 1.16°). A still hook
     (suite crane 4, 25.7 m) is rest either way, its window's mean rate the gyro bias."""
     from bench.hook_suite import simulate_seed
 
     case, truth, gyr, acc, mag = simulate_seed(2672, 120.0, "calibrated", True, rate_hz=50.0)
     rope = case.physics.rope_length_m
     worst = []
-    for over in ({}, REST_ROUND):
+    for over in ({}, {**REST_ROUND, **REST_PRIOR_ROUND}):
         f = HookFilter(HookFilterSettings(rope_length_m=rope, rope_length_known=True, **over), use_mag=True)
         f.start(gyr[:25], acc[:25], mag[:25], 0.02)
         q = f.run(gyr[:150], acc[:150], mag[:150], 0.02)
