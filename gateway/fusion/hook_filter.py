@@ -104,7 +104,7 @@ from numpy.typing import NDArray
 from gateway.fusion import hook as hook_geo
 from gateway.fusion.base import AttitudeFilter, FloatArray
 from gateway.fusion.field_rate import gyro_bias_from_field
-from gateway.fusion.quaternion import from_axis_angle, multiply, njit, rotate, to_matrix
+from gateway.fusion.quaternion import from_axis_angle, multiply, njit, rotate, to_matrix, wrap_angle
 
 N_STATE = 29
 _P, _V, _ALPHA, _ALPHA_RATE, _BIAS, _ACC_BIAS = slice(0, 2), slice(2, 4), 4, 5, slice(6, 9), 9
@@ -2675,9 +2675,8 @@ class HookFilter(AttitudeFilter):
         if s.compass_drop_keeps_heading:
             turn_rad = disagree_rad
             self._north_kept_rad = self.north_turn_rad  # the output's North stays where it was
-        self.x, self.P, self._monitor, self._history = twin.x, twin.P, twin._monitor, twin._history
-        self._gyr_prev, self.use_mag, self._twin, self.compass_dropped_s = twin._gyr_prev, False, None, now
-        self._constants = None
+        self._take_twin_state(twin, now)
+        self.use_mag = False
         if turn_rad != 0.0:
             self._turn_state(turn_rad)
             return multiply(from_axis_angle([0.0, 0.0, 1.0], -turn_rad), twin_out[0]), twin_out[1]
@@ -2689,18 +2688,22 @@ class HookFilter(AttitudeFilter):
         vertical into this filter's frame (α this filter's, so the compass's rows still hold), the iron as this
         filter learnt it and frozen, the z gyro bias's variance opened by the two's disagreement. Returns the twin's
         output of this call turned to the heading published."""
-        iron = slice(_HARD_IRON.start, _SOFT_IRON.stop)
-        iron_x, bias_z = self.x[iron].copy(), float(self.x[_BIAS.start + 2])
-        turn_rad = float((twin.x[_ALPHA] - self.x[_ALPHA] + math.pi) % (2.0 * math.pi) - math.pi)
-        self.x, self.P, self._monitor, self._history = twin.x.copy(), twin.P.copy(), twin._monitor, twin._history
-        self._gyr_prev, self._twin, self.compass_dropped_s = twin._gyr_prev, None, now
+        iron, bz = slice(_HARD_IRON.start, _SOFT_IRON.stop), _BIAS.start + 2
+        iron_x, bias_z = self.x[iron].copy(), float(self.x[bz])
+        turn_rad = float(wrap_angle(twin.x[_ALPHA] - self.x[_ALPHA]))
+        self._take_twin_state(twin, now)
         self.x[iron] = iron_x
         self.P[iron, :] = 0.0
         self.P[:, iron] = 0.0
-        self.P[_BIAS.start + 2, _BIAS.start + 2] += (bias_z - float(self.x[_BIAS.start + 2])) ** 2
-        self._compass_loose, self._constants = True, None
+        self.P[bz, bz] += (bias_z - float(self.x[bz])) ** 2
+        self._compass_loose = True
         self._turn_state(turn_rad)
         return multiply(from_axis_angle([0.0, 0.0, 1.0], -disagree_rad), twin_out[0]), twin_out[1]
+
+    def _take_twin_state(self, twin: HookFilter, now: float) -> None:
+        """A drop: go on from the twin's state (a copy), monitor and rollback ring; the twin ends."""
+        self.x, self.P, self._monitor, self._history = twin.x.copy(), twin.P.copy(), twin._monitor, twin._history
+        self._gyr_prev, self._twin, self.compass_dropped_s, self._constants = twin._gyr_prev, None, now, None
 
     def _field_steady(self) -> bool:
         """Whether the field's magnitude held steady over the compass test's window: the std of its 1-s means
